@@ -1,0 +1,387 @@
+"""The spherical-body kernel: attitude of a sphere under a constant torque along K3.
+
+A body with spherical inertia I and a constant body-fixed torque along its third axis
+turns with ``omega_KN_K(t) = (p, q, r0 + U t)``, ``U = |m| / I`` (Romano 2008; Sec. 3 and
+Theorem 1 of Romano 2008b). Everything in :mod:`rigidrot_ros.core` reduces to this
+problem, starting from the identity attitude.
+
+Instead of the stereographic variables of Theorem 1 the kernel solves the same
+kinematics in SU(2) (spinor) form. With ``q = (x, y, z, w)`` and
+
+    v1 = w + i z,    v2 = -y + i x,    X(t) = r0 + U t,    Delta = p + i q,
+
+the quaternion kinematics ``dq/dt = q ⊗ (omega, 0) / 2`` read
+
+    dv1/dt = (i/2) (X v1 + conj(Delta) v2),   dv2/dt = (i/2) (Delta v1 - X v2),
+
+a two-level system with a linearly swept diagonal (Landau-Zener). In ``s = X / sqrt(U)``
+the first component solves Weber's equation ``v1'' + (s^2/4 + delta - i/2) v1 = 0``,
+``delta = |Delta|^2 / (4 U)``, whose even and odd solutions are
+
+    y_e(s) = e^{-i s^2/4} M(1/2 + i delta/2, 1/2, i s^2/2),
+    y_o(s) = s e^{-i s^2/4} M(1 + i delta/2, 3/2, i s^2/2),
+
+with Kummer's ``M = 1F1`` at the paper's argument ``z^2 = i (r0 + U t)^2 / (2U)``
+(Eq. 10; the four 1F1 of Eq. 9 are exactly the four values used here, with the
+paper's ``nu = -1 - i delta``). The Wronskian of (y_e, y_o) is 1, so the integration
+constants follow from ``v(0) = (1, 0)`` in closed form, with no misprinted constants
+(cf. Eq. 13) and no pole: the quaternion is unit by construction and continuous in t.
+
+Two backends evaluate 1F1: python-flint (Arb, certified balls: the error bound is
+rigorous) and mpmath (an error estimate from the condition of the fundamental matrix).
+Working precision is raised until the bound meets the tolerance, up to a ceiling.
+"""
+
+import math
+
+import mpmath
+from mpmath import mp
+import numpy as np
+
+__all__ = [
+    'PrecisionError', 'SETUP_PREC', 'available_backends', 'ConstantKernel', 'AxisKernel',
+    'HyperKernel', 'PolyAngle',
+]
+
+#: Bits used for per-scene constants (exact float inputs carried far beyond float64).
+SETUP_PREC = 256
+_FOUR_PI_CACHE = {}
+
+
+class PrecisionError(ArithmeticError):
+    """The special-function evaluation did not reach the requested accuracy."""
+
+
+def _four_pi():
+    p = mp.prec
+    if p not in _FOUR_PI_CACHE:
+        _FOUR_PI_CACHE[p] = 4 * mp.pi
+    return _FOUR_PI_CACHE[p]
+
+
+def reduce_angle(x):
+    """Reduce an mpf angle modulo 4 pi (the period of the half-angle) to a float."""
+    four_pi = _four_pi()
+    return float(x - four_pi * mpmath.nint(x / four_pi))
+
+
+class PolyAngle:
+    """Angle ``c1 t + c2 t^2`` (rad) evaluated from exact inputs, reduced modulo 4 pi.
+
+    Float64 would carry ``|angle| * 1e-16`` rad of error (1e-6 rad at 1e10 rad); this
+    evaluates in ``SETUP_PREC`` bits and reduces before rounding to float.
+    """
+
+    def __init__(self, c1, c2):
+        with mp.workprec(SETUP_PREC):
+            self.c1 = +mpmath.mpf(c1)
+            self.c2 = +mpmath.mpf(c2)
+        self.zero = (self.c1 == 0 and self.c2 == 0)
+        self._c1f, self._c2f = float(self.c1), float(self.c2)
+
+    def angle(self, t):
+        """Angle at t (float, reduced to (-2 pi, 2 pi])."""
+        if self.zero:
+            return 0.0
+        with mp.workprec(SETUP_PREC):
+            tt = mpmath.mpf(t)
+            return reduce_angle((self.c1 + self.c2 * tt) * tt)
+
+    def rate(self, t):
+        """Time derivative of the angle at t, rad/s."""
+        return self._c1f + 2.0 * self._c2f * t
+
+
+class ConstantKernel:
+    """Constant angular velocity (no torque): ``q(t) = exp(omega t / 2)`` (Eq. 6, 62-64)."""
+
+    method = 'closed-form'
+
+    def __init__(self, omega):
+        with mp.workprec(SETUP_PREC):
+            self.omega = [mpmath.mpf(w) for w in omega]
+            self.norm = mpmath.sqrt(sum(w * w for w in self.omega))
+            self.axis = (np.array([float(w / self.norm) for w in self.omega])
+                         if self.norm != 0 else np.zeros(3))
+        self.prec = SETUP_PREC
+
+    def evaluate(self, t):
+        """Quaternion (x, y, z, w) at t and its error bound (quaternion norm)."""
+        if self.norm == 0:
+            return np.array([0.0, 0.0, 0.0, 1.0]), 0.0
+        with mp.workprec(SETUP_PREC):
+            phi = reduce_angle(self.norm * mpmath.mpf(t))
+        h = 0.5 * phi
+        return np.append(math.sin(h) * self.axis, math.cos(h)), 0.0
+
+
+class AxisKernel:
+    """Rotation about K3 only (p = q = 0): angle ``r0 t + U t^2 / 2``."""
+
+    method = 'closed-form'
+
+    def __init__(self, r0, U):
+        with mp.workprec(SETUP_PREC):
+            self.angle = PolyAngle(r0, mpmath.mpf(U) / 2)
+        self.prec = SETUP_PREC
+
+    def evaluate(self, t):
+        """Quaternion (x, y, z, w) at t and its error bound (quaternion norm)."""
+        h = 0.5 * self.angle.angle(t)
+        return np.array([0.0, 0.0, math.sin(h), math.cos(h)]), 0.0
+
+
+# ---------------------------------------------------------------------------------------
+# special-function backends
+
+class _MpmathBackend:
+    name = 'mpmath'
+    certified = False
+
+    @staticmethod
+    def workprec(p):
+        return mp.workprec(p)
+
+    @staticmethod
+    def real(x):
+        return mpmath.mpf(x)
+
+    @staticmethod
+    def cplx(re, im):
+        return mpmath.mpc(re, im)
+
+    @staticmethod
+    def hyp1f1(a, b, z):
+        try:
+            return mpmath.hyp1f1(a, b, z)
+        except mpmath.libmp.NoConvergence as exc:
+            raise PrecisionError(f'mpmath hyp1f1 did not converge: {exc}') from None
+
+    @staticmethod
+    def exp(z):
+        return mpmath.exp(z)
+
+    @staticmethod
+    def abs(z):
+        return float(abs(z))
+
+    @staticmethod
+    def parts(z):
+        """(re mid, im mid, radius) as floats; mpmath numbers carry no radius."""
+        return float(z.real), float(z.imag), 0.0
+
+
+class _FlintBackend:
+    name = 'flint'
+    certified = True
+
+    def __init__(self):
+        import flint
+        self.flint = flint
+
+    def workprec(self, p):
+        return self.flint.ctx.workprec(p)
+
+    def real(self, x):
+        """Exact (or correctly rounded) conversion of an mpf/float to an arb ball."""
+        # mpmath.mpf(mpf) would round to the ambient precision: read the bits directly
+        if not isinstance(x, mpmath.mpf):
+            with mp.workprec(SETUP_PREC):
+                x = mpmath.mpf(x)
+        sign, man, exp, _ = x._mpf_
+        if man == 0:
+            return self.flint.arb(0)
+        val = self.flint.arb(self.flint.fmpz(-man if sign else man))
+        return val * self.flint.arb(2) ** exp if exp >= 0 else val / self.flint.arb(2) ** (-exp)
+
+    def cplx(self, re, im):
+        return self.flint.acb(self.real(re), self.real(im))
+
+    @staticmethod
+    def hyp1f1(a, b, z):
+        return z.hypgeom_1f1(a, b)
+
+    @staticmethod
+    def exp(z):
+        return z.exp()
+
+    @staticmethod
+    def abs(z):
+        return float(abs(z).upper())
+
+    @staticmethod
+    def parts(z):
+        re, im = z.real, z.imag
+        rad = math.hypot(float(re.rad()), float(im.rad()))
+        if not (re.is_finite() and im.is_finite()):
+            return math.nan, math.nan, math.inf
+        return float(re.mid()), float(im.mid()), rad
+
+
+def available_backends():
+    """Names of the installed special-function backends, fastest first."""
+    names = []
+    try:
+        import flint  # noqa: F401
+        names.append('flint')
+    except ImportError:
+        pass
+    names.append('mpmath')
+    return names
+
+
+def make_backend(name):
+    if name == 'flint':
+        try:
+            return _FlintBackend()
+        except ImportError:
+            raise ValueError("backend 'flint' needs python-flint: pip install python-flint") \
+                from None
+    if name == 'mpmath':
+        return _MpmathBackend()
+    raise ValueError(f"backend must be None, 'flint' or 'mpmath', got {name!r}")
+
+
+class HyperKernel:
+    """Torque along K3 with a transverse rate (U > 0, p + i q != 0): 1F1 spinor solution.
+
+    Parameters
+    ----------
+    p, q, r0 : mpf
+        ``omega_KN_K(0)``, rad/s.
+    U : mpf
+        Torque over inertia, rad/s^2, > 0.
+    backend : str
+        'flint' or 'mpmath'.
+    tol : float
+        Error asked of the kernel quaternion (Euclidean norm of the component error).
+    max_prec : int
+        Ceiling on the working precision, bits.
+    """
+
+    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096):
+        self.backend = make_backend(backend)
+        self.method = f'hypergeometric-{self.backend.name}'
+        self.tol = float(tol)
+        self.max_prec = int(max_prec)
+        with mp.workprec(SETUP_PREC):
+            p, q, r0, U = (mpmath.mpf(v) for v in (p, q, r0, U))
+            self.sqrtU = mpmath.sqrt(U)
+            self.delta = (p * p + q * q) / (4 * U)
+            self.r0, self.U = r0, U
+            self.s0 = r0 / self.sqrtU
+            self.half_delta = self.delta / 2
+            self.dbar_re, self.dbar_im = p / self.sqrtU, -q / self.sqrtU  # conj(Delta)/sqrt U
+        self.params = {'p': float(p), 'q': float(q), 'r0': float(r0), 'U': float(U),
+                       'delta': float(self.delta)}
+        self._consts = {}
+        # Start where the magnitudes of the even/odd solutions (about e^{pi delta/4}
+        # each) would leave the tolerance's bits plus guard bits.
+        need = -math.log2(self.tol) + 2 * math.log2(math.e) * math.pi * float(self.delta) / 4
+        self.prec = int(min(max(64, 24 + need), self.max_prec))
+        self._check(0.0)
+
+    # -- per-precision constants ----------------------------------------------------------
+    def _constants(self, prec):
+        c = self._consts.get(prec)
+        if c is not None:
+            return c
+        b = self.backend
+        with b.workprec(prec):
+            c = {
+                'half': b.real(0.5), 'one': b.real(1), 'two': b.real(2),
+                'i': b.cplx(0, 1),
+                'alpha': b.cplx(0.5, self.half_delta),
+                'beta': b.cplx(1, self.half_delta),
+                'sqrtU': b.real(self.sqrtU), 'r0': b.real(self.r0), 'U': b.real(self.U),
+                'dbar': b.cplx(self.dbar_re, self.dbar_im),
+                'b12': b.real(0.5), 'b32': b.real(1.5), 'b52': b.real(2.5),
+            }
+            c['alpha1'] = c['alpha'] + 1
+            c['beta1'] = c['beta'] + 1
+            s0 = c['r0'] / c['sqrtU']
+            ye, yep, yo, yop = self._fundamental(c, s0)
+            u1, u1s = c['one'], c['i'] * s0 / 2          # v1(0) = 1, dv1/ds(0) = i s0 / 2
+            c['C1'] = yop * u1 - yo * u1s                # Y(s0)^{-1} u0, det Y = 1
+            c['C2'] = ye * u1s - yep * u1
+            c['cond0'] = max(b.abs(ye), b.abs(yep), b.abs(yo), b.abs(yop))
+        self._consts[prec] = c
+        return c
+
+    def _fundamental(self, c, s):
+        """(y_e, y_e', y_o, y_o') at s, derivatives in s."""
+        b = self.backend
+        i = c['i']
+        s2 = s * s
+        phi = i * s2 / 2
+        e = b.exp(-phi / 2)
+        m1 = b.hyp1f1(c['alpha'], c['b12'], phi)
+        m2 = b.hyp1f1(c['alpha1'], c['b32'], phi)
+        m3 = b.hyp1f1(c['beta'], c['b32'], phi)
+        m4 = b.hyp1f1(c['beta1'], c['b52'], phi)
+        ye = e * m1
+        yep = e * (i * s * (2 * c['alpha'] * m2 - m1 / 2))
+        yo = s * e * m3
+        yop = e * (m3 - phi * m3 + (2 * c['beta'] / 3) * i * s2 * m4)
+        return ye, yep, yo, yop
+
+    # -- evaluation -----------------------------------------------------------------------
+    def _at_prec(self, t, prec):
+        b = self.backend
+        with b.workprec(prec):
+            c = self._constants(prec)
+            s = (c['r0'] + c['U'] * b.real(t)) / c['sqrtU']
+            ye, yep, yo, yop = self._fundamental(c, s)
+            v1 = c['C1'] * ye + c['C2'] * yo
+            v1s = c['C1'] * yep + c['C2'] * yop
+            v2 = -(2 * c['i'] * v1s + s * v1) / c['dbar']
+            w, z, r1 = b.parts(v1)
+            my, x, r2 = b.parts(v2)
+            q = np.array([x, -my, z, w])
+            if b.certified:
+                err = math.hypot(r1, r2)
+            else:
+                # running-error estimate: eps * ||Y(s)|| * ||Y(s0)^-1|| * |u0| * v2 gain
+                ns = max(b.abs(ye), b.abs(yep), b.abs(yo), b.abs(yop))
+                su = b.abs(s)
+                gain = 1.0 + (2.0 + su) / b.abs(c['dbar'])
+                err = 64.0 * 2.0 ** -prec * ns * c['cond0'] * (1.0 + abs(float(self.s0))) * gain
+        if not np.all(np.isfinite(q)):
+            err = math.inf
+        # float64 rounding of the four components
+        return q, err + 2.3e-16
+
+    def _check(self, t):
+        self.evaluate(t)
+
+    def evaluate(self, t):
+        """Quaternion (x, y, z, w) at t and a bound on its component error (2-norm).
+
+        The precision starts at the last one that worked and rises until the bound
+        meets ``tol``; past ``max_prec`` bits a :class:`PrecisionError` names the cause.
+        """
+        prec = self.prec
+        last_err = math.inf
+        while True:
+            try:
+                q, err = self._at_prec(t, prec)
+            except PrecisionError:
+                q, err = None, math.inf
+            if err <= self.tol:
+                self.prec = prec
+                return q, err
+            last_err = err
+            if prec >= self.max_prec:
+                break
+            step = 32 if not math.isfinite(err) else max(32, int(math.log2(err / self.tol)) + 16)
+            prec = min(self.max_prec, max(prec + step, int(prec * 1.25)))
+        pr = self.params
+        raise PrecisionError(
+            f'the {self.backend.name} 1F1 evaluation reached only {last_err:.3g} '
+            f'(asked {self.tol:.3g}) at t = {t!r} s with {self.max_prec} bits: the sphere '
+            f'problem has delta = (p^2 + q^2) / (4U) = {pr["delta"]:.4g} and |z^2| = '
+            f'(r0 + U t)^2 / (2U) = {(pr["r0"] + pr["U"] * t) ** 2 / (2 * pr["U"]):.4g} '
+            f'(p, q, r0 = {pr["p"]:.6g}, {pr["q"]:.6g}, {pr["r0"]:.6g} rad/s, '
+            f'U = {pr["U"]:.6g} rad/s^2). Large delta (small torque against the transverse '
+            f'rate) or large |z^2| (long horizons) need more bits: raise max_prec, use a '
+            f'larger tol, or shorten the horizon.')

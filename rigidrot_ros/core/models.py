@@ -1,0 +1,340 @@
+"""Model selection and evaluation: :func:`solve` and :class:`Solution`.
+
+Frames: N inertial; B body (principal axes); B' the body axes cyclically permuted so that
+the symmetry axis is the third; S the paper's virtual sphere (Romano, CMDA 2008, Sec. 4),
+equal to B' at t = 0 and turning relative to it about the symmetry axis by ``-f(t)``; K
+fixed in S with its third axis along the torque (Corollary 2). A matrix ``R_XY`` maps
+Y-components to X-components, ``v_X = R_XY @ v_Y``; quaternions are (x, y, z, w), active,
+``q_XY`` the quaternion of ``R_XY``. Every model is evaluated as
+
+    q_NB(t) = q_NB(0) ⊗ q_BB' ⊗ q_SK ⊗ k(t) ⊗ q_KS ⊗ q_z(f(t)) ⊗ q_B'B,
+
+with ``k(t)`` the spherical-body kernel in K (starting at the identity) and
+``f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2)``, ``A = (I - I3)/I3`` (Eq. 27, 36, 50, 60).
+"""
+
+from dataclasses import dataclass
+import math
+
+import mpmath
+from mpmath import mp
+import numpy as np
+
+from . import quaternion as quat
+from .kernel import (
+    available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle, SETUP_PREC,
+)
+from .scene import Scene
+
+__all__ = ['solve', 'Solution', 'Samples', 'NoExactSolution', 'MODELS', 'FLOAT_FLOOR', 'MIN_TOL']
+
+#: Attitude error (rad) of composing float64 quaternions, included in every error bound.
+FLOAT_FLOOR = 1e-14
+#: The smallest tol accepted, rad: twice the float64 floor.
+MIN_TOL = 2 * FLOAT_FLOOR
+
+#: Model names and the paper's results they evaluate.
+MODELS = {
+    'fixed-axis': 'rotation about one principal axis (omega0 and torque along it)',
+    'torque-free-sphere': 'spherical body, no torque: constant rotation (Eq. 6, 62-64)',
+    'torque-free-axisymmetric': 'axisymmetric body, no torque (Theorem 5, Eq. 58-64)',
+    'sphere': 'spherical body, constant body-fixed torque (Theorem 1, Corollaries 1-2)',
+    'axial-torque': 'axisymmetric body, torque along the symmetry axis (Theorem 2)',
+    'transverse-virtual': 'axisymmetric body, transverse torque fixed in the virtual '
+                          'sphere, turning at -omega_e in the body (Theorem 3)',
+    'transverse-body': 'axisymmetric body, body-fixed transverse torque, r0 = 0 (Theorem 4)',
+    'oblique-virtual': 'axisymmetric body, oblique torque fixed in the virtual sphere '
+                       '(Theorems 2 and 3 combined by the reduction theorem, Eq. 22-25)',
+}
+
+
+class NoExactSolution(ValueError):
+    """The scene is outside every exact solution this package evaluates."""
+
+
+@dataclass(frozen=True)
+class Samples:
+    """The exact motion at the times ``t``.
+
+    Attributes
+    ----------
+    t : ndarray (...,)
+        Seconds since t = 0.
+    quaternion : ndarray (..., 4)
+        ``q_NB``, order (x, y, z, w), active (rotates body vectors into N); continuous
+        in t (no sign flips between samples).
+    omega : ndarray (..., 3)
+        Angular velocity of B relative to N, in B, rad/s.
+    error_bound : ndarray (...,)
+        Bound on the attitude error, rad (certified with the flint backend, a running
+        error estimate with mpmath).
+    """
+
+    t: np.ndarray
+    quaternion: np.ndarray
+    omega: np.ndarray
+    error_bound: np.ndarray
+
+    @property
+    def rotation(self):
+        """``R_NB`` (..., 3, 3): ``v_N = R_NB @ v_B``."""
+        return quat.to_matrix(self.quaternion)
+
+
+def _cyclic(k):
+    """Proper rotation ``R_B'B`` (rows e_{k+1}, e_{k+2}, e_k) moving axis k to the third."""
+    eye = np.eye(3)
+    return np.stack([eye[(k + 1) % 3], eye[(k + 2) % 3], eye[k]])
+
+
+def _q_from_e3(u):
+    """Return the unit quaternion (mpf, x y z w) of a rotation taking e3 to unit u."""
+    ux, uy, uz = u
+    if uz >= 0:
+        qv = [-uy, ux, mpmath.mpf(0), 1 + uz]
+    else:
+        # rotate e3 -> -e3 by pi about e1, then -e3 -> u
+        qa = [uy, -ux, mpmath.mpf(0), 1 - uz]
+        n = mpmath.sqrt(sum(c * c for c in qa))
+        qa = [c / n for c in qa]
+        ax, ay, az, aw = qa
+        qv = [aw, az, -ay, -ax]  # qa ⊗ (1, 0, 0, 0)
+    n = mpmath.sqrt(sum(c * c for c in qv))
+    return [c / n for c in qv]
+
+
+def _rotate_inverse(qv, v):
+    """``R(q)^T v`` at the current mp precision (q unit, x y z w)."""
+    x, y, z, w = qv
+    r = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    return [sum(r[j][i] * v[j] for j in range(3)) for i in range(3)]
+
+
+def _classify(scene):
+    """Return (model, symmetry axis index) or raise NoExactSolution."""
+    inertia = scene.inertia
+    w0, m = scene.omega0, scene.torque
+    triaxial = len(set(inertia)) == 3
+    if triaxial and scene.torque_frame == 'virtual':
+        raise NoExactSolution(
+            f"torque_frame='virtual' needs an axisymmetric body (two equal moments); "
+            f"inertia {inertia} has three different moments. Use torque_frame='body'.")
+    # one principal axis carries all of omega0 and of the torque (any body)
+    for k in range(3):
+        others = [j for j in range(3) if j != k]
+        if all(w0[j] == 0.0 and m[j] == 0.0 for j in others):
+            return 'fixed-axis', k
+    if len(set(inertia)) == 1:
+        return ('torque-free-sphere' if not any(m) else 'sphere'), 2
+    sym = [k for k in range(3) if inertia[(k + 1) % 3] == inertia[(k + 2) % 3]]
+    if not sym:
+        what = 'with a torque' if any(m) else 'without torque'
+        raise NoExactSolution(
+            f'inertia {inertia} has three different moments; {what} such a body has no exact '
+            f'solution here (Romano treats spherical and axisymmetric bodies; torque-free '
+            f'triaxial motion needs Jacobi elliptic functions). Make two moments equal, '
+            f'or put omega0 and the torque along one principal axis.')
+    k = sym[0]
+    names = 'xyz'
+    m_ax = m[k]
+    m_tr = [m[j] for j in range(3) if j != k]
+    r0 = w0[k]
+    if not any(m):
+        return 'torque-free-axisymmetric', k
+    if not any(m_tr):
+        return 'axial-torque', k
+    if scene.torque_frame == 'virtual':
+        return ('transverse-virtual' if m_ax == 0.0 else 'oblique-virtual'), k
+    if m_ax != 0.0:
+        raise NoExactSolution(
+            f'a body-fixed torque {m} oblique to the symmetry axis ({names[k]}) of an '
+            f'axisymmetric body has no exact solution (Theorems 2-4 need it along or '
+            f'across the axis). Remove its axial or transverse part, or set '
+            f"torque_frame='virtual' to hold it fixed in the virtual sphere instead.")
+    if r0 != 0.0:
+        raise NoExactSolution(
+            f'a body-fixed torque across the symmetry axis ({names[k]}) has an exact '
+            f'solution only with no spin about that axis (Theorem 4: r0 = 0), but '
+            f'omega0[{k}] = {r0!r} rad/s. Set omega0[{k}] = 0, or set '
+            f"torque_frame='virtual' so the torque turns at -omega_e (Theorem 3).")
+    return 'transverse-body', k
+
+
+def _default_backend():
+    return available_backends()[0]
+
+
+class Solution:
+    """The exact motion of a scene; evaluate it with :meth:`at`.
+
+    Attributes
+    ----------
+    scene : Scene
+    model : str
+        Which exact model covers the scene (a key of :data:`MODELS`).
+    method : str
+        How the kernel is evaluated: 'closed-form', 'hypergeometric-flint' or
+        'hypergeometric-mpmath'.
+    backend : str
+        The special-function backend ('flint' or 'mpmath'), also for closed forms.
+    tol : float
+        Attitude accuracy asked, rad.
+    """
+
+    def __init__(self, scene, tol, backend, max_prec):
+        self.scene = scene
+        self.tol = tol
+        self.backend = backend
+        self.model, k = _classify(scene)
+        self.reference = MODELS[self.model]
+        perm = _cyclic(k)                                      # R_B'B
+        self._perm_T = perm.T
+        q_b1b = quat.from_matrix(perm)                         # q_B'B
+        inertia = scene.inertia
+        w0 = perm @ np.array(scene.omega0)                     # omega0 in B'
+        m = perm @ np.array(scene.torque)                      # torque in B' (= S at t=0)
+        i_t, i_3 = inertia[(k + 1) % 3], inertia[k]        # transverse and axial moments
+        if self.model == 'fixed-axis':
+            i_t = i_3
+        with mp.workprec(SETUP_PREC):
+            mI, mI3 = mpmath.mpf(i_t), mpmath.mpf(i_3)
+            ratio = mI3 / mI
+            A = (mI - mI3) / mI3
+            r0s = ratio * w0[2]                                # omega_S3(0) = (I3/I) r0
+            w_s = [mpmath.mpf(w0[0]), mpmath.mpf(w0[1]), r0s]
+            ms = [mpmath.mpf(v) for v in m]
+            # f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2); zero for a sphere and fixed axis
+            self._f = PolyAngle(A * r0s, A * ms[2] / mI / 2)
+            mnorm = mpmath.sqrt(sum(v * v for v in ms))
+            if self.model == 'fixed-axis':
+                q_sk = [mpmath.mpf(0)] * 3 + [mpmath.mpf(1)]
+                kernel = AxisKernel(w0[2], ms[2] / mI3)
+            elif mnorm == 0:
+                q_sk = [mpmath.mpf(0)] * 3 + [mpmath.mpf(1)]
+                kernel = ConstantKernel(w_s)
+            else:
+                q_sk = _q_from_e3([v / mnorm for v in ms])
+                wk = _rotate_inverse(q_sk, w_s)                # omega_K = R_KS omega_S
+                U = mnorm / mI
+                tiny = mpmath.mpf(2) ** (-200) * (1 + mpmath.sqrt(sum(v * v for v in wk)))
+                if abs(wk[0]) <= tiny and abs(wk[1]) <= tiny:
+                    kernel = AxisKernel(wk[2], U)
+                else:
+                    # the kernel quaternion may take 2/5 of the attitude budget
+                    kernel = HyperKernel(wk[0], wk[1], wk[2], U, backend,
+                                         tol=0.4 * (tol - FLOAT_FLOOR), max_prec=max_prec)
+            q_sk = np.array([float(v) for v in q_sk])
+            self._w_s0 = np.array([float(v) for v in w_s])
+            self._m_over_I = np.array([float(v / mI) for v in ms])
+            self._rdot = float(ms[2] / mI3)                    # d r / dt = m3 / I3
+        self._kernel = kernel
+        self.method = kernel.method
+        self._left = quat.multiply(
+            quat.multiply(np.array(scene.attitude0), quat.conjugate(q_b1b)), q_sk)
+        self._mid = quat.conjugate(q_sk)
+        self._right = q_b1b
+        self._r0 = w0[2]
+
+    @property
+    def precision(self):
+        """Return the bits of working precision used by the last kernel evaluation."""
+        return self._kernel.prec
+
+    def at(self, t):
+        """Evaluate the exact motion at time(s) t.
+
+        Parameters
+        ----------
+        t : float or 1-D array of float
+            Seconds since t = 0.
+
+        Returns
+        -------
+        Samples
+            ``quaternion`` q_NB (x, y, z, w), ``rotation`` R_NB, ``omega`` (rad/s, B
+            relative to N, in B) and ``error_bound`` (rad), shaped like ``t``.
+
+        Raises
+        ------
+        PrecisionError
+            When the special functions cannot reach ``tol`` within the precision ceiling.
+
+        Examples
+        --------
+        >>> sol = solve(Scene(inertia=(1, 1, 1), omega0=(0, 0, 1.0)))
+        >>> round(float(sol.at(math.pi).quaternion[2]), 12)
+        1.0
+        """
+        t_arr = np.asarray(t, dtype=float)
+        if t_arr.ndim > 1:
+            raise ValueError(f't must be a float or a 1-D array, got shape {t_arr.shape}')
+        tt = np.atleast_1d(t_arr)
+        if not np.all(np.isfinite(tt)):
+            raise ValueError('t must be finite')
+        n = len(tt)
+        k = np.empty((n, 4))
+        kerr = np.empty(n)
+        f = np.empty(n)
+        for i, ti in enumerate(tt):
+            k[i], kerr[i] = self._kernel.evaluate(float(ti))
+            f[i] = self._f.angle(float(ti))
+        q = quat.multiply(quat.multiply(self._left, k),
+                          quat.multiply(quat.multiply(self._mid, quat.about_z(f)), self._right))
+        # omega_S(t) = omega_S(0) + (m/I) t; omega_B' = (Rz(-f) omega_S_perp, r(t))
+        a = self._w_s0[0] + self._m_over_I[0] * tt
+        b = self._w_s0[1] + self._m_over_I[1] * tt
+        c, s = np.cos(f), np.sin(f)
+        w_b1 = np.stack([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * tt], axis=-1)
+        omega = w_b1 @ self._perm_T.T
+        # a component error e of a unit quaternion moves the attitude by <= 2 asin(e)
+        err = 2.0 * np.arcsin(np.minimum(kerr, 1.0)) + FLOAT_FLOOR
+        if t_arr.ndim == 0:
+            return Samples(t_arr, q[0], omega[0], err[0])
+        return Samples(tt, q, omega, err)
+
+
+def solve(scene, tol=1e-12, backend=None, max_prec=4096):
+    """Choose the cheapest exact model for ``scene`` and prepare its constants.
+
+    Parameters
+    ----------
+    scene : Scene
+    tol : float
+        Attitude accuracy asked, rad (>= ``MIN_TOL`` = 2e-14, twice the float64 floor).
+    backend : {None, 'flint', 'mpmath'}
+        Special-function backend; None picks the fastest installed (flint, else mpmath).
+    max_prec : int
+        Ceiling on the working precision of the special functions, bits.
+
+    Returns
+    -------
+    Solution
+
+    Raises
+    ------
+    NoExactSolution
+        The scene is outside the exact models; the message says why and what would fix it.
+    PrecisionError
+        The per-scene constants cannot be evaluated to ``tol`` within ``max_prec`` bits.
+
+    References
+    ----------
+    Romano, M., "Exact analytic solutions for the rotation of an axially symmetric
+    rigid body subjected to a constant torque", Celest. Mech. Dyn. Astr. 101 (2008).
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError(f'scene must be a rigidrot_ros.core.Scene, got {type(scene).__name__}')
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not math.isfinite(tol):
+        raise ValueError(f'tol must be a finite number of radians, got {tol!r}')
+    if tol < MIN_TOL:
+        raise ValueError(f'tol = {tol!r} rad is below {MIN_TOL} rad, twice the float64 '
+                         f'floor of the returned samples')
+    if backend is None:
+        backend = _default_backend()
+    if backend not in ('flint', 'mpmath'):
+        raise ValueError(f"backend must be None, 'flint' or 'mpmath', got {backend!r}")
+    if not isinstance(max_prec, int) or max_prec < 64:
+        raise ValueError(f'max_prec must be an integer >= 64 bits, got {max_prec!r}')
+    return Solution(scene, float(tol), backend, max_prec)

@@ -1,0 +1,115 @@
+"""The scene: a rigid body, a constant torque, and its state at t = 0.
+
+Frames: N inertial, B body (principal axes). ``omega0`` is the angular velocity of B
+relative to N, in B, rad/s. ``attitude0`` is ``q_NB`` at t = 0 in (x, y, z, w) order: it
+rotates body vectors into N (``v_N = R_NB @ v_B``).
+"""
+
+from dataclasses import dataclass
+import math
+import numbers
+
+__all__ = ['Scene', 'TORQUE_FRAMES']
+
+TORQUE_FRAMES = ('body', 'virtual')
+
+
+def _vector(name, value, size):
+    if isinstance(value, (str, bytes)) or not hasattr(value, '__len__'):
+        raise ValueError(f'{name} must be a sequence of {size} numbers, got {value!r}')
+    if len(value) != size:
+        raise ValueError(f'{name} must have {size} components, got {len(value)}')
+    out = []
+    for i, v in enumerate(value):
+        if isinstance(v, bool) or not isinstance(v, numbers.Real):
+            raise ValueError(f'{name}[{i}] must be a real number, got {v!r}')
+        v = float(v)
+        if not math.isfinite(v):
+            raise ValueError(f'{name}[{i}] must be finite, got {v!r}')
+        out.append(v)
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A rigid body under a constant torque.
+
+    Parameters
+    ----------
+    inertia : 3 floats
+        Principal moments (I1, I2, I3), kg m^2; positive and meeting the triangle
+        inequality (I1 + I2 >= I3 and its permutations).
+    torque : 3 floats
+        Constant torque, N m, with components in ``torque_frame``.
+    torque_frame : {'body', 'virtual'}
+        'body': the torque is constant in B. 'virtual': constant in the paper's
+        virtual-sphere frame S (Romano 2008, Sec. 4), which coincides with B at t = 0
+        and turns relative to B about the symmetry axis; in B a transverse torque then
+        turns at ``-omega_e`` (Theorem 3). 'virtual' needs an axially symmetric body.
+    omega0 : 3 floats
+        Angular velocity of B relative to N, in B, rad/s, at t = 0.
+    attitude0 : 4 floats
+        ``q_NB`` at t = 0, order (x, y, z, w); normalised on input.
+
+    Raises
+    ------
+    ValueError
+        Naming the field: non-finite or non-numeric values, non-positive moments, moments
+        that break the triangle inequality, a zero quaternion, an unknown torque_frame.
+
+    Examples
+    --------
+    >>> Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.1), omega0=(0.3, -0.2, 0.5))
+    ... # doctest: +ELLIPSIS
+    Scene(inertia=(2.0, 2.0, 1.0), ...)
+    """
+
+    inertia: tuple = (1.0, 1.0, 1.0)
+    torque: tuple = (0.0, 0.0, 0.0)
+    torque_frame: str = 'body'
+    omega0: tuple = (0.0, 0.0, 0.0)
+    attitude0: tuple = (0.0, 0.0, 0.0, 1.0)
+
+    def __post_init__(self):
+        inertia = _vector('inertia', self.inertia, 3)
+        for i, v in enumerate(inertia):
+            if v <= 0.0:
+                raise ValueError(f'inertia[{i}] must be positive (kg m^2), got {v!r}')
+        for i in range(3):
+            j, k = (i + 1) % 3, (i + 2) % 3
+            if inertia[j] + inertia[k] < inertia[i]:
+                raise ValueError(
+                    f'inertia {inertia} breaks the triangle inequality: '
+                    f'I{j + 1} + I{k + 1} = {inertia[j] + inertia[k]!r} < I{i + 1} = '
+                    f'{inertia[i]!r}; no rigid body has these principal moments')
+        torque = _vector('torque', self.torque, 3)
+        if self.torque_frame not in TORQUE_FRAMES:
+            raise ValueError(
+                f'torque_frame must be one of {TORQUE_FRAMES}, got {self.torque_frame!r}')
+        omega0 = _vector('omega0', self.omega0, 3)
+        att = _vector('attitude0', self.attitude0, 4)
+        norm = math.hypot(*att)
+        if norm == 0.0:
+            raise ValueError(f'attitude0 must be a nonzero quaternion (x, y, z, w), got {att}')
+        if abs(norm - 1.0) > 4.5e-16:      # leave unit input bit-for-bit as given
+            att = tuple(v / norm for v in att)
+        object.__setattr__(self, 'inertia', inertia)
+        object.__setattr__(self, 'torque', torque)
+        object.__setattr__(self, 'omega0', omega0)
+        object.__setattr__(self, 'attitude0', att)
+
+    def as_dict(self):
+        """Plain-dict form (lists of floats), e.g. for YAML or JSON metadata."""
+        return {
+            'inertia': list(self.inertia), 'torque': list(self.torque),
+            'torque_frame': self.torque_frame, 'omega0': list(self.omega0),
+            'attitude0': list(self.attitude0),
+        }
+
+    @classmethod
+    def from_dict(cls, d):
+        """Inverse of :meth:`as_dict`; unknown keys raise ValueError."""
+        unknown = set(d) - {'inertia', 'torque', 'torque_frame', 'omega0', 'attitude0'}
+        if unknown:
+            raise ValueError(f'unknown scene field(s): {sorted(unknown)}')
+        return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()})

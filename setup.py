@@ -1,0 +1,47 @@
+"""Packaging for rigidrot_ros: an ament_python package that also installs from pip."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'rigidrot_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', sorted(glob('config/*.yaml'))),
+    ],
+    python_requires='>=3.10',
+    install_requires=[
+        'setuptools',
+        'numpy>=1.24',
+        'mpmath>=1.3',
+        'python-flint>=0.6',
+        'PyYAML>=6',
+        'ros-jazzy-rclpy[fastrtps]',
+        'ros-jazzy-common-interfaces',
+    ],
+    extras_require={
+        'test': [
+            'pytest>=7',
+            'scipy>=1.10',
+            'flake8>=7',
+            'flake8-quotes>=3.4',
+            'flake8-import-order>=0.18',
+            'pydocstyle>=6.3',
+        ],
+    },
+    zip_safe=True,
+    maintainer='rigidrot_ros maintainers',
+    maintainer_email='maintainers@rigidrot.invalid',
+    description='Exact analytic attitude of a rotating rigid body, for ROS 2.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [],
+    },
+)
