@@ -33,6 +33,12 @@ setup(
             'flake8-quotes>=3.4',
             'flake8-import-order>=0.18',
             'pydocstyle>=6.3',
+            'colcon-core',
+            'colcon-ros',
+            'colcon-python-setup-py',
+            'colcon-package-information',
+            'colcon-library-path',
+            'ros-jazzy-ament-package',
         ],
     },
     zip_safe=True,
@@ -42,6 +48,9 @@ setup(
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={
-        'console_scripts': [],
+        'console_scripts': [
+            'attitude_node = rigidrot_ros.node.attitude_node:main',
+            'rigidrot_echo = rigidrot_ros.tools.echo:main',
+        ],
     },
 )

@@ -1,0 +1,1 @@
+"""Command-line tools: echo, record/replay/compare (thin mains over the library)."""

@@ -1,0 +1,66 @@
+"""Helpers for tests that touch ROS: isolated environments and real processes."""
+
+import itertools
+import os
+from pathlib import Path
+import subprocess
+import sys
+import time
+
+_counter = itertools.count()
+
+
+def next_domain_id():
+    """Return a ROS_DOMAIN_ID not used by any earlier test of this run (1..100)."""
+    return 1 + (os.getpid() * 7 + next(_counter)) % 100
+
+
+def ros_env(domain_id):
+    """Environment for a ROS process: this machine only, its own domain, no shm files."""
+    env = dict(os.environ)
+    env.update({
+        'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+        'ROS_DOMAIN_ID': str(domain_id),
+        # a killed process would leave Fast DDS shared-memory files behind
+        'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4',
+        'PYTHONUNBUFFERED': '1',
+    })
+    env.pop('ROS_LOCALHOST_ONLY', None)
+    return env
+
+
+def script(name):
+    """Path of a console script installed beside this interpreter."""
+    path = Path(sys.executable).parent / name
+    if not path.exists():
+        raise FileNotFoundError(f'{name} is not installed beside {sys.executable}: '
+                                f'pip install -e .')
+    return str(path)
+
+
+def start(cmd, env, **kwargs):
+    """Start a process with pipes for its output."""
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, **kwargs)
+
+
+def stop(proc, sig, timeout=20.0):
+    """Send ``sig`` and wait; return (returncode, stdout, stderr)."""
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+    return proc.returncode, out, err
+
+
+def wait_for(predicate, timeout=20.0, step=0.05):
+    """Poll ``predicate`` until it is true or ``timeout`` s pass; return its last value."""
+    end = time.monotonic() + timeout
+    value = predicate()
+    while not value and time.monotonic() < end:
+        time.sleep(step)
+        value = predicate()
+    return value

@@ -1,0 +1,38 @@
+"""The shipped parameter files: every one loads and selects the model its comment names."""
+
+import pytest
+
+from rigidrot_ros.core import solve
+from rigidrot_ros.settings import find_config, load_defaults, scene_from_params
+
+PRESETS = {
+    'default.yaml': 'axial-torque',
+    'torque_free.yaml': 'torque-free-axisymmetric',
+    'sphere_oblique.yaml': 'sphere',
+    'axial_torque.yaml': 'axial-torque',
+    'transverse_virtual.yaml': 'transverse-virtual',
+    'transverse_body.yaml': 'transverse-body',
+}
+
+
+@pytest.mark.parametrize('name, model', sorted(PRESETS.items()))
+def test_preset_selects_its_model(name, model):
+    params = load_defaults(find_config(name))
+    assert solve(scene_from_params(params)).model == model
+
+
+def test_default_file_declares_every_node_parameter():
+    from rigidrot_ros.node.attitude_node import _DESCRIPTIONS
+    assert set(load_defaults()) == set(_DESCRIPTIONS)
+
+
+def test_bad_params_files_are_named(tmp_path):
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('just text\n')
+    with pytest.raises(ValueError, match='not a ROS 2 params file'):
+        load_defaults(str(bad))
+    bad.write_text('node:\n  other: 1\n')
+    with pytest.raises(ValueError, match='no ros__parameters'):
+        load_defaults(str(bad))
+    with pytest.raises(FileNotFoundError, match='nothing.yaml'):
+        find_config('nothing.yaml')

@@ -1,0 +1,156 @@
+"""The attitude node in-process: values, parameter rules, reset."""
+
+import math
+
+from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
+import numpy as np
+from numpy.testing import assert_allclose
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from std_srvs.srv import Trigger
+
+from rigidrot_ros.core import quaternion as quat
+from rigidrot_ros.core import Scene, solve
+from rigidrot_ros.node.attitude_node import AttitudeNode, SceneError
+from ros_helpers import next_domain_id, ros_env
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture(autouse=True)
+def ros_context(monkeypatch):
+    """Each test gets its own domain, on this machine only."""
+    domain = next_domain_id()
+    for k, v in ros_env(domain).items():
+        if k.startswith(('ROS_', 'FASTDDS_')):
+            monkeypatch.setenv(k, v)
+    rclpy.init(domain_id=domain)
+    yield
+    rclpy.try_shutdown()
+
+
+class Listener:
+    """A subscriber node collecting both topics."""
+
+    def __init__(self, executor):
+        self.node = rclpy.create_node('listener')
+        self.att, self.rate = [], []
+        self.node.create_subscription(QuaternionStamped, 'attitude', self.att.append, 100)
+        self.node.create_subscription(Vector3Stamped, 'angular_velocity', self.rate.append,
+                                      100)
+        executor.add_node(self.node)
+
+
+def _spin_until(executor, cond, timeout=15.0):
+    end = rclpy.clock.Clock().now().nanoseconds + timeout * 1e9
+    while not cond() and rclpy.clock.Clock().now().nanoseconds < end:
+        executor.spin_once(timeout_sec=0.05)
+    assert cond(), 'timed out'
+
+
+def _stamp_ns(msg):
+    """Stamp as integer nanoseconds (a float64 of ~1.8e9 s resolves only ~2e-7 s)."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+SCENE = dict(inertia=[2.0, 2.0, 1.0], torque=[0.1, 0.0, 0.0], torque_frame='virtual',
+             omega0=[0.3, -0.2, 0.5], attitude0=[0.1, 0.2, 0.3, 0.9])
+
+
+def _node(**params):
+    values = dict(SCENE, publish_rate=100.0, time_scale=3.0)
+    values.update(params)
+    overrides = [Parameter(k, value=v) for k, v in values.items()]
+    return AttitudeNode(parameter_overrides=overrides)
+
+
+def test_published_values_equal_the_core_at_the_stamp_time():
+    node = _node()
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    lis = Listener(ex)
+    _spin_until(ex, lambda: len(lis.att) >= 30 and len(lis.rate) >= 30)
+    sol = solve(Scene(**{k: tuple(v) if isinstance(v, list) else v
+                         for k, v in SCENE.items()}))
+    assert node.solution.model == sol.model == 'transverse-virtual'
+    t0 = _stamp_ns(lis.att[0])                      # the first tick is t = 0
+    n = min(len(lis.att), len(lis.rate))
+    for a, r in zip(lis.att[:n], lis.rate[:n]):
+        assert a.header.stamp == r.header.stamp     # one stamp per tick
+        assert a.header.frame_id == 'inertial' and r.header.frame_id == 'body'
+        t = (_stamp_ns(a) - t0) * 1e-9 * 3.0        # time_scale
+        ref = sol.at(t)
+        q = np.array([a.quaternion.x, a.quaternion.y, a.quaternion.z, a.quaternion.w])
+        assert quat.angle_between(q, ref.quaternion) <= 1e-12
+        assert_allclose([r.vector.x, r.vector.y, r.vector.z], ref.omega, rtol=0, atol=1e-14)
+    qs = np.array([[m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w]
+                   for m in lis.att])
+    assert np.all(np.einsum('ij,ij->i', qs[1:], qs[:-1]) > 0)   # continuous, no flips
+    node.destroy_node()
+
+
+@pytest.mark.parametrize('name, value, words', [
+    ('inertia', [1.0, math.nan, 1.0], 'inertia[1] must be finite'),
+    ('inertia', [1.0, -1.0, 1.0], 'inertia[1] must be positive'),
+    ('inertia', [1.0, 1.0, 3.0], 'triangle inequality'),
+    ('inertia', 'heavy', 'inertia must be a list'),
+    ('inertia', [1.0, 1.0], 'inertia must have 3'),
+    ('torque', [0.0, math.inf, 0.0], 'torque[1] must be finite'),
+    ('attitude0', [0.0, 0.0, 0.0, 0.0], 'attitude0 must be a nonzero quaternion'),
+    ('torque_frame', 'world', 'torque_frame must be one of'),
+    ('inertia', [1.0, 2.0, 2.5], 'no exact solution'),
+    ('tol', math.nan, 'tol'),
+    ('tol', 1e-20, 'tol'),
+    ('backend', 'numpy', 'backend must be one of'),
+    ('publish_rate', -5.0, 'publish_rate'),
+    ('time_scale', math.inf, 'time_scale'),
+    ('frame_id', '', 'frame_id must be a non-empty string'),
+])
+def test_invalid_parameter_is_rejected_and_state_kept(name, value, words):
+    node = _node()
+    before = {n: node.get_parameter(n).value for n in SCENE}
+    sol = node.solution
+    result = node.set_parameters([Parameter(name, value=value)])[0]
+    assert not result.successful
+    assert words in result.reason
+    assert {n: node.get_parameter(n).value for n in SCENE} == before
+    assert node.solution is sol
+    node.destroy_node()
+
+
+def test_invalid_scene_at_start_up_raises_scene_error():
+    with pytest.raises(SceneError, match='no exact solution'):
+        _node(inertia=[1.0, 2.0, 2.5])
+
+
+def test_reset_applies_an_atomic_scene_change_and_restarts_at_t0():
+    node = _node(time_scale=1.0)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    lis = Listener(ex)
+    _spin_until(ex, lambda: len(lis.att) >= 5)
+    new = dict(inertia=[3.0, 3.0, 3.0], torque=[0.0, 0.2, 0.1], torque_frame='body',
+               omega0=[1.0, 0.5, -0.5], attitude0=[0.0, 0.0, 0.6, 0.8])
+    res = node.set_parameters_atomically([Parameter(k, value=v) for k, v in new.items()])
+    assert res.successful, res.reason
+    assert node.solution.model == 'transverse-virtual'      # not before the reset
+    client_node = rclpy.create_node('reset_client')
+    ex.add_node(client_node)
+    cli = client_node.create_client(Trigger, '/attitude_node/reset')
+    assert cli.wait_for_service(timeout_sec=10.0)
+    future = cli.call_async(Trigger.Request())
+    _spin_until(ex, future.done)
+    assert future.result().success
+    assert 'sphere' in future.result().message
+    count = len(lis.att)
+    _spin_until(ex, lambda: len(lis.att) > count + 2 and len(lis.rate) > count + 2)
+    first_new = [m for m in lis.att[count:]
+                 if abs(m.quaternion.z - 0.6) < 1e-12 and abs(m.quaternion.w - 0.8) < 1e-12]
+    assert first_new, 'no message at t = 0 of the new scene'
+    stamp = first_new[0].header.stamp
+    rate = [m for m in lis.rate if m.header.stamp == stamp][0]
+    assert_allclose([rate.vector.x, rate.vector.y, rate.vector.z], new['omega0'], atol=1e-15)
+    node.destroy_node()
+    client_node.destroy_node()

@@ -1,0 +1,144 @@
+"""The attitude node as users run it: separate processes for node, estimator and client."""
+
+import json
+import signal
+import sys
+import textwrap
+
+import pytest
+import yaml
+
+from ros_helpers import next_domain_id, ros_env, script, start, stop
+
+pytestmark = pytest.mark.ros
+
+SUBSCRIBER = textwrap.dedent('''
+    import json, sys, time
+    import rclpy
+    from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
+    rclpy.init()
+    node = rclpy.create_node('estimator')
+    got = {'attitude': [], 'angular_velocity': []}
+    node.create_subscription(QuaternionStamped, sys.argv[1] + '/attitude',
+        lambda m: got['attitude'].append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec),
+        100)
+    node.create_subscription(Vector3Stamped, sys.argv[1] + '/angular_velocity',
+        lambda m: got['angular_velocity'].append(
+            m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), 100)
+    end = None
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+        if got['attitude'] and end is None:
+            end = time.monotonic() + float(sys.argv[2])
+        if end is not None and time.monotonic() > end:
+            break
+    print(json.dumps(got))
+''')
+
+CLIENT = textwrap.dedent('''
+    import json, sys
+    import rclpy
+    from rcl_interfaces.srv import SetParametersAtomically
+    from rclpy.parameter import Parameter
+    from std_srvs.srv import Trigger
+    rclpy.init()
+    node = rclpy.create_node('client')
+    target = sys.argv[1]
+    out = {}
+    setp = node.create_client(SetParametersAtomically, target + '/set_parameters_atomically')
+    assert setp.wait_for_service(timeout_sec=20)
+    for label, params in json.loads(sys.argv[2]):
+        req = SetParametersAtomically.Request()
+        req.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in params.items()]
+        fut = setp.call_async(req)
+        rclpy.spin_until_future_complete(node, fut, timeout_sec=20)
+        r = fut.result().result
+        out[label] = [r.successful, r.reason]
+    reset = node.create_client(Trigger, target + '/reset')
+    assert reset.wait_for_service(timeout_sec=20)
+    fut = reset.call_async(Trigger.Request())
+    rclpy.spin_until_future_complete(node, fut, timeout_sec=20)
+    out['reset'] = [fut.result().success, fut.result().message]
+    print(json.dumps(out))
+''')
+
+
+def _params_file(tmp_path, node_name='attitude_node', **params):
+    values = {'inertia': [2.0, 2.0, 1.0], 'torque': [0.0, 0.0, 0.05],
+              'omega0': [0.3, -0.2, 0.5], 'publish_rate': 100.0}
+    values.update(params)
+    path = tmp_path / 'params.yaml'
+    path.write_text(yaml.safe_dump({node_name: {'ros__parameters': values}}))
+    return str(path)
+
+
+def test_node_subscriber_and_client_in_separate_processes(tmp_path):
+    env = ros_env(next_domain_id())
+    node = start([script('attitude_node'), '--ros-args', '--params-file',
+                  _params_file(tmp_path, node_name='/ns1/sim', publish_rate=50.0),
+                  '-r', '__ns:=/ns1', '-r', '__node:=sim'], env)
+    try:
+        sub = start([sys.executable, '-c', SUBSCRIBER, '/ns1', '3.0'], env)
+        out, err = sub.communicate(timeout=60)
+        assert sub.returncode == 0, err
+        got = json.loads(out)
+        att, rate = got['attitude'], got['angular_velocity']
+        # 50 Hz for 3 s: expect about 150 messages on each topic
+        assert 110 <= len(att) <= 170, len(att)
+        assert abs(len(rate) - len(att)) <= 3
+        gaps = [(b - a) * 1e-9 for a, b in zip(att, att[1:])]
+        assert sorted(gaps)[len(gaps) // 2] == pytest.approx(0.02, abs=0.004)
+        changes = [
+            ['bad', {'inertia': [1.0, 2.0, 2.5]}],
+            ['good', {'inertia': [3.0, 3.0, 3.0], 'torque': [0.1, 0.1, 0.1],
+                      'omega0': [0.0, 1.0, 0.0]}],
+        ]
+        cli = start([sys.executable, '-c', CLIENT, '/ns1/sim', json.dumps(changes)], env)
+        out, err = cli.communicate(timeout=60)
+        assert cli.returncode == 0, err
+        res = json.loads(out)
+        assert res['bad'][0] is False and 'no exact solution' in res['bad'][1]
+        assert res['good'] == [True, '']
+        assert res['reset'][0] is True and 'sphere' in res['reset'][1]
+    finally:
+        code, out, err = stop(node, signal.SIGINT)
+    assert code == 0, err
+    assert 'Traceback' not in err
+
+
+def test_invalid_scene_at_start_up_exits_with_the_reason(tmp_path):
+    env = ros_env(next_domain_id())
+    proc = start([script('attitude_node'), '--ros-args', '--params-file',
+                  _params_file(tmp_path, inertia=[1.0, 1.0, 3.0])], env)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert 'invalid scene' in err and 'triangle inequality' in err
+    assert 'Traceback' not in err
+
+
+def test_sigterm_ends_the_node_cleanly(tmp_path):
+    env = ros_env(next_domain_id())
+    proc = start([script('attitude_node'), '--ros-args', '--params-file',
+                  _params_file(tmp_path)], env)
+    sub = start([sys.executable, '-c', SUBSCRIBER, '', '0.5'], env)
+    out, err = sub.communicate(timeout=60)
+    assert json.loads(out)['attitude'], err
+    code, out, err = stop(proc, signal.SIGTERM)
+    assert code == 0, err
+    assert 'Traceback' not in err
+
+
+def test_echo_prints_ticks_from_another_process(tmp_path):
+    env = ros_env(next_domain_id())
+    node = start([script('attitude_node'), '--ros-args', '--params-file',
+                  _params_file(tmp_path)], env)
+    try:
+        echo = start([script('rigidrot_echo'), '--count', '5'], env)
+        out, err = echo.communicate(timeout=60)
+        assert echo.returncode == 0, err
+    finally:
+        stop(node, signal.SIGINT)
+    lines = [ln for ln in out.splitlines() if 'q_NB' in ln]
+    assert len(lines) == 5
+    assert 'omega_B' in lines[0] and 'rad/s' in lines[0]
