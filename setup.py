@@ -22,12 +22,18 @@ setup(
         'mpmath>=1.3',
         'python-flint>=0.6',
         'PyYAML>=6',
+        'mcap>=1.2',
+        'mcap-ros2-support>=0.5',
+        'zstandard',
         'ros-jazzy-rclpy[fastrtps]',
         'ros-jazzy-common-interfaces',
     ],
     extras_require={
+        'plot': ['matplotlib>=3.7'],
         'test': [
             'pytest>=7',
+            'rosbags>=0.10',
+            'matplotlib>=3.7',
             'scipy>=1.10',
             'flake8>=7',
             'flake8-quotes>=3.4',

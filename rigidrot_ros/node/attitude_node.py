@@ -12,6 +12,7 @@ Both messages of a tick carry the same stamp: the clock time that the scene time
 ``t = (now - t_start) * time_scale`` was computed for (``use_sim_time`` works).
 """
 
+import importlib
 import math
 import sys
 import time
@@ -25,9 +26,12 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from std_srvs.srv import Trigger
 
+from rigidrot_ros import __version__
 from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
+from rigidrot_ros.io.bag import BagWriter, qos_yaml
 from rigidrot_ros.settings import load_defaults, scene_from_params, SCENE_KEYS, solver_options
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
@@ -58,7 +62,14 @@ _DESCRIPTIONS = {
                       ParameterType.PARAMETER_STRING),
     'qos_depth': ('history depth of the publishers (read only)',
                   ParameterType.PARAMETER_INTEGER),
+    'record': ('write every published message to an MCAP bag (read only)',
+               ParameterType.PARAMETER_BOOL),
+    'record_path': ('directory under which each run gets a new bag directory (read only)',
+                    ParameterType.PARAMETER_STRING),
+    'record_topics': ('further topics to record raw as they arrive, e.g. an estimator '
+                      'output (read only)', ParameterType.PARAMETER_STRING_ARRAY),
 }
+_READ_ONLY = ('qos_depth', 'record', 'record_path', 'record_topics')
 _RANGES = {
     'tol': FloatingPointRange(from_value=2e-14, to_value=1.0),
     'publish_rate': FloatingPointRange(from_value=1e-3, to_value=1e4),
@@ -129,12 +140,15 @@ class AttitudeNode(Node):
         defaults = load_defaults()
         for name, (text, ptype) in _DESCRIPTIONS.items():
             desc = ParameterDescriptor(description=text, type=ptype,
-                                       read_only=(name == 'qos_depth'), dynamic_typing=True)
+                                       read_only=(name in _READ_ONLY), dynamic_typing=True)
             if name in _RANGES:
                 desc.floating_point_range = [_RANGES[name]]
             if name == 'qos_depth':
                 desc.integer_range = [IntegerRange(from_value=1, to_value=10000, step=1)]
-            self.declare_parameter(name, defaults[name], desc)
+            value = defaults[name]
+            if name == 'record_topics' and not value:
+                value = ['']      # an empty list carries no type; empty names are ignored
+            self.declare_parameter(name, value, desc)
         try:
             self._solution = build_solution(self._values())
         except ValueError as exc:
@@ -150,6 +164,11 @@ class AttitudeNode(Node):
         self._pub_rate = self.create_publisher(Vector3Stamped, 'angular_velocity', qos)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._srv = self.create_service(Trigger, '~/reset', self._on_reset)
+        self._bag = None
+        self._run_index = 0
+        self._extra = {}
+        if self.get_parameter('record').value:
+            self._start_recording(qos.depth)
         self._timer = None
         self._make_timer(self.get_parameter('publish_rate').value)
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
@@ -226,6 +245,8 @@ class AttitudeNode(Node):
         self._pub_rate.publish(rate)
         st.published += 1
         self._last_sample = (t, s)
+        if self._bag is not None:
+            self._record_tick(now, att, rate, now == self._t_start)
 
     def _publish_diagnostics(self):
         st = self._stats
@@ -257,6 +278,90 @@ class AttitudeNode(Node):
         arr.header.stamp = self.get_clock().now().to_msg()
         arr.status = [status]
         self._pub_diag.publish(arr)
+
+    # -- recording --------------------------------------------------------------------------
+    def _start_recording(self, depth):
+        path = self.get_parameter('record_path').value or 'runs'
+        try:
+            self._bag = BagWriter(path, self.get_name())
+            for pub, type_name in ((self._pub_att, 'geometry_msgs/msg/QuaternionStamped'),
+                                   (self._pub_rate, 'geometry_msgs/msg/Vector3Stamped')):
+                self._bag.add_topic(pub.topic_name, type_name, qos_yaml(depth=depth))
+        except OSError as exc:
+            raise SceneError(f'cannot record to {path!r}: {exc}') from None
+        self.get_logger().info(f'recording to {self._bag.path}')
+        topics = [t for t in (self.get_parameter('record_topics').value or []) if t]
+        if topics:
+            self._extra = {self.resolve_topic_name(t): None for t in topics}
+            self._discover_timer = self.create_timer(0.5, self._discover_topics)
+
+    def _discover_topics(self):
+        """Subscribe (raw) to each record_topics entry once its type is known."""
+        types = dict(self.get_topic_names_and_types())
+        for topic, sub in self._extra.items():
+            if sub is not None or topic not in types:
+                continue
+            type_name = types[topic][0]
+            pkg, _, name = type_name.split('/')
+            try:
+                cls = getattr(importlib.import_module(f'{pkg}.msg'), name)
+                self._bag.add_topic(topic, type_name, qos_yaml(depth=100))
+            except (ImportError, AttributeError, OSError) as exc:
+                self.get_logger().error(f'cannot record {topic} ({type_name}): {exc}')
+                self._extra[topic] = False
+                continue
+            self._extra[topic] = self.create_subscription(
+                cls, topic, lambda data, tp=topic: self._record_raw(tp, data), 100, raw=True)
+            self.get_logger().info(f'recording {topic} ({type_name})')
+
+    def _record_raw(self, topic, data):
+        if self._bag is not None:
+            self._guard(lambda: self._bag.write(topic, data,
+                                                self.get_clock().now().nanoseconds))
+
+    def _record_tick(self, now, att, rate, first):
+        ns = now.nanoseconds
+
+        def write():
+            if first:
+                self._run_index += 1
+                sol = self._solution
+                self._bag.add_run({
+                    'run': self._run_index, 'start_ns': ns, 'time_scale': self._time_scale,
+                    'scene': sol.scene.as_dict(), 'tol': sol.tol, 'backend': sol.backend,
+                    'model': sol.model, 'method': sol.method,
+                    'package': f'rigidrot_ros {__version__}',
+                    'node': self.get_fully_qualified_name(),
+                    'topics': {'attitude': self._pub_att.topic_name,
+                               'angular_velocity': self._pub_rate.topic_name},
+                })
+            self._bag.write(self._pub_att.topic_name, serialize_message(att), ns)
+            self._bag.write(self._pub_rate.topic_name, serialize_message(rate), ns)
+        self._guard(write)
+
+    def _guard(self, fn):
+        try:
+            fn()
+        except OSError as exc:   # disk full, removed directory: stop recording, keep running
+            self.get_logger().error(f'recording stopped: {exc}')
+            try:
+                self._bag.close()
+            except (OSError, ValueError):
+                pass
+            self._bag = None
+
+    def destroy_node(self):
+        """Finish the bag (summary, index, metadata.yaml), then destroy the node."""
+        if self._bag is not None:
+            try:
+                self._bag.close()
+                # the context may be shut down already: no rosout logging here
+                print(f'attitude_node: bag finished: {self._bag.path} {self._bag.counts}',
+                      file=sys.stderr)
+            except OSError as exc:
+                print(f'attitude_node: could not finish the bag: {exc}', file=sys.stderr)
+            self._bag = None
+        return super().destroy_node()
 
     # -- reset ------------------------------------------------------------------------------
     def _on_reset(self, request, response):

@@ -1,0 +1,1 @@
+"""Bags on disk: rosbag2-compatible MCAP writing and tolerant reading (no rclpy here)."""
