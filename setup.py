@@ -57,6 +57,8 @@ setup(
         'console_scripts': [
             'attitude_node = rigidrot_ros.node.attitude_node:main',
             'rigidrot_echo = rigidrot_ros.tools.echo:main',
+            'rigidrot_compare = rigidrot_ros.tools.compare:main',
+            'rigidrot_replay = rigidrot_ros.tools.replay:main',
         ],
     },
 )

@@ -356,8 +356,8 @@ class AttitudeNode(Node):
             try:
                 self._bag.close()
                 # the context may be shut down already: no rosout logging here
-                print(f'attitude_node: bag finished: {self._bag.path} {self._bag.counts}',
-                      file=sys.stderr)
+                print(f'attitude_node: bag finished: {self._bag.path} {self._bag.counts}, '
+                      f'published {self._stats.published} ticks', file=sys.stderr)
             except OSError as exc:
                 print(f'attitude_node: could not finish the bag: {exc}', file=sys.stderr)
             self._bag = None

@@ -1,0 +1,128 @@
+"""rigidrot_replay: republish a bag's topics with their original timing.
+
+Messages are published as the recorded CDR bytes, on publishers created with each
+channel's recorded QoS (offered_qos_profiles). With --clock, /clock
+(rosgraph_msgs/Clock) follows the log time so that nodes on use_sim_time run with it.
+"""
+
+import argparse
+import importlib
+import sys
+import time
+
+from builtin_interfaces.msg import Time
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+import yaml
+
+from rigidrot_ros.io.bag import BagError, read_bag
+
+
+def _qos(text):
+    """QoSProfile from a rosbag2 offered_qos_profiles YAML string (first profile)."""
+    try:
+        prof = (yaml.safe_load(text) or [{}])[0]
+    except yaml.YAMLError:
+        prof = {}
+    rel = str(prof.get('reliability', 'reliable')).lower()
+    dur = str(prof.get('durability', 'volatile')).lower()
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=int(prof.get('depth', 10) or 10),
+        reliability=(ReliabilityPolicy.BEST_EFFORT if rel in ('best_effort', '2')
+                     else ReliabilityPolicy.RELIABLE),
+        durability=(DurabilityPolicy.TRANSIENT_LOCAL if dur in ('transient_local', '1')
+                    else DurabilityPolicy.VOLATILE))
+
+
+def _msg_class(type_name):
+    pkg, _, name = type_name.split('/')
+    try:
+        return getattr(importlib.import_module(f'{pkg}.msg'), name)
+    except (ImportError, AttributeError):
+        raise BagError(f'message type {type_name} is not installed here') from None
+
+
+def main(argv=None):
+    """Entry point of ``rigidrot_replay``; returns the exit status."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    ros_args = []
+    if '--ros-args' in argv:
+        i = argv.index('--ros-args')
+        argv, ros_args = argv[:i], argv[i:]
+    ap = argparse.ArgumentParser(prog='rigidrot_replay', description=__doc__.splitlines()[0])
+    ap.add_argument('bag', help='bag directory or .mcap file')
+    ap.add_argument('--rate', type=float, default=1.0, help='speed factor (2: twice as fast)')
+    ap.add_argument('--loop', action='store_true', help='start again at the end')
+    ap.add_argument('--topics', nargs='+', help='replay only these topics')
+    ap.add_argument('--start', type=float, default=0.0, help='skip this many seconds')
+    ap.add_argument('--duration', type=float, help='replay this many seconds')
+    ap.add_argument('--clock', action='store_true', help='publish /clock from the log time')
+    ap.add_argument('--quiet', action='store_true', help='no progress line')
+    opts = ap.parse_args(argv)
+    if not opts.rate > 0:
+        print('rigidrot_replay: --rate must be positive', file=sys.stderr)
+        return 2
+    try:
+        bag = read_bag(opts.bag)
+        if bag.truncated or bag.note:
+            print(f'note: {bag.path}: unfinished file, {bag.note}', file=sys.stderr)
+        topics = opts.topics or sorted(bag.topics)
+        missing = [t for t in topics if t not in bag.topics]
+        if missing:
+            raise BagError(f'{bag.path}: no topic(s) {missing}; it has {sorted(bag.topics)}')
+        classes = {t: _msg_class(bag.topics[t][0]) for t in topics}
+    except (BagError, OSError) as exc:
+        print(f'rigidrot_replay: {exc}', file=sys.stderr)
+        return 2
+    msgs = [m for m in bag.messages if m[0] in classes]
+    if not msgs:
+        print(f'rigidrot_replay: {bag.path}: no messages to replay', file=sys.stderr)
+        return 2
+    t0 = msgs[0][2] + int(opts.start * 1e9)
+    t1 = t0 + int(opts.duration * 1e9) if opts.duration is not None else None
+    msgs = [m for m in msgs if m[2] >= t0 and (t1 is None or m[2] <= t1)]
+    rclpy.init(args=['rigidrot_replay'] + ros_args)
+    node = rclpy.create_node('rigidrot_replay')
+    pubs = {t: node.create_publisher(classes[t], t, _qos(bag.topics[t][1])) for t in classes}
+    clock_pub = node.create_publisher(Clock, '/clock', 10) if opts.clock else None
+    time.sleep(0.5)                                  # let subscribers match the publishers
+    total = (msgs[-1][2] - msgs[0][2]) * 1e-9 if msgs else 0.0
+    status = 0
+    try:
+        while True:
+            wall0 = time.monotonic()
+            base = msgs[0][2]
+            last_print = 0.0
+            for n, (topic, _, log_ns, _, data) in enumerate(msgs):
+                target = wall0 + (log_ns - base) * 1e-9 / opts.rate
+                delay = target - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                if not rclpy.ok():
+                    raise ExternalShutdownException()
+                if clock_pub is not None:
+                    clock_pub.publish(Clock(clock=Time(sec=log_ns // 1_000_000_000,
+                                                       nanosec=log_ns % 1_000_000_000)))
+                pubs[topic].publish(data)           # the recorded CDR bytes, as they were
+                now = time.monotonic()
+                if not opts.quiet and (now - last_print > 0.5 or n == len(msgs) - 1):
+                    last_print = now
+                    print(f'\r[replay] {(log_ns - base) * 1e-9:8.2f} / {total:.2f} s  '
+                          f'{n + 1}/{len(msgs)} messages', end='', file=sys.stderr,
+                          flush=True)
+            if not opts.loop:
+                break
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if not opts.quiet:
+            print(file=sys.stderr)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())
