@@ -41,6 +41,9 @@ def extract_streams(bag, topics=None):
     """Decode the QuaternionStamped / Vector3Stamped topics of a :class:`BagContents`."""
     wanted = topics or [t for t, (ty, _, _) in bag.topics.items()
                         if ty in (ATTITUDE_TYPE, RATE_TYPE)]
+    if not wanted:
+        raise ScoreError(f'{bag.path}: holds no {ATTITUDE_TYPE} or {RATE_TYPE} topic to score '
+                         f'(it has {sorted(bag.topics)})')
     for t in wanted:
         if t not in bag.topics:
             raise ScoreError(f'{bag.path}: no topic {t!r} in the log (it has '

@@ -21,7 +21,7 @@ from rigidrot_ros.io.bag import BagError, read_bag
 
 
 def _qos(text):
-    """QoSProfile from a rosbag2 offered_qos_profiles YAML string (first profile)."""
+    """Build a QoS profile from a rosbag2 offered_qos_profiles YAML string (first one)."""
     try:
         prof = (yaml.safe_load(text) or [{}])[0]
     except yaml.YAMLError:

@@ -1,0 +1,257 @@
+"""Record -> replay -> compare, as users run it, checked with readers we did not write."""
+
+import json
+import os
+from pathlib import Path
+import re
+import signal
+import sys
+import textwrap
+import time
+
+from mcap.reader import make_reader
+import pytest
+from rosbags.highlevel import AnyReader
+import yaml
+
+from rigidrot_ros.io.bag import BagWriter, read_bag
+from ros_helpers import next_domain_id, ros_env, script, start, stop, wait_for
+
+pytestmark = pytest.mark.ros
+
+# plays the estimator: republishes each attitude rotated by 0.01 rad about a fixed body axis
+ESTIMATOR = textwrap.dedent('''
+    import math, sys, time
+    import rclpy
+    from geometry_msgs.msg import QuaternionStamped
+    rclpy.init()
+    node = rclpy.create_node('estimator')
+    pub = node.create_publisher(QuaternionStamped, '/estimator/attitude', 100)
+    h = 0.005                       # half of 0.01 rad, about the unit axis (0.6, 0, 0.8)
+    d = (0.6 * math.sin(h), 0.0, 0.8 * math.sin(h), math.cos(h))
+    def cb(m):
+        x, y, z, w = m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w
+        bx, by, bz, bw = d
+        out = QuaternionStamped()
+        out.header = m.header
+        out.quaternion.x = w * bx + x * bw + y * bz - z * by
+        out.quaternion.y = w * by - x * bz + y * bw + z * bx
+        out.quaternion.z = w * bz + x * by - y * bx + z * bw
+        out.quaternion.w = w * bw - x * bx - y * by - z * bz
+        pub.publish(out)
+    node.create_subscription(QuaternionStamped, '/attitude', cb, 100)
+    end = time.monotonic() + float(sys.argv[1])
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+''')
+
+# records everything it receives with arrival times (ns, monotonic) and the raw values
+CAPTURE = textwrap.dedent('''
+    import json, sys, time
+    import rclpy
+    from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
+    rclpy.init()
+    node = rclpy.create_node('capture')
+    got = []
+    def add(kind):
+        def cb(m):
+            st = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            v = m.quaternion if kind == 'q' else m.vector
+            vals = [v.x, v.y, v.z] + ([v.w] if kind == 'q' else [])
+            got.append([kind, st, time.monotonic(), vals])
+        return cb
+    node.create_subscription(QuaternionStamped, '/attitude', add('q'), 1000)
+    node.create_subscription(Vector3Stamped, '/angular_velocity', add('w'), 1000)
+    print('ready', flush=True)
+    end = time.monotonic() + float(sys.argv[1])
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.01)
+    print(json.dumps(got))
+''')
+
+
+def _record(tmp_path, env, seconds, sig=signal.SIGTERM, extra=()):
+    """Run attitude_node with recording for about ``seconds``, end it with ``sig``."""
+    root = tmp_path / 'runs'
+    node = start([script('attitude_node'), '--ros-args', '-p', 'record:=true',
+                  '-p', f'record_path:={root}', *extra], env)
+    assert wait_for(lambda: root.exists() and any(root.iterdir()), timeout=30)
+    time.sleep(seconds)
+    code, out, err = stop(node, sig)
+    bags = sorted(root.iterdir())
+    assert len(bags) == 1
+    return bags[0], code, err
+
+
+def test_round_trip_read_by_rosbags_and_mcap(tmp_path):
+    env = ros_env(next_domain_id())
+    cap = start([sys.executable, '-c', CAPTURE, '8'], env)
+    assert cap.stdout.readline().strip() == 'ready'
+    bag, code, err = _record(tmp_path, env, 2.5)
+    assert code == 0 and 'Traceback' not in err, err
+    published = int(re.search(r'published (\d+) ticks', err).group(1))
+    got = json.loads(cap.communicate(timeout=60)[0])
+    sent = {(k, st): vals for k, st, _, vals in got}
+    # the independent reader: rosbags, on the bag directory (metadata.yaml + mcap)
+    with AnyReader([bag]) as reader:
+        conns = {c.topic: c for c in reader.connections}
+        assert conns['/attitude'].msgtype == 'geometry_msgs/msg/QuaternionStamped'
+        assert conns['/angular_velocity'].msgtype == 'geometry_msgs/msg/Vector3Stamped'
+        assert conns['/attitude'].msgcount == conns['/angular_velocity'].msgcount == published
+        qos = conns['/attitude'].ext.offered_qos_profiles
+        assert qos and qos[0].depth == 10 and qos[0].reliability.name == 'RELIABLE'
+        matched = 0
+        for conn, _, raw in reader.messages():
+            m = reader.deserialize(raw, conn.msgtype)
+            st = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            if conn.topic == '/attitude':
+                vals = [m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w]
+                key = ('q', st)
+                assert m.header.frame_id == 'inertial'
+            else:
+                vals = [m.vector.x, m.vector.y, m.vector.z]
+                key = ('w', st)
+                assert m.header.frame_id == 'body'
+            if key in sent:
+                assert vals == sent[key]          # bit for bit what was published
+                matched += 1
+    assert matched >= len(sent) - 4 and matched > 300
+    # the mcap reader: ROS 2 profile, schemas, encodings, channel metadata
+    mcap_file = next(bag.glob('*.mcap'))
+    with open(mcap_file, 'rb') as fh:
+        r = make_reader(fh)
+        assert r.get_header().profile == 'ros2'
+        summary = r.get_summary()
+        assert {s.name for s in summary.schemas.values()} == {
+            'geometry_msgs/msg/QuaternionStamped', 'geometry_msgs/msg/Vector3Stamped'}
+        assert all(s.encoding == 'ros2msg' for s in summary.schemas.values())
+        assert b'MSG: std_msgs/Header' in summary.schemas[1].data
+        for ch in summary.channels.values():
+            assert ch.message_encoding == 'cdr'
+            assert yaml.safe_load(ch.metadata['offered_qos_profiles'])[0]['depth'] == 10
+        assert summary.chunk_indexes and all(c.compression == 'zstd'
+                                             for c in summary.chunk_indexes)
+        runs = [m for m in r.iter_metadata() if m.name == 'rigidrot_run']
+        assert len(runs) == 1 and json.loads(runs[0].metadata['scene'])['inertia'] == [2, 2, 1]
+    meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert meta['storage_identifier'] == 'mcap' and meta['message_count'] == 2 * published
+    # compare on the node's own log: within tol
+    out = _run(['rigidrot_compare', str(bag), '--json', str(tmp_path / 's.json'),
+                '--plot', str(tmp_path / 's.png')], env)
+    assert out.returncode == 0, out.stderr
+    summary = json.loads((tmp_path / 's.json').read_text())
+    att = [t for t in summary['topics'] if t['topic'] == '/attitude'][0]
+    assert att['count'] == published and att['max'] <= 1e-12
+    assert (tmp_path / 's.png').stat().st_size > 10000
+
+
+def _run(cmd, env, **kw):
+    import subprocess
+    return subprocess.run([script(cmd[0])] + cmd[1:], env=env, capture_output=True,
+                          text=True, timeout=120, **kw)
+
+
+def test_sigkill_loses_at_most_about_a_second(tmp_path):
+    env = ros_env(next_domain_id())
+    cap = start([sys.executable, '-c', CAPTURE, '8'], env)
+    assert cap.stdout.readline().strip() == 'ready'
+    bag, code, err = _record(tmp_path, env, 3.0, sig=signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    got = json.loads(cap.communicate(timeout=60)[0])
+    last_sent = max(st for k, st, _, _ in got if k == 'q')
+    contents = read_bag(str(bag))
+    assert contents.truncated
+    stamps = [m[2] for m in contents.messages if m[0] == '/attitude']
+    lost = (last_sent - max(stamps)) * 1e-9
+    assert lost <= 1.0, f'lost {lost:.3f} s'
+    out = _run(['rigidrot_compare', str(bag)], env)
+    assert out.returncode == 0, out.stderr
+    assert 'unfinished file' in out.stderr and 'Traceback' not in out.stderr
+
+
+def test_compare_scores_a_perturbed_estimator(tmp_path):
+    env = ros_env(next_domain_id())
+    est = start([sys.executable, '-c', ESTIMATOR, '10'], env)
+    bag, code, err = _record(tmp_path, env, 3.0,
+                             extra=['-p', "record_topics:=['/estimator/attitude']"])
+    stop(est, signal.SIGINT)
+    assert code == 0, err
+    out = _run(['rigidrot_compare', str(bag), '--json', str(tmp_path / 'e.json')], env)
+    assert out.returncode == 0, out.stderr
+    topics = {t['topic']: t for t in json.loads((tmp_path / 'e.json').read_text())['topics']}
+    est_score = topics['/estimator/attitude']
+    assert est_score['count'] > 50
+    assert abs(est_score['max'] - 0.01) <= 1e-6 and abs(est_score['rms'] - 0.01) <= 1e-6
+    assert topics['/attitude']['max'] <= 1e-12
+    # --truth: the same log against itself scores zero (to the interpolation's rounding)
+    out = _run(['rigidrot_compare', str(bag), '--topic', '/attitude', '--truth', str(bag),
+                '--json', str(tmp_path / 't.json')], env)
+    assert out.returncode == 0, out.stderr
+    self_score = json.loads((tmp_path / 't.json').read_text())['topics'][0]
+    assert self_score['count'] > 50 and self_score['max'] <= 1e-15
+
+
+@pytest.mark.parametrize('rate', [1.0, 2.0])
+def test_replay_into_another_process(tmp_path, rate):
+    env = ros_env(next_domain_id())
+    bag, code, err = _record(tmp_path, env, 1.5)
+    original = [m for m in read_bag(str(bag)).messages]
+    env2 = ros_env(next_domain_id())            # a quiet domain for the replay
+    cap = start([sys.executable, '-c', CAPTURE, '8'], env2)
+    assert cap.stdout.readline().strip() == 'ready'
+    rep = _run(['rigidrot_replay', str(bag), '--rate', str(rate), '--quiet'], env2)
+    assert rep.returncode == 0, rep.stderr
+    got = json.loads(cap.communicate(timeout=60)[0])
+    q_got = [g for g in got if g[0] == 'q']
+    q_orig = [m for m in original if m[0] == '/attitude']
+    assert [g[1] for g in q_got] == sorted(g[1] for g in q_got)        # same order
+    assert len(q_got) >= len(q_orig) - 2
+    # timing: arrival spacing follows the log spacing divided by the rate
+    span_log = (q_orig[-1][2] - q_orig[0][2]) * 1e-9
+    span_got = q_got[-1][2] - q_got[0][2]
+    assert span_got == pytest.approx(span_log / rate, rel=0.1, abs=0.05)
+
+
+def test_bad_inputs_get_one_line_and_status_2(tmp_path):
+    env = ros_env(next_domain_id())
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    text = tmp_path / 'notes.mcap'
+    text.write_text('hello')
+    # a finished bag without run records, with a topic of another type
+    w = BagWriter(str(tmp_path / 'bags'), 'other')
+    w.add_topic('/chatter', 'std_msgs/msg/String')
+    w.write('/chatter', b'\x00\x01\x00\x00\x06\x00\x00\x00hello\x00', 1_000_000_000)
+    w.close()
+    other = Path(w.path)
+    # a truncated file: cut a finished bag in its middle, past the header
+    good_bag, _, _ = _record(tmp_path, env, 1.0)
+    src = next(good_bag.glob('*.mcap'))
+    torn = tmp_path / 'torn.mcap'
+    torn.write_bytes(src.read_bytes()[:40])
+    cases = [
+        (['rigidrot_compare', str(tmp_path / 'missing')], 'no such file'),
+        (['rigidrot_compare', str(empty)], 'no .mcap file'),
+        (['rigidrot_compare', str(text)], 'not an MCAP file'),
+        (['rigidrot_compare', str(torn)], 'no readable records'),
+        (['rigidrot_compare', str(other), '--topic', '/chatter'], 'not geometry_msgs'),
+        (['rigidrot_compare', str(other)], 'holds no'),
+        (['rigidrot_compare', str(good_bag), '--topic', '/nope'], "no topic '/nope'"),
+        (['rigidrot_replay', str(text)], 'not an MCAP file'),
+        (['rigidrot_replay', str(good_bag), '--topics', '/nope'], 'no topic'),
+    ]
+    for cmd, words in cases:
+        out = _run(cmd, env)
+        assert out.returncode == 2, (cmd, out.stdout, out.stderr)
+        assert words in out.stderr, (cmd, out.stderr)
+        assert 'Traceback' not in out.stderr
+    # a bag with messages but no run metadata cannot be scored against the exact truth
+    w2 = BagWriter(str(tmp_path / 'bags'), 'norun')
+    w2.add_topic('/attitude', 'geometry_msgs/msg/QuaternionStamped')
+    w2.write('/attitude', next(m[4] for m in read_bag(str(good_bag)).messages
+                               if m[0] == '/attitude'), 1)
+    w2.close()
+    out = _run(['rigidrot_compare', w2.path], env)
+    assert out.returncode == 2 and 'no rigidrot_run metadata' in out.stderr
+    # nothing recorded is overwritten: a second writer gets a new directory
+    assert w2.path != w.path and os.path.isdir(w.path)
