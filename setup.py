@@ -59,6 +59,7 @@ setup(
             'rigidrot_echo = rigidrot_ros.tools.echo:main',
             'rigidrot_compare = rigidrot_ros.tools.compare:main',
             'rigidrot_replay = rigidrot_ros.tools.replay:main',
+            'rigidrot_demo_estimator = rigidrot_ros.tools.demo_estimator:main',
         ],
     },
 )

@@ -24,6 +24,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rcl_interfaces.msg import ParameterType, SetParametersResult
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
@@ -241,8 +242,13 @@ class AttitudeNode(Node):
         rate.header.stamp = stamp
         rate.header.frame_id = self.get_parameter('body_frame_id').value
         rate.vector.x, rate.vector.y, rate.vector.z = (float(v) for v in s.omega)
-        self._pub_att.publish(att)
-        self._pub_rate.publish(rate)
+        try:
+            self._pub_att.publish(att)
+            self._pub_rate.publish(rate)
+        except _rclpy.RCLError:
+            if self.context.ok():
+                raise
+            return                  # shut down (SIGINT/SIGTERM) while this tick ran
         st.published += 1
         self._last_sample = (t, s)
         if self._bag is not None:
@@ -398,6 +404,9 @@ def main(args=None):
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except _rclpy.RCLError:
+        if rclpy.ok():
+            raise               # a real failure; after a shutdown it is only the race
     finally:
         if node is not None:
             node.destroy_node()

@@ -43,6 +43,8 @@ def _plot(results, path, title):
         ax = axes[0] if r['unit'] == 'rad' else axes[1]
         err = [max(e, 1e-18) for e in r['error']]
         ax.semilogy(r['t'], err, '.', ms=2, label=r['topic'])
+    axes[0].text(0.01, 0.02, 'exact zeros drawn at 1e-18', transform=axes[0].transAxes,
+                 fontsize=7, color='gray')
     axes[0].set_ylabel('attitude error angle [rad]')
     axes[1].set_ylabel('angular velocity error [rad/s]')
     axes[1].set_xlabel('scene time t since the run started [s]')

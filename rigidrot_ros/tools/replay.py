@@ -13,6 +13,7 @@ import time
 from builtin_interfaces.msg import Time
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 import yaml
@@ -116,6 +117,9 @@ def main(argv=None):
                 break
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except _rclpy.RCLError:
+        if rclpy.ok():
+            raise               # a real failure; after a shutdown it is only the race
     finally:
         if not opts.quiet:
             print(file=sys.stderr)
