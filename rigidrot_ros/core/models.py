@@ -81,6 +81,14 @@ class Samples:
         return quat.to_matrix(self.quaternion)
 
 
+def _qmul(a, b):
+    """Hamilton product of two quaternions given as float 4-tuples (x, y, z, w)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+
+
 def _cyclic(k):
     """Proper rotation ``R_B'B`` (rows e_{k+1}, e_{k+2}, e_k) moving axis k to the third."""
     eye = np.eye(3)
@@ -235,6 +243,8 @@ class Solution:
             quat.multiply(np.array(scene.attitude0), quat.conjugate(q_b1b)), q_sk)
         self._mid = quat.conjugate(q_sk)
         self._right = q_b1b
+        self._left_t, self._mid_t, self._right_t = (
+            tuple(float(v) for v in x) for x in (self._left, self._mid, self._right))
         self._r0 = w0[2]
 
     @property
@@ -268,6 +278,8 @@ class Solution:
         1.0
         """
         t_arr = np.asarray(t, dtype=float)
+        if t_arr.ndim == 0:
+            return self._at_scalar(float(t_arr))
         if t_arr.ndim > 1:
             raise ValueError(f't must be a float or a 1-D array, got shape {t_arr.shape}')
         tt = np.atleast_1d(t_arr)
@@ -290,9 +302,24 @@ class Solution:
         omega = w_b1 @ self._perm_T.T
         # a component error e of a unit quaternion moves the attitude by <= 2 asin(e)
         err = 2.0 * np.arcsin(np.minimum(kerr, 1.0)) + FLOAT_FLOOR
-        if t_arr.ndim == 0:
-            return Samples(t_arr, q[0], omega[0], err[0])
         return Samples(tt, q, omega, err)
+
+    def _at_scalar(self, t):
+        """:meth:`at` for one time, in plain floats (the node's per-tick path)."""
+        if not math.isfinite(t):
+            raise ValueError('t must be finite')
+        k, kerr = self._kernel.evaluate(t)
+        f = self._f.angle(t)
+        c, s = math.cos(f), math.sin(f)
+        h = 0.5 * f
+        q = _qmul(_qmul(self._left_t, tuple(k)),
+                  _qmul(_qmul(self._mid_t, (0.0, 0.0, math.sin(h), math.cos(h))),
+                        self._right_t))
+        a = self._w_s0[0] + self._m_over_I[0] * t
+        b = self._w_s0[1] + self._m_over_I[1] * t
+        w_b1 = np.array([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * t])
+        err = 2.0 * math.asin(min(kerr, 1.0)) + FLOAT_FLOOR
+        return Samples(np.asarray(t), np.array(q), self._perm_T @ w_b1, np.float64(err))
 
 
 def solve(scene, tol=1e-12, backend=None, max_prec=4096):
