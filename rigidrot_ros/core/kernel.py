@@ -259,11 +259,17 @@ class HyperKernel:
         Ceiling on the working precision, bits.
     """
 
+    #: With flint, a sample whose 1F1 would need more bits than this is continued by
+    #: certified Taylor series instead (see :mod:`rigidrot_ros.core.taylor`).
+    FALLBACK_BITS = 1024
+
     def __init__(self, p, q, r0, U, backend, tol, max_prec=4096):
         self.backend = make_backend(backend)
         self.method = f'hypergeometric-{self.backend.name}'
         self.tol = float(tol)
         self.max_prec = int(max_prec)
+        self._fallback = None
+        self._inputs = (p, q, r0, U)
         with mp.workprec(SETUP_PREC):
             p, q, r0, U = (mpmath.mpf(v) for v in (p, q, r0, U))
             self.sqrtU = mpmath.sqrt(U)
@@ -362,6 +368,10 @@ class HyperKernel:
         """
         prec = self.prec
         last_err = math.inf
+        ceiling = self.max_prec
+        if self.backend.certified:
+            ceiling = min(ceiling, self.FALLBACK_BITS)
+            prec = min(prec, ceiling)
         while True:
             try:
                 q, err = self._at_prec(t, prec)
@@ -371,10 +381,17 @@ class HyperKernel:
                 self.prec = prec
                 return q, err
             last_err = err
-            if prec >= self.max_prec:
+            if prec >= ceiling:
                 break
             step = 32 if not math.isfinite(err) else max(32, int(math.log2(err / self.tol)) + 16)
-            prec = min(self.max_prec, max(prec + step, int(prec * 1.25)))
+            prec = min(ceiling, max(prec + step, int(prec * 1.25)))
+        if self.backend.certified:
+            if self._fallback is None:
+                from .taylor import TaylorKernel
+                self._fallback = TaylorKernel(*self._inputs, tol=self.tol,
+                                              max_prec=self.max_prec)
+                self.method = 'hypergeometric-flint+taylor-series-flint'
+            return self._fallback.evaluate(t)
         pr = self.params
         raise PrecisionError(
             f'the {self.backend.name} 1F1 evaluation reached only {last_err:.3g} '

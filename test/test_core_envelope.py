@@ -1,0 +1,111 @@
+"""Small torque, long horizons, fast spin: the regimes where 1F1 cancels.
+
+The certified Taylor continuation and the 1F1 form are two representations of the same
+exact solution that share no formula; they check each other where both are cheap, and
+DOP853 checks the small-torque regime directly.
+"""
+
+import mpmath
+import numpy as np
+from numpy.testing import assert_allclose
+import pytest
+
+from conftest import integrate
+from rigidrot_ros.core import quaternion as quat
+from rigidrot_ros.core import Scene, solve
+from rigidrot_ros.core.kernel import HyperKernel
+from rigidrot_ros.core.models import DELTA_SWITCH
+from rigidrot_ros.core.taylor import TaylorKernel
+
+
+@pytest.mark.parametrize('delta', [0.3, 3.0, 30.0])
+def test_taylor_and_1f1_agree_to_long_horizons(delta, rng):
+    p, q, r0 = rng.uniform(-1, 1, 3)
+    U = (p * p + q * q) / (4 * delta)
+    t = np.array([0.0, 0.7, 13.0, 100.0, 400.0])
+    hyper = HyperKernel(p, q, r0, U, 'flint', tol=1e-13)
+    taylor = TaylorKernel(*(mpmath.mpf(v) for v in (p, q, r0, U)), tol=1e-13)
+    for ti in t:
+        a, ea = hyper.evaluate(ti)
+        b, eb = taylor.evaluate(ti)
+        assert np.linalg.norm(a - b) <= ea + eb
+        assert np.linalg.norm(a - b) <= 1e-14
+
+
+def test_spacecraft_torque_against_dop853():
+    """I = 1000 kg m^2, 1 mN m: U = 1e-6 rad/s^2, delta = 3e4 (1F1 would need ~7e4 bits)."""
+    scene = Scene(inertia=(1000.0, 1000.0, 1000.0), torque=(0.0, 6e-4, 8e-4),
+                  omega0=(0.3, -0.2, 0.5), attitude0=(0.1, 0.2, 0.3, 0.9))
+    sol = solve(scene)
+    assert sol.method == 'taylor-series-flint'
+    t = np.linspace(0.0, 10.0, 11)
+    s = sol.at(t)
+    w, q = integrate(scene, t)
+    assert quat.angle_between(s.quaternion, q).max() < 1e-10
+    assert_allclose(s.omega, w, atol=1e-12)
+    assert np.all(s.error_bound <= 1e-12)
+
+
+def test_axisymmetric_small_torque_long_horizon_invariants():
+    """Axial torque 1e-7 rad/s^2 over 1e4 s: unit, continuous, rates exact, bound held."""
+    scene = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 2e-7),
+                  omega0=(0.05, -0.02, 0.3))
+    sol = solve(scene)
+    assert sol.model == 'axial-torque' and 'taylor' in sol.method
+    t = np.linspace(9990.0, 10000.0, 1001)
+    s = sol.at(t)
+    assert np.all(s.error_bound <= 1e-12)
+    assert_allclose(np.linalg.norm(s.quaternion, axis=-1), 1.0, atol=1e-15)
+    assert np.all(np.einsum('ij,ij->i', s.quaternion[1:], s.quaternion[:-1]) > 0)
+    # r grows as m3 / I3 t, the transverse rate keeps its magnitude
+    assert_allclose(s.omega[:, 2], 0.3 + 2e-7 * t, rtol=0, atol=1e-15)
+    assert_allclose(np.hypot(s.omega[:, 0], s.omega[:, 1]), np.hypot(0.05, 0.02), atol=1e-15)
+
+
+def test_continuity_across_the_1f1_taylor_switch():
+    """At the switch both methods give the same motion; either side, solve picks each."""
+    p, q, r0 = 0.3, -0.2, 0.5
+    t = np.array([0.0, 1.0, 10.0, 60.0])
+    u_switch = (p * p + q * q) / (4 * DELTA_SWITCH)
+    hyper = HyperKernel(p, q, r0, u_switch, 'flint', tol=1e-13)
+    taylor = TaylorKernel(*(mpmath.mpf(v) for v in (p, q, r0, u_switch)), tol=1e-13)
+    for ti in t:
+        a, ea = hyper.evaluate(ti)
+        b, eb = taylor.evaluate(ti)
+        assert np.linalg.norm(a - b) <= ea + eb
+    out = []
+    for factor in (1 - 1e-13, 1 + 1e-13):
+        u = (p * p + q * q) / (4 * DELTA_SWITCH * factor)
+        sol = solve(Scene(inertia=(1.0, 1.0, 1.0), torque=(0.0, 0.0, u), omega0=(p, q, r0)))
+        out.append((sol.method, sol.at(t)))
+    assert out[0][0] == 'hypergeometric-flint' and out[1][0] == 'taylor-series-flint'
+    # the scenes differ by 2e-13 in U: the motion moves by well under 1e-12 rad by t = 60 s
+    diff = quat.angle_between(out[0][1].quaternion, out[1][1].quaternion)
+    assert diff.max() < 2e-12
+
+
+def test_1f1_falls_back_to_taylor_past_its_bit_budget(monkeypatch):
+    monkeypatch.setattr(HyperKernel, 'FALLBACK_BITS', 72)    # delta = 30 needs ~130 bits
+    p, q, r0 = 0.3, -0.2, 0.5
+    U = (p * p + q * q) / (4 * 30.0)
+    kernel = HyperKernel(p, q, r0, U, 'flint', tol=1e-13)
+    a, ea = kernel.evaluate(3.0)
+    assert 'taylor' in kernel.method
+    b, eb = TaylorKernel(*(mpmath.mpf(v) for v in (p, q, r0, U)), tol=1e-13).evaluate(3.0)
+    assert np.linalg.norm(a - b) <= ea + eb
+
+
+@pytest.mark.parametrize('transverse, r0, U, horizon', [
+    (10.0, 100.0, 1e2, 20.0),          # fast spin, large torque
+    (10.0, -100.0, 1e-10, 2.0),        # fast spin, tiny torque
+    (1e-3, 0.0, 1e-10, 1e5),           # slow, tiny torque, long horizon
+    (0.5, 0.0, 1e2, 1e3),              # large torque, long horizon
+])
+def test_envelope_corners_hold_tol(transverse, r0, U, horizon):
+    scene = Scene(inertia=(1.0, 1.0, 1.0), torque=(0.0, 0.0, U),
+                  omega0=(transverse * 0.6, transverse * 0.8, r0))
+    sol = solve(scene)
+    t = np.array([0.0, horizon / 3, horizon])
+    s = sol.at(t)
+    assert np.all(np.isfinite(s.quaternion)) and np.all(s.error_bound <= 1e-12)
+    assert_allclose(np.linalg.norm(s.quaternion, axis=-1), 1.0, atol=1e-15)
