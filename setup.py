@@ -30,6 +30,7 @@ setup(
     ],
     extras_require={
         'plot': ['matplotlib>=3.7'],
+        'bench': ['scipy>=1.10', 'matplotlib>=3.7'],
         'test': [
             'pytest>=7',
             'rosbags>=0.10',
@@ -60,6 +61,7 @@ setup(
             'rigidrot_compare = rigidrot_ros.tools.compare:main',
             'rigidrot_replay = rigidrot_ros.tools.replay:main',
             'rigidrot_demo_estimator = rigidrot_ros.tools.demo_estimator:main',
+            'rigidrot_bench = rigidrot_ros.bench.run:main',
         ],
     },
 )

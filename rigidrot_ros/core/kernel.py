@@ -284,7 +284,16 @@ class HyperKernel:
         # Start where the magnitudes of the even/odd solutions (about e^{pi delta/4}
         # each) would leave the tolerance's bits plus guard bits.
         need = -math.log2(self.tol) + 2 * math.log2(math.e) * math.pi * float(self.delta) / 4
-        self.prec = int(min(max(64, 24 + need), self.max_prec))
+        self.predicted = int(max(64, 24 + need))
+        self.prec = min(self.predicted, self.max_prec)
+        if not self.backend.certified and self.predicted > self.max_prec:
+            # mpmath would grind through hopeless precisions: say so at once
+            raise PrecisionError(
+                f'the mpmath 1F1 evaluation would need about {self.predicted} bits '
+                f'(ceiling {self.max_prec}): delta = (p^2 + q^2) / (4U) = '
+                f'{float(self.delta):.4g} is large (small torque against the transverse '
+                f"rate). Use backend='flint' (certified Taylor continuation) or raise "
+                f'max_prec.')
         self._check(0.0)
 
     # -- per-precision constants ----------------------------------------------------------
@@ -372,7 +381,9 @@ class HyperKernel:
         if self.backend.certified:
             ceiling = min(ceiling, self.FALLBACK_BITS)
             prec = min(prec, ceiling)
-        while True:
+            if self.predicted > 2 * self.FALLBACK_BITS:
+                prec = ceiling + 1                   # hopeless for 1F1: straight to Taylor
+        while prec <= ceiling:
             try:
                 q, err = self._at_prec(t, prec)
             except PrecisionError:

@@ -320,6 +320,20 @@ class Solution:
         err = 2.0 * np.arcsin(np.minimum(kerr, 1.0)) + FLOAT_FLOOR
         return Samples(tt, q, omega, err)
 
+    def omega_at(self, t):
+        """Angular velocity of B relative to N, in B, rad/s, at t (float or 1-D array).
+
+        The dynamics alone, in closed form (Eq. 39, 47, 56, 58): no special function is
+        evaluated, so this is cheap.
+        """
+        tt = np.asarray(t, dtype=float)
+        f = np.vectorize(self._f.angle, otypes=[float])(tt)
+        a = self._w_s0[0] + self._m_over_I[0] * tt
+        b = self._w_s0[1] + self._m_over_I[1] * tt
+        c, s = np.cos(f), np.sin(f)
+        w_b1 = np.stack([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * tt], axis=-1)
+        return w_b1 @ self._perm_T.T
+
     def _at_scalar(self, t):
         """:meth:`at` for one time, in plain floats (the node's per-tick path)."""
         if not math.isfinite(t):

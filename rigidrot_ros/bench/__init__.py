@@ -1,0 +1,1 @@
+"""Benchmarks: the exact solution against the integrators a user would otherwise pick."""

@@ -1,0 +1,289 @@
+"""rigidrot_bench: speed against accuracy, horizon scaling, and where each method fails.
+
+Every method is timed (CPU time, median of repeats) and its answer is checked against a
+reference far tighter than anything measured: the exact solution at tol = 2e-14 rad
+(certified by Arb). An exact evaluation whose error exceeds its own tol is reported as a
+violated claim, not plotted as a win.
+"""
+
+import argparse
+import csv
+import datetime
+import json
+import math
+import os
+import platform
+import sys
+import time
+
+import numpy as np
+
+from rigidrot_ros import __version__
+from rigidrot_ros.bench import peers
+from rigidrot_ros.core import PrecisionError, Scene, solve
+from rigidrot_ros.core import quaternion as quat
+
+REF_TOL = 2e-14
+
+SCENES = {
+    'sphere (Thm 1)': Scene(inertia=(2.0, 2.0, 2.0), torque=(0.06, -0.04, 0.08),
+                            omega0=(0.3, -0.2, 0.5), attitude0=(0.1, 0.2, 0.3, 0.9)),
+    'axial torque (Thm 2)': Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05),
+                                  omega0=(0.3, -0.2, 0.5), attitude0=(0.1, 0.2, 0.3, 0.9)),
+    'transverse, virtual (Thm 3)': Scene(inertia=(2.0, 2.0, 1.0), torque=(0.04, 0.0, 0.0),
+                                         torque_frame='virtual', omega0=(0.3, -0.2, 0.5),
+                                         attitude0=(0.1, 0.2, 0.3, 0.9)),
+    'torque-free (Thm 5)': Scene(inertia=(2.0, 2.0, 1.0), omega0=(0.3, -0.2, 1.5),
+                                 attitude0=(0.1, 0.2, 0.3, 0.9)),
+}
+
+
+def _cpu():
+    try:
+        with open('/proc/cpuinfo', encoding='utf-8') as fh:
+            for line in fh:
+                if line.startswith('model name'):
+                    return line.split(':', 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or 'unknown CPU'
+
+
+def footer():
+    """Versions, CPU and date: printed with every result."""
+    import mpmath
+    import scipy
+    try:
+        import flint
+        fl = flint.__version__
+    except ImportError:
+        fl = 'absent'
+    return {
+        'rigidrot_ros': __version__, 'python': platform.python_version(),
+        'numpy': np.__version__, 'scipy': scipy.__version__, 'mpmath': mpmath.__version__,
+        'python-flint': fl, 'cpu': _cpu(), 'cores': os.cpu_count(),
+        'machine': platform.node(),
+        'date': datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
+    }
+
+
+def _timed(fn, repeats):
+    times, out = [], None
+    for _ in range(repeats):
+        c = time.process_time()
+        out = fn()
+        times.append(time.process_time() - c)
+    return float(np.median(times)), out
+
+
+def _methods(scene, quick, workload):
+    """(method, knob label, knob value, callable(t_eval, budget) -> q) for one scene."""
+    rtols = [1e-5, 1e-7, 1e-9, 1e-11, 1e-13] if not quick else [1e-6, 1e-9, 1e-12]
+    steps = [0.1, 0.05, 0.02, 0.01, 0.005, 0.0025] if not quick else [0.05, 0.01]
+    if workload == 'stream':
+        steps = [h for h in steps if abs(0.01 / h - round(0.01 / h)) < 1e-9]
+    tols = [1e-6, 1e-9, 1e-12] if not quick else [1e-9, 1e-12]
+    omega_sol = solve(scene)
+    out = []
+    for rt in rtols:
+        for m in ('DOP853', 'RK45'):
+            if m == 'RK45' and rt < 1e-11:
+                continue                       # RK45 at these tolerances takes minutes
+            out.append((m, 'rtol', rt,
+                        lambda t, b, m=m, rt=rt: peers.scipy_ivp(scene, t, m, rt, budget=b)))
+    for h in steps:
+        out.append(('RK4', 'h', h, lambda t, b, h=h: peers.rk4(scene, t, h, budget=b)))
+        out.append(('RKMK4', 'h', h, lambda t, b, h=h: peers.rkmk4(scene, t, h, budget=b)))
+        out.append(('Magnus4', 'h', h, lambda t, b, h=h: peers.magnus4(
+            scene, t, h, omega_sol.omega_at, budget=b)))
+    for be in ('flint', 'mpmath'):
+        for tol in tols:
+            out.append((f'exact ({be})', 'tol', tol,
+                        lambda t, b, be=be, tol=tol: solve(scene, tol=tol,
+                                                           backend=be).at(t).quaternion))
+    return out
+
+
+def work_precision(quick, repeats, budget, log):
+    """Workload (a): one query at T = 60 s; (b): a 100 Hz stream over 60 s."""
+    rows = []
+    scenes = SCENES if not quick else dict(list(SCENES.items())[1:2])
+    horizon = 60.0 if not quick else 5.0
+    n_stream = int(round(horizon * 100))
+    for sname, scene in scenes.items():
+        ref_sol = solve(scene, tol=REF_TOL)
+        for workload, t_eval in (('query', np.array([horizon])),
+                                 ('stream', np.arange(1, n_stream + 1) * 0.01)):
+            ref = ref_sol.at(t_eval).quaternion
+            for name, knob, value, fn in _methods(scene, quick, workload):
+                try:
+                    cpu, q = _timed(lambda: fn(t_eval, budget), repeats)
+                    err = float(quat.angle_between(q, ref).max())
+                    status = 'ok' if np.isfinite(err) else 'nan'
+                except peers.TimeBudget:
+                    cpu, err, status = budget, math.nan, 'time-out'
+                except (ArithmeticError, ValueError) as exc:
+                    cpu, err, status = math.nan, math.nan, f'error: {exc}'[:80]
+                if name.startswith('exact') and status == 'ok' and err > value:
+                    status = 'claim violated'
+                rows.append({'scene': sname, 'workload': workload, 'method': name,
+                             'knob': knob, 'value': value, 'cpu_s': cpu, 'error_rad': err,
+                             'samples': len(t_eval), 'horizon_s': horizon,
+                             'status': status})
+                log(f'{sname:28s} {workload:6s} {name:16s} {knob}={value:<8g} '
+                    f'cpu {cpu:9.4f} s  err {err:9.2e}  {status}')
+    return rows
+
+
+def horizon_scaling(quick, budget, log):
+    """CPU time to reach 1e-9 and 1e-12 rad at T, each method at its cheapest knob."""
+    scene = SCENES['axial torque (Thm 2)']
+    horizons = [1.0, 10.0] if quick else [1.0, 10.0, 100.0, 1e3, 1e4, 1e5]
+    ref_sol = solve(scene, tol=REF_TOL)
+    rows = []
+    given_up = set()            # (method, target): not reached at a shorter horizon
+    for T in horizons:
+        t_eval = np.array([T])
+        ref = ref_sol.at(t_eval).quaternion
+        for target in (1e-9, 1e-12):
+            best = {}
+            for name, knob, value, fn in _methods(scene, quick, 'query'):
+                if name in best or (knob == 'tol' and value > target) or \
+                        (name, target) in given_up:
+                    continue
+                if T >= 1e4 and knob == 'h' and value < 0.01:
+                    continue                   # millions of Python steps: not worth timing
+                try:
+                    cpu, q = _timed(lambda: fn(t_eval, budget), 1)
+                    err = float(quat.angle_between(q, ref).max())
+                except peers.TimeBudget:
+                    continue
+                except (ArithmeticError, ValueError):
+                    continue
+                if err <= target:
+                    best[name] = (cpu, knob, value, err)
+            for name in sorted({m for m, *_ in _methods(scene, quick, 'query')}):
+                if name not in best:
+                    given_up.add((name, target))
+                cpu, knob, value, err = best.get(name, (math.nan, '', math.nan, math.nan))
+                rows.append({'T_s': T, 'target_rad': target, 'method': name, 'cpu_s': cpu,
+                             'knob': knob, 'value': value, 'error_rad': err,
+                             'status': 'ok' if name in best else 'not reached'})
+                log(f'T={T:<8g} target {target:g} {name:16s} cpu {cpu:9.4f} s '
+                    f'{knob}={value:<8g} err {err:9.2e}')
+    return rows
+
+
+def stability_map(quick, budget, log):
+    """Status of each method over torque U x horizon T, and over spin rate r0 x T."""
+    us = [1e-6, 1.0] if quick else [1e-10, 1e-8, 1e-6, 1e-4, 1e-2, 1.0, 1e2]
+    ts = [1.0, 10.0] if quick else [1.0, 10.0, 100.0, 1e3, 1e4, 1e5]
+    r0s = [10.0] if quick else [0.1, 1.0, 10.0, 100.0]
+    methods = {
+        'exact (flint), tol 1e-12': lambda sc, t, b: solve(sc, tol=1e-12).at(t).quaternion,
+        'exact (mpmath), tol 1e-12': lambda sc, t, b: solve(
+            sc, tol=1e-12, backend='mpmath').at(t).quaternion,
+        'DOP853, rtol 1e-13': lambda sc, t, b: peers.scipy_ivp(sc, t, 'DOP853', 1e-13,
+                                                               budget=b),
+        'RKMK4, h = 0.01 s': lambda sc, t, b: peers.rkmk4(sc, t, 0.01, budget=b),
+    }
+    cells = []
+    grids = [('U', u, 0.5) for u in us] + [('r0', r, 1e-2) for r in r0s]
+    for axis, val, other in grids:
+        u, r0 = (val, other) if axis == 'U' else (other, val)
+        scene = Scene(inertia=(1.0, 1.0, 1.0), torque=(0.0, 0.0, u), omega0=(0.3, -0.2, r0))
+        timed_out = set()
+        for T in ts:
+            t_eval = np.array([T])
+            try:
+                ref = solve(scene, tol=REF_TOL).at(t_eval).quaternion
+            except (PrecisionError, ValueError) as exc:
+                ref = None
+                log(f'no reference at {axis}={val:g} T={T:g}: {exc}'[:120])
+            for name, fn in methods.items():
+                if name in timed_out:           # a longer horizon only takes longer
+                    cells.append({'axis': axis, 'value': val, 'T_s': T, 'method': name,
+                                  'status': 'fail: time-out', 'error_rad': math.nan,
+                                  'cpu_s': math.nan})
+                    continue
+                c = time.process_time()
+                try:
+                    q = fn(scene, t_eval, budget)
+                    cpu = time.process_time() - c
+                    err = float(quat.angle_between(q, ref).max()) if ref is not None else \
+                        math.nan
+                    if not np.all(np.isfinite(q)):
+                        status = 'fail: NaN'
+                    elif ref is None:
+                        status = 'no reference'
+                    elif err <= 1e-12:
+                        status = 'meets 1e-12'
+                    elif err <= 1e-9:
+                        status = 'meets 1e-9'
+                    else:
+                        status = 'loses accuracy'
+                except peers.TimeBudget:
+                    cpu, err, status = time.process_time() - c, math.nan, 'fail: time-out'
+                    timed_out.add(name)
+                except (PrecisionError, ArithmeticError, ValueError) as exc:
+                    cpu, err, status = time.process_time() - c, math.nan, \
+                        f'fail: {type(exc).__name__}'
+                cells.append({'axis': axis, 'value': val, 'T_s': T, 'method': name,
+                              'status': status, 'error_rad': err, 'cpu_s': cpu})
+                log(f'{axis}={val:<8g} T={T:<8g} {name:26s} {status:16s} err {err:9.2e} '
+                    f'cpu {cpu:8.3f} s')
+    return cells
+
+
+def _write_csv(path, rows, foot):
+    if not rows:
+        return
+    with open(path, 'w', newline='', encoding='utf-8') as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+        fh.write('# ' + json.dumps(foot) + '\n')
+
+
+def main(argv=None):
+    """Entry point of ``rigidrot_bench``."""
+    ap = argparse.ArgumentParser(prog='rigidrot_bench', description=__doc__.splitlines()[0])
+    ap.add_argument('--out', default='bench_out', help='directory for charts and data')
+    ap.add_argument('--quick', action='store_true', help='a smoke run, under a minute')
+    ap.add_argument('--only', choices=['wp', 'horizon', 'stability'], action='append')
+    opts = ap.parse_args(argv)
+    os.makedirs(opts.out, exist_ok=True)
+    repeats = 1 if opts.quick else 3
+    budget = 1.0 if opts.quick else 60.0
+    foot = footer()
+    parts = opts.only or ['wp', 'horizon', 'stability']
+    t0 = time.monotonic()
+
+    def log(line):
+        print(f'[{time.monotonic() - t0:7.1f} s] {line}', flush=True)
+
+    results = {'footer': foot}
+    if 'wp' in parts:
+        results['work_precision'] = work_precision(opts.quick, repeats, budget, log)
+        _write_csv(os.path.join(opts.out, 'work_precision.csv'), results['work_precision'],
+                   foot)
+    if 'horizon' in parts:
+        results['horizon'] = horizon_scaling(opts.quick, min(budget, 30.0), log)
+        _write_csv(os.path.join(opts.out, 'horizon.csv'), results['horizon'], foot)
+    if 'stability' in parts:
+        results['stability'] = stability_map(opts.quick, 20.0 if not opts.quick else 1.0, log)
+        _write_csv(os.path.join(opts.out, 'stability.csv'), results['stability'], foot)
+    with open(os.path.join(opts.out, 'results.json'), 'w', encoding='utf-8') as fh:
+        json.dump(results, fh, indent=1, default=float)
+    from rigidrot_ros.bench import charts
+    for path in charts.draw(results, opts.out):
+        log(f'wrote {path}')
+    violated = [r for r in results.get('work_precision', []) if r['status'] == 'claim violated']
+    for r in violated:
+        log(f'CLAIM VIOLATED: {r}')
+    print(json.dumps(foot))
+    return 1 if violated else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,63 @@
+"""The benchmark: the quick smoke run, and the peers' orders of convergence."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from rigidrot_ros.bench import peers
+from rigidrot_ros.core import quaternion as quat
+from rigidrot_ros.core import Scene, solve
+from ros_helpers import script
+
+SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.1, 0.05, 0.02), torque_frame='virtual',
+              omega0=(0.3, -0.2, 0.5), attitude0=(0.1, 0.2, 0.3, 0.9))
+
+
+@pytest.mark.parametrize('method', ['RK4', 'RKMK4', 'Magnus4'])
+def test_fixed_step_peers_are_fourth_order(method):
+    sol = solve(SCENE, tol=2e-14)
+    t = np.array([10.0])
+    ref = sol.at(t).quaternion
+    errs = []
+    for h in (0.1, 0.05, 0.025):
+        if method == 'RK4':
+            q = peers.rk4(SCENE, t, h)
+        elif method == 'RKMK4':
+            q = peers.rkmk4(SCENE, t, h)
+        else:
+            q = peers.magnus4(SCENE, t, h, sol.omega_at)
+        errs.append(quat.angle_between(q, ref)[0])
+    ratios = [errs[0] / errs[1], errs[1] / errs[2]]
+    assert all(12.0 < r < 20.0 for r in ratios), (errs, ratios)
+
+
+def test_scipy_peer_meets_tight_tolerance_and_budget_stops_it():
+    sol = solve(SCENE, tol=2e-14)
+    t = np.array([5.0])
+    q = peers.scipy_ivp(SCENE, t, 'DOP853', 1e-12)
+    assert quat.angle_between(q, sol.at(t).quaternion)[0] < 1e-10
+    with pytest.raises(peers.TimeBudget):
+        peers.rk4(SCENE, np.array([1e4]), 1e-3, budget=0.05)
+
+
+def test_quick_run_writes_charts_and_checked_results(tmp_path):
+    out = subprocess.run([script('rigidrot_bench'), '--quick', '--out', str(tmp_path)],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    for name in ('work_precision_query', 'work_precision_stream', 'horizon', 'stability'):
+        assert (tmp_path / f'{name}.png').stat().st_size > 10000
+        assert (tmp_path / f'{name}.svg').exists()
+    res = json.loads((tmp_path / 'results.json').read_text())
+    assert {'cpu', 'date', 'numpy', 'scipy', 'python-flint'} <= set(res['footer'])
+    wp = res['work_precision']
+    exact = [r for r in wp if r['method'].startswith('exact') and r['status'] == 'ok']
+    assert exact and all(r['error_rad'] <= r['value'] for r in exact)
+    assert not [r for r in wp if r['status'] == 'claim violated']
+    # the stability map shows failures rather than hiding them
+    statuses = {c['status'] for c in res['stability']}
+    assert 'meets 1e-12' in statuses
+    assert any(s.startswith('fail') for s in statuses)
+    assert (tmp_path / 'work_precision.csv').read_text().rstrip().splitlines()[-1] \
+        .startswith('# {')
