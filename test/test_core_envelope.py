@@ -109,3 +109,28 @@ def test_envelope_corners_hold_tol(transverse, r0, U, horizon):
     s = sol.at(t)
     assert np.all(np.isfinite(s.quaternion)) and np.all(s.error_bound <= 1e-12)
     assert_allclose(np.linalg.norm(s.quaternion, axis=-1), 1.0, atol=1e-15)
+
+
+@pytest.mark.parametrize('eps', [1e-4, 1e-7, 1e-10])
+def test_torque_to_zero_meets_the_torque_free_motion(eps):
+    """U -> 0: the axial-torque solution tends to Theorem 5's, at the rate the physics sets."""
+    base = dict(inertia=(2.0, 2.0, 1.0), omega0=(0.3, -0.2, 0.5),
+                attitude0=(0.1, 0.2, 0.3, 0.9))
+    t = np.array([0.0, 1.0, 10.0])
+    free = solve(Scene(**base)).at(t)
+    near = solve(Scene(torque=(0.0, 0.0, eps), **base)).at(t)
+    # the spin changes by eps/I3 t, the attitude by at most about eps t^2 (1 + |A|)
+    assert quat.angle_between(near.quaternion, free.quaternion).max() <= 4 * eps * t[-1] ** 2
+
+
+@pytest.mark.parametrize('eps', [1e-4, 1e-8, 1e-12])
+def test_axisymmetric_tends_to_the_sphere(eps):
+    """I3 -> I: Theorem 2's motion tends to Theorem 1's; the difference is O(eps)."""
+    t = np.array([0.0, 1.0, 10.0])
+    kw = dict(torque=(0.0, 0.0, 0.2), omega0=(0.3, -0.2, 0.5), attitude0=(0.1, 0.2, 0.3, 0.9))
+    sphere = solve(Scene(inertia=(2.0, 2.0, 2.0), **kw)).at(t)
+    near = solve(Scene(inertia=(2.0, 2.0, 2.0 * (1 + eps)), **kw))
+    assert near.model == 'axial-torque'
+    s = near.at(t)
+    assert quat.angle_between(s.quaternion, sphere.quaternion).max() <= 10 * eps * t[-1] ** 2 \
+        + 1e-12

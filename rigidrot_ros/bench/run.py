@@ -235,6 +235,98 @@ def stability_map(quick, budget, log):
     return cells
 
 
+def _envelope_scene(rng):
+    """A random scene inside the issue's envelope, any model with a torque."""
+    u = 10 ** rng.uniform(-10, 2)
+    wt = 10 * rng.uniform() ** 2                      # transverse rate 0..10 rad/s
+    r0 = rng.uniform(-100, 100) * rng.choice([1.0, 0.01])
+    ratio = rng.uniform(0.05, 1.95)                    # I3 / I
+    phi = rng.uniform(0, 2 * math.pi)
+    w = (wt * math.cos(phi), wt * math.sin(phi), r0)
+    kind = rng.choice(['sphere', 'axial', 'virtual', 'oblique'])
+    inertia = (1.0, 1.0, 1.0) if kind == 'sphere' else (1.0, 1.0, ratio)
+    d = rng.normal(size=3)
+    d /= np.linalg.norm(d)
+    if kind == 'axial':
+        torque, frame = (0.0, 0.0, u * ratio), 'body'
+    elif kind == 'virtual':
+        torque, frame = (u * d[0], u * d[1], 0.0), 'virtual'
+    elif kind == 'oblique':
+        torque, frame = tuple(u * d), 'virtual'
+    else:
+        torque, frame = tuple(u * d), 'body'
+    return Scene(inertia=inertia, torque=torque, torque_frame=frame, omega0=w), u, wt, r0
+
+
+def envelope(quick, log, max_turn=2e5):
+    """Random scenes across the envelope: per-sample cost of a 100 Hz stream and errors."""
+    rng = np.random.default_rng(2026)
+    rows = []
+    n = 8 if quick else 60
+    for i in range(n):
+        scene, u, wt, r0 = _envelope_scene(rng)
+        sol = solve(scene, tol=1e-12)
+        # horizon: up to 1e5 s, capped where a first query would turn > max_turn rad
+        rate = abs(r0) + wt
+        t_cap = min(1e5, max_turn / max(rate, 1e-9))
+        if u > 0:
+            t_cap = min(t_cap, math.sqrt(2 * max_turn / u))
+        t0 = float(rng.uniform(0, t_cap))
+        c = time.process_time()
+        try:
+            first = sol.at(t0)
+        except PrecisionError as exc:
+            rows.append({'i': i, 'model': sol.model, 'method': sol.method, 'U': u,
+                         'transverse': wt, 'r0': r0, 't0': t0, 'status': f'fail: {exc}'[:90]})
+            log(f'envelope {i}: FAIL {exc}'[:140])
+            continue
+        t_first = time.process_time() - c
+        costs, bounds = [], [float(first.error_bound)]
+        qs = []
+        for k in range(1, 101):
+            c = time.process_time()
+            smp = sol.at(t0 + 0.01 * k)
+            costs.append(time.process_time() - c)
+            bounds.append(float(smp.error_bound))
+            qs.append(smp.quaternion)
+        # an independent representation where it is affordable: 1F1 <-> Taylor
+        other = math.nan
+        kern = sol._kernel
+        if type(kern).__name__ in ('HyperKernel', 'TaylorKernel'):
+            from rigidrot_ros.core.kernel import HyperKernel
+            from rigidrot_ros.core.taylor import TaylorKernel
+            import mpmath
+            p, q, kr0, ku = kern._inputs if hasattr(kern, '_inputs') else (None,) * 4
+            delta = (float(p) ** 2 + float(q) ** 2) / (4 * float(ku))
+            try:
+                if isinstance(kern, TaylorKernel) and delta < 300:
+                    alt = HyperKernel(float(p), float(q), float(kr0), float(ku), 'flint',
+                                      tol=kern.tol)
+                elif isinstance(kern, HyperKernel) and abs(float(kr0)) + float(ku) * t0 \
+                        + math.hypot(float(p), float(q)) < 1e5 / max(t0, 1):
+                    alt = TaylorKernel(*(mpmath.mpf(v) for v in (p, q, kr0, ku)),
+                                       tol=kern.tol)
+                else:
+                    alt = None
+                if alt is not None:
+                    a, _ = kern.evaluate(t0 + 1.0)
+                    b, _ = alt.evaluate(t0 + 1.0)
+                    other = float(2 * np.linalg.norm(a - b))
+            except PrecisionError:
+                pass
+        row = {'i': i, 'model': sol.model, 'method': sol.method, 'U': u, 'transverse': wt,
+               'r0': r0, 't0': t0, 'first_query_s': t_first,
+               'p50_us': 1e6 * float(np.percentile(costs, 50)),
+               'p99_us': 1e6 * float(np.percentile(costs, 99)),
+               'max_bound_rad': max(bounds), 'vs_other_representation_rad': other,
+               'status': 'ok' if max(bounds) <= 1e-12 else 'bound above tol'}
+        rows.append(row)
+        log(f'envelope {i:3d} {sol.model:22s} {sol.method:26s} U={u:8.1e} wt={wt:5.2f} '
+            f'r0={r0:8.2f} t0={t0:9.1f} first {t_first:7.3f} s p99 {row["p99_us"]:7.1f} us '
+            f'bound {max(bounds):.1e} other {other:.1e}')
+    return rows
+
+
 def _write_csv(path, rows, foot):
     if not rows:
         return
@@ -250,7 +342,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog='rigidrot_bench', description=__doc__.splitlines()[0])
     ap.add_argument('--out', default='bench_out', help='directory for charts and data')
     ap.add_argument('--quick', action='store_true', help='a smoke run, under a minute')
-    ap.add_argument('--only', choices=['wp', 'horizon', 'stability'], action='append')
+    ap.add_argument('--only', choices=['wp', 'horizon', 'stability', 'envelope'],
+                    action='append')
     opts = ap.parse_args(argv)
     os.makedirs(opts.out, exist_ok=True)
     repeats = 1 if opts.quick else 3
@@ -273,6 +366,9 @@ def main(argv=None):
     if 'stability' in parts:
         results['stability'] = stability_map(opts.quick, 20.0 if not opts.quick else 1.0, log)
         _write_csv(os.path.join(opts.out, 'stability.csv'), results['stability'], foot)
+    if 'envelope' in parts:
+        results['envelope'] = envelope(opts.quick, log)
+        _write_csv(os.path.join(opts.out, 'envelope.csv'), results['envelope'], foot)
     with open(os.path.join(opts.out, 'results.json'), 'w', encoding='utf-8') as fh:
         json.dump(results, fh, indent=1, default=float)
     from rigidrot_ros.bench import charts
