@@ -154,3 +154,23 @@ def test_reset_applies_an_atomic_scene_change_and_restarts_at_t0():
     assert_allclose([rate.vector.x, rate.vector.y, rate.vector.z], new['omega0'], atol=1e-15)
     node.destroy_node()
     client_node.destroy_node()
+
+
+def test_diagnostics_report_model_costs_and_ticks():
+    from diagnostic_msgs.msg import DiagnosticArray
+    node = _node()
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    sub = rclpy.create_node('diag_listener')
+    got = []
+    sub.create_subscription(DiagnosticArray, '/diagnostics', got.append, 10)
+    ex.add_node(sub)
+    _spin_until(ex, lambda: len(got) >= 2, timeout=20)
+    values = {kv.key: kv.value for kv in got[-1].status[0].values}
+    assert values['model'] == 'transverse-virtual'
+    assert values['method'] == 'hypergeometric-flint' and values['backend'] == 'flint'
+    assert int(values['ticks_published']) >= 50
+    assert float(values['eval_p99_us']) > 0 and float(values['error_bound_rad']) <= 1e-12
+    assert got[-1].status[0].level in (b'\x00', 0, b'\x01', 1)     # OK, or WARN if slow
+    node.destroy_node()
+    sub.destroy_node()

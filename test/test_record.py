@@ -255,3 +255,35 @@ def test_bad_inputs_get_one_line_and_status_2(tmp_path):
     assert out.returncode == 2 and 'no rigidrot_run metadata' in out.stderr
     # nothing recorded is overwritten: a second writer gets a new directory
     assert w2.path != w.path and os.path.isdir(w.path)
+
+
+def test_compare_honours_resets_in_the_log(tmp_path):
+    from test_node_processes import CLIENT
+    env = ros_env(next_domain_id())
+    root = tmp_path / 'runs'
+    node = start([script('attitude_node'), '--ros-args', '-p', 'record:=true',
+                  '-p', f'record_path:={root}'], env)
+    try:
+        assert wait_for(lambda: root.exists() and any(root.iterdir()), timeout=30)
+        time.sleep(1.0)
+        changes = [['sphere', {'inertia': [3.0, 3.0, 3.0], 'torque': [0.1, 0.1, 0.1],
+                               'omega0': [0.0, 1.0, 0.0], 'time_scale': 2.0}]]
+        import subprocess
+        cli = subprocess.run([sys.executable, '-c', CLIENT, '/attitude_node',
+                              json.dumps(changes)], env=env, capture_output=True, text=True,
+                             timeout=60)
+        assert cli.returncode == 0, cli.stderr
+        assert json.loads(cli.stdout)['reset'][0] is True
+        time.sleep(1.0)
+    finally:
+        code, _, err = stop(node, signal.SIGINT)
+    assert code == 0, err
+    bag = next(root.iterdir())
+    contents = read_bag(str(bag))
+    assert [r['model'] for r in contents.runs] == ['axial-torque', 'sphere']
+    assert contents.runs[1]['time_scale'] == 2.0
+    out = _run(['rigidrot_compare', str(bag), '--json', str(tmp_path / 'r.json')], env)
+    assert out.returncode == 0, out.stderr
+    topics = {t['topic']: t for t in json.loads((tmp_path / 'r.json').read_text())['topics']}
+    assert topics['/attitude']['count'] > 150 and topics['/attitude']['max'] <= 1e-12
+    assert topics['/angular_velocity']['max'] <= 1e-12
