@@ -61,7 +61,7 @@ def _deadline(budget):
 
 
 def scipy_ivp(scene, t_eval, method='DOP853', rtol=1e-10, atol=None, budget=60.0):
-    """scipy ``solve_ivp`` on (omega, q, f); q renormalised only at output."""
+    """Integrate with scipy ``solve_ivp`` on (omega, q, f); q renormalised at output only."""
     dyn = _problem(scene)
     check = _deadline(budget)
 

@@ -77,7 +77,7 @@ def _timed(fn, repeats):
 
 
 def _methods(scene, quick, workload):
-    """(method, knob label, knob value, callable(t_eval, budget) -> q) for one scene."""
+    """List (method, knob label, knob value, callable(t_eval, budget) -> q) for a scene."""
     rtols = [1e-5, 1e-7, 1e-9, 1e-11, 1e-13] if not quick else [1e-6, 1e-9, 1e-12]
     steps = [0.1, 0.05, 0.02, 0.01, 0.005, 0.0025] if not quick else [0.05, 0.01]
     if workload == 'stream':
@@ -236,7 +236,7 @@ def stability_map(quick, budget, log):
 
 
 def _envelope_scene(rng):
-    """A random scene inside the issue's envelope, any model with a torque."""
+    """Draw a random scene inside the envelope: any model with a torque."""
     u = 10 ** rng.uniform(-10, 2)
     wt = 10 * rng.uniform() ** 2                      # transverse rate 0..10 rad/s
     r0 = rng.uniform(-100, 100) * rng.choice([1.0, 0.01])

@@ -33,6 +33,7 @@ from std_srvs.srv import Trigger
 from rigidrot_ros import __version__
 from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
 from rigidrot_ros.io.bag import BagWriter, qos_yaml
+from rigidrot_ros.node.spin import spin_until_shutdown
 from rigidrot_ros.settings import load_defaults, scene_from_params, SCENE_KEYS, solver_options
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
@@ -395,22 +396,16 @@ class AttitudeNode(Node):
 def main(args=None):
     """Entry point of ``attitude_node`` (accepts the usual ``--ros-args``)."""
     rclpy.init(args=args)
-    node = None
     try:
         node = AttitudeNode()
-        rclpy.spin(node)
     except SceneError as exc:
         print(f'attitude_node: invalid scene: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except _rclpy.RCLError:
-        if rclpy.ok():
-            raise               # a real failure; after a shutdown it is only the race
-    finally:
-        if node is not None:
-            node.destroy_node()
         rclpy.try_shutdown()
+        return 0
+    spin_until_shutdown(node)
     return 0
 
 

@@ -12,10 +12,9 @@ import sys
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
 from rigidrot_ros.core import quaternion as quat
+from rigidrot_ros.node.spin import spin_until_shutdown
 
 
 def main(args=None):
@@ -49,16 +48,7 @@ def main(args=None):
 
     node.create_subscription(QuaternionStamped, 'attitude', on_attitude, 100)
     node.create_subscription(Vector3Stamped, 'angular_velocity', on_rate, 100)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except _rclpy.RCLError:
-        if rclpy.ok():
-            raise               # a real failure; after a shutdown it is only the race
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_until_shutdown(node)
     return 0
 
 

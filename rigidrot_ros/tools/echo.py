@@ -9,7 +9,8 @@ import sys
 
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
 import rclpy
-from rclpy.executors import ExternalShutdownException
+
+from rigidrot_ros.node.spin import spin_until_shutdown
 
 
 def main(argv=None):
@@ -46,14 +47,12 @@ def main(argv=None):
     node.create_subscription(QuaternionStamped, f'{ns}/attitude', lambda m: show('q', m), 10)
     node.create_subscription(Vector3Stamped, f'{ns}/angular_velocity',
                              lambda m: show('w', m), 10)
-    try:
+
+    def loop(n):
         while rclpy.ok() and (opts.count == 0 or printed[0] < opts.count):
-            rclpy.spin_once(node, timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+            rclpy.spin_once(n, timeout_sec=0.1)
+
+    spin_until_shutdown(node, loop)
     return 0
 
 

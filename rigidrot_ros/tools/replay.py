@@ -13,12 +13,12 @@ import time
 from builtin_interfaces.msg import Time
 import rclpy
 from rclpy.executors import ExternalShutdownException
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 import yaml
 
 from rigidrot_ros.io.bag import BagError, read_bag
+from rigidrot_ros.node.spin import spin_until_shutdown
 
 
 def _qos(text):
@@ -90,8 +90,8 @@ def main(argv=None):
     clock_pub = node.create_publisher(Clock, '/clock', 10) if opts.clock else None
     time.sleep(0.5)                                  # let subscribers match the publishers
     total = (msgs[-1][2] - msgs[0][2]) * 1e-9 if msgs else 0.0
-    status = 0
-    try:
+
+    def play(_node):
         while True:
             wall0 = time.monotonic()
             base = msgs[0][2]
@@ -114,18 +114,12 @@ def main(argv=None):
                           f'{n + 1}/{len(msgs)} messages', end='', file=sys.stderr,
                           flush=True)
             if not opts.loop:
-                break
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except _rclpy.RCLError:
-        if rclpy.ok():
-            raise               # a real failure; after a shutdown it is only the race
-    finally:
-        if not opts.quiet:
-            print(file=sys.stderr)
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return status
+                return
+
+    spin_until_shutdown(node, play)
+    if not opts.quiet:
+        print(file=sys.stderr)
+    return 0
 
 
 if __name__ == '__main__':
