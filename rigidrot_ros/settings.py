@@ -12,12 +12,11 @@ import yaml
 
 from rigidrot_ros.core import MIN_TOL, Scene
 
-__all__ = ['PACKAGE', 'SCENE_KEYS', 'SOLVER_KEYS', 'BACKENDS', 'find_config', 'load_defaults',
+__all__ = ['PACKAGE', 'SCENE_KEYS', 'BACKENDS', 'find_config', 'load_defaults',
            'scene_from_params', 'solver_options']
 
 PACKAGE = 'rigidrot_ros'
 SCENE_KEYS = ('inertia', 'torque', 'torque_frame', 'omega0', 'attitude0')
-SOLVER_KEYS = ('tol', 'backend')
 BACKENDS = ('auto', 'flint', 'mpmath')
 
 

@@ -294,7 +294,7 @@ class HyperKernel:
                 f'{float(self.delta):.4g} is large (small torque against the transverse '
                 f"rate). Use backend='flint' (certified Taylor continuation) or raise "
                 f'max_prec.')
-        self._check(0.0)
+        self.evaluate(0.0)                       # fail now, not at the first sample
 
     # -- per-precision constants ----------------------------------------------------------
     def _constants(self, prec):
@@ -365,9 +365,6 @@ class HyperKernel:
             err = math.inf
         # float64 rounding of the four components
         return q, err + 2.3e-16
-
-    def _check(self, t):
-        self.evaluate(t)
 
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and a bound on its component error (2-norm).

@@ -10,7 +10,7 @@ import numpy as np
 
 __all__ = [
     'multiply', 'conjugate', 'about_z', 'from_rotvec', 'to_matrix', 'from_matrix',
-    'angle_between', 'make_continuous', 'rotate',
+    'angle_between',
 ]
 
 
@@ -50,11 +50,6 @@ def from_rotvec(v):
     scale = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 0, angle, 1.0),
                      0.5 - angle ** 2 / 48.0)
     return np.concatenate([v * scale[..., None], np.cos(half)[..., None]], axis=-1)
-
-
-def rotate(q, v):
-    """Rotate vectors ``v`` by unit quaternions ``q`` (x, y, z, w): returns ``R(q) @ v``."""
-    return np.einsum('...ij,...j->...i', to_matrix(q), np.asarray(v, dtype=float))
 
 
 def to_matrix(q):
@@ -101,14 +96,3 @@ def angle_between(q1, q2):
     d = multiply(conjugate(q1), q2)
     vec = np.linalg.norm(d[..., :3], axis=-1)
     return 2.0 * np.arctan2(vec, np.abs(d[..., 3]))
-
-
-def make_continuous(q):
-    """Flip signs along the first axis so consecutive quaternions have positive dot product."""
-    q = np.array(q, dtype=float, copy=True)
-    if q.ndim < 2 or len(q) < 2:
-        return q
-    dots = np.einsum('...i,...i->...', q[1:], q[:-1])
-    flips = np.cumprod(np.where(dots < 0, -1.0, 1.0))
-    q[1:] *= flips[:, None]
-    return q
