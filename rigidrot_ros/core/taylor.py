@@ -117,11 +117,15 @@ class TaylorKernel:
         return a.mid(), b.mid(), (st[2] + rad) * (1 + 1e-15)
 
     def _hmax(self, tk):
-        """Step length turning the spinor by about 8 rad at the larger end rate."""
-        h = 16.0 / max(self._rate(tk), 1e-300)
+        """Step length of R h = 20..40 rad at the larger end rate R (measured optimum).
+
+        Longer steps need fewer terms per radian (about 3 at 40 rad against 5 at 10 rad);
+        the terms grow to about e^{R h / 2}, some 29 of the 128 working bits at 40 rad.
+        """
+        h = 40.0 / max(self._rate(tk), 1e-300)
         if self._u > 0:
-            h = min(h, 4.0 / math.sqrt(self._u))
-        while h * max(self._rate(tk + h), self._rate(tk - h)) > 20.0:
+            h = min(h, 8.0 / math.sqrt(self._u))
+        while h * max(self._rate(tk + h), self._rate(tk - h)) > 40.0:
             h *= 0.5
         return math.ldexp(1.0, math.floor(math.log2(h)))     # exact binary step
 
