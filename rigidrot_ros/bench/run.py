@@ -327,6 +327,55 @@ def envelope(quick, log, max_turn=2e5):
     return rows
 
 
+def ratios(quick, log, budget=900.0):
+    """Exact against DOP853 at equal accuracy: (a) one query, (b) a 100 Hz stream, at T."""
+    scene = SCENES['axial torque (Thm 2)']
+    ref_sol = solve(scene, tol=REF_TOL)
+    rows = []
+    horizons = (60.0,) if quick else (60.0, 1e4)
+    for T in horizons:
+        for workload in ('query', 'stream'):
+            t_eval = np.array([T]) if workload == 'query' else \
+                np.arange(1, int(round(T * 100)) + 1) * 0.01
+            ref = ref_sol.at(t_eval).quaternion
+            runs = []
+            for tol in (1e-9, 1e-12):
+                cpu, q = _timed(lambda: solve(scene, tol=tol).at(t_eval).quaternion, 1)
+                runs.append(('exact (flint)', tol, cpu, float(quat.angle_between(q, ref).max())))
+            for rt in (1e-9, 1e-10, 1e-11, 1e-12, 1e-13):
+                try:
+                    cpu, q = _timed(lambda: peers.scipy_ivp(scene, t_eval, 'DOP853', rt,
+                                                            budget=budget), 1)
+                    err = float(quat.angle_between(q, ref).max())
+                except peers.TimeBudget:
+                    cpu, err = budget, math.nan
+                runs.append(('DOP853', rt, cpu, err))
+            for target in (1e-9, 1e-12):
+                best = {}
+                for name, knob, cpu, err in runs:
+                    if err <= target and (name not in best or cpu < best[name][0]):
+                        best[name] = (cpu, knob, err)
+                ex, dp = best.get('exact (flint)'), best.get('DOP853')
+                dop_best = min((r for r in runs if r[0] == 'DOP853' and math.isfinite(r[3])),
+                               key=lambda r: r[3], default=None)
+                row = {'T_s': T, 'workload': workload, 'samples': len(t_eval),
+                       'target_rad': target,
+                       'exact_cpu_s': ex[0] if ex else math.nan,
+                       'exact_tol': ex[1] if ex else math.nan,
+                       'dop853_cpu_s': dp[0] if dp else math.nan,
+                       'dop853_rtol': dp[1] if dp else math.nan,
+                       'ratio_exact_over_dop853': (ex[0] / dp[0]) if ex and dp else math.nan,
+                       'dop853_best_error_rad': dop_best[3] if dop_best else math.nan,
+                       'dop853_best_cpu_s': dop_best[2] if dop_best else math.nan}
+                rows.append(row)
+                log(f'ratio T={T:g} {workload:6s} target {target:g}: exact '
+                    f'{row["exact_cpu_s"]:.4f} s DOP853 {row["dop853_cpu_s"]:.4f} s '
+                    f'(rtol {row["dop853_rtol"]:g}) ratio '
+                    f'{row["ratio_exact_over_dop853"]:.3g}; DOP853 best error '
+                    f'{row["dop853_best_error_rad"]:.2e}')
+    return rows
+
+
 def _write_csv(path, rows, foot):
     if not rows:
         return
@@ -342,7 +391,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog='rigidrot_bench', description=__doc__.splitlines()[0])
     ap.add_argument('--out', default='bench_out', help='directory for charts and data')
     ap.add_argument('--quick', action='store_true', help='a smoke run, under a minute')
-    ap.add_argument('--only', choices=['wp', 'horizon', 'stability', 'envelope'],
+    ap.add_argument('--only', choices=['wp', 'horizon', 'stability', 'envelope', 'ratios'],
                     action='append')
     opts = ap.parse_args(argv)
     os.makedirs(opts.out, exist_ok=True)
@@ -355,7 +404,12 @@ def main(argv=None):
     def log(line):
         print(f'[{time.monotonic() - t0:7.1f} s] {line}', flush=True)
 
-    results = {'footer': foot}
+    results = {}
+    merged = os.path.join(opts.out, 'results.json')
+    if os.path.exists(merged):            # a partial run (--only) adds to an earlier one
+        with open(merged, encoding='utf-8') as fh:
+            results = json.load(fh)
+    results['footer'] = foot
     if 'wp' in parts:
         results['work_precision'] = work_precision(opts.quick, repeats, budget, log)
         _write_csv(os.path.join(opts.out, 'work_precision.csv'), results['work_precision'],
@@ -366,6 +420,9 @@ def main(argv=None):
     if 'stability' in parts:
         results['stability'] = stability_map(opts.quick, 20.0 if not opts.quick else 1.0, log)
         _write_csv(os.path.join(opts.out, 'stability.csv'), results['stability'], foot)
+    if 'ratios' in parts:
+        results['ratios'] = ratios(opts.quick, log)
+        _write_csv(os.path.join(opts.out, 'ratios.csv'), results['ratios'], foot)
     if 'envelope' in parts:
         results['envelope'] = envelope(opts.quick, log)
         _write_csv(os.path.join(opts.out, 'envelope.csv'), results['envelope'], foot)
