@@ -134,3 +134,34 @@ def test_axisymmetric_tends_to_the_sphere(eps):
     s = near.at(t)
     assert quat.angle_between(s.quaternion, sphere.quaternion).max() <= 10 * eps * t[-1] ** 2 \
         + 1e-12
+
+
+@pytest.mark.parametrize('model', ['sphere', 'axial-torque', 'oblique-virtual',
+                                   'transverse-body'])
+def test_dense_output_matches_sample_by_sample(model, rng, monkeypatch):
+    """Batches use windowed expansions; they equal single evaluations within the bounds."""
+    from conftest import random_scene
+    import rigidrot_ros.core.models as models
+    scene = random_scene(model, rng)
+    t = np.sort(rng.uniform(-5.0, 50.0, 400))
+    dense = solve(scene).at(t)
+    monkeypatch.setattr(models, 'DENSE_MIN', 10 ** 9)
+    single = solve(scene, tol=2e-14).at(t)
+    err = quat.angle_between(dense.quaternion, single.quaternion)
+    assert np.all(err <= dense.error_bound + single.error_bound)
+    assert np.all(dense.error_bound <= 1e-12)
+    assert_allclose(dense.omega, single.omega, rtol=0, atol=1e-13)
+
+
+def test_dense_output_falls_back_when_its_bound_would_exceed_tol():
+    from rigidrot_ros.core.dense import dense_spinor
+    sol = solve(Scene(inertia=(2.0, 2.0, 2.0), torque=(0.1, 0.0, 0.2), omega0=(0.3, 0.2, 0.1)))
+    kernel = sol._kernel
+    t = np.linspace(0.0, 2.0, 50)
+    q_ref = np.array([kernel.evaluate(x)[0] for x in t])
+    kernel.tol, saved = 1e-15, kernel.tol           # no window can meet this: per sample
+    try:
+        q, err = dense_spinor(kernel, t)
+    finally:
+        kernel.tol = saved
+    assert_allclose(q, q_ref, rtol=0, atol=1e-15)
