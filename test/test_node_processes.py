@@ -113,7 +113,7 @@ def test_invalid_scene_at_start_up_exits_with_the_reason(tmp_path):
                   _params_file(tmp_path, inertia=[1.0, 1.0, 3.0])], env)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 2
-    assert 'invalid scene' in err and 'triangle inequality' in err
+    assert 'invalid parameters' in err and 'triangle inequality' in err
     assert 'Traceback' not in err
 
 
@@ -142,3 +142,17 @@ def test_echo_prints_ticks_from_another_process(tmp_path):
     lines = [ln for ln in out.splitlines() if 'q_NB' in ln]
     assert len(lines) == 5
     assert 'omega_B' in lines[0] and 'rad/s' in lines[0]
+
+
+@pytest.mark.parametrize('override, words', [
+    ('tol:=nan', 'parameter tol'),
+    ('qos_depth:=0', 'parameter qos_depth'),
+    ('publish_rate:=-1.0', 'parameter publish_rate'),
+    ('inertia:=[1.0,2.0]', 'inertia must have 3'),
+])
+def test_bad_override_at_start_up_exits_2_without_traceback(override, words):
+    env = ros_env(next_domain_id())
+    proc = start([script('attitude_node'), '--ros-args', '-p', override], env)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2, err
+    assert words in err and 'Traceback' not in err

@@ -23,6 +23,7 @@ import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rcl_interfaces.msg import ParameterType, SetParametersResult
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
@@ -80,7 +81,7 @@ _RANGES = {
 
 
 class SceneError(ValueError):
-    """The parameters at start-up do not describe a solvable scene."""
+    """The parameters at start-up are invalid or do not describe a solvable scene."""
 
 
 def _check_run_params(p):
@@ -150,7 +151,10 @@ class AttitudeNode(Node):
             value = defaults[name]
             if name == 'record_topics' and not value:
                 value = ['']      # an empty list carries no type; empty names are ignored
-            self.declare_parameter(name, value, desc)
+            try:
+                self.declare_parameter(name, value, desc)
+            except ParameterException as exc:      # an override outside its declared range
+                raise SceneError(f'parameter {name}: {exc}') from None
         try:
             self._solution = build_solution(self._values())
         except ValueError as exc:
@@ -399,7 +403,7 @@ def main(args=None):
     try:
         node = AttitudeNode()
     except SceneError as exc:
-        print(f'attitude_node: invalid scene: {exc}', file=sys.stderr)
+        print(f'attitude_node: invalid parameters: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
