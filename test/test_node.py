@@ -174,3 +174,18 @@ def test_diagnostics_report_model_costs_and_ticks():
     assert got[-1].status[0].level in (b'\x00', 0, b'\x01', 1)     # OK, or WARN if slow
     node.destroy_node()
     sub.destroy_node()
+
+
+def test_publish_rate_change_takes_effect_at_once():
+    node = _node(publish_rate=100.0)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    lis = Listener(ex)
+    _spin_until(ex, lambda: len(lis.att) >= 10)
+    assert node.set_parameters([Parameter('publish_rate', value=20.0)])[0].successful
+    n0 = len(lis.att)
+    _spin_until(ex, lambda: len(lis.att) >= n0 + 12)
+    stamps = [_stamp_ns(m) for m in lis.att[n0 + 1:]]
+    gaps = np.diff(stamps) * 1e-9
+    assert np.median(gaps) == pytest.approx(0.05, abs=0.01)
+    node.destroy_node()
