@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-__all__ = ['dense_spinor']
+__all__ = ['dense_spinor', 'Window']
 
 _EPS = np.finfo(float).eps
 
@@ -36,28 +36,26 @@ def _window(a, r0, u, dabs):
     return tau, max(rate(a), rate(a + tau))
 
 
-def dense_spinor(kernel, ts):
-    """Quaternions (n, 4) and component-error bounds (n,) of ``kernel`` at sorted ``ts``."""
-    p, q, r0, u = (kernel.params[k] for k in ('p', 'q', 'r0', 'U'))
-    dabs = math.hypot(p, q)
-    d = complex(p, q)
-    out = np.empty((len(ts), 4))
-    errs = np.empty(len(ts))
-    i = 0
-    while i < len(ts):
-        a = float(ts[i])
-        tau, rmax = _window(a, r0, u, dabs)
-        j = int(np.searchsorted(ts, a + tau, side='right'))
+class Window:
+    """The exact spinor's Taylor expansion on ``[a, a + tau]``, anchored on the kernel at a.
+
+    ``bound`` is the component-error bound valid for every time in the window; ``ok`` is
+    false when it would exceed the kernel's tol (then evaluate sample by sample).
+    """
+
+    def __init__(self, kernel, a):
+        p, q, r0, u = (kernel.params[k] for k in ('p', 'q', 'r0', 'U'))
+        d = complex(p, q)
+        self.a = a
+        self.tau, rmax = _window(a, r0, u, math.hypot(p, q))
         qa, err_a = kernel.evaluate(a)
         x, y, z, w = qa
-        v1, v2 = complex(w, z), complex(-y, x)
         xa = r0 + u * a
-        # Taylor coefficients of the exact solution about a, and their majorant
-        c1, c2 = [v1], [v2]
+        c1, c2 = [complex(w, z)], [complex(-y, x)]
         m = [1.0 + err_a]
         prev1, prev2, mprev = 0j, 0j, 0.0
         n = 0
-        tail = math.inf
+        tau = self.tau
         while True:
             n1 = 0.5j * (xa * c1[-1] + d.conjugate() * c2[-1] + u * prev1) / (n + 1)
             n2 = 0.5j * (d * c1[-1] - xa * c2[-1] - u * prev2) / (n + 1)
@@ -70,24 +68,49 @@ def dense_spinor(kernel, ts):
             qn = (0.5 * rmax * tau + 0.5 * u * tau * tau) / (n + 1)
             term = max(m[-1] * tau ** n, m[-2] * tau ** (n - 1))
             if qn <= 0.25 and term <= 1e-18:
-                tail = 4.0 * term
                 break
-        dt = ts[i:j] - a
-        s1 = np.full(j - i, c1[-1])
-        s2 = np.full(j - i, c2[-1])
-        for k in range(n - 1, -1, -1):
-            s1 = s1 * dt + c1[k]
-            s2 = s2 * dt + c2[k]
         big_m = math.exp(0.5 * rmax * tau + 0.25 * u * tau * tau) * (1.0 + err_a)
-        bound = err_a + tail + 10 * (n + 1) * _EPS * big_m * math.sqrt(2.0)
-        if bound > kernel.tol:
+        self.bound = err_a + 4.0 * term + 10 * (n + 1) * _EPS * big_m * math.sqrt(2.0)
+        self.ok = self.bound <= kernel.tol
+        self.c1, self.c2 = c1, c2
+
+    def contains(self, t):
+        """Whether t lies in this window."""
+        return self.a <= t <= self.a + self.tau
+
+    def quaternions(self, t):
+        """Quaternions (x, y, z, w) at times t (array) inside the window."""
+        dt = np.asarray(t, dtype=float) - self.a
+        s1 = np.full(dt.shape, self.c1[-1])
+        s2 = np.full(dt.shape, self.c2[-1])
+        for k in range(len(self.c1) - 2, -1, -1):
+            s1 = s1 * dt + self.c1[k]
+            s2 = s2 * dt + self.c2[k]
+        return np.stack([s2.imag, -s2.real, s1.imag, s1.real], axis=-1)
+
+    def quaternion(self, t):
+        """Quaternion (x, y, z, w) at one time inside the window (plain complex Horner)."""
+        dt = t - self.a
+        s1, s2 = self.c1[-1], self.c2[-1]
+        for k in range(len(self.c1) - 2, -1, -1):
+            s1 = s1 * dt + self.c1[k]
+            s2 = s2 * dt + self.c2[k]
+        return np.array([s2.imag, -s2.real, s1.imag, s1.real])
+
+
+def dense_spinor(kernel, ts):
+    """Quaternions (n, 4) and component-error bounds (n,) of ``kernel`` at sorted ``ts``."""
+    out = np.empty((len(ts), 4))
+    errs = np.empty(len(ts))
+    i = 0
+    while i < len(ts):
+        win = Window(kernel, float(ts[i]))
+        j = int(np.searchsorted(ts, win.a + win.tau, side='right'))
+        if win.ok:
+            out[i:j] = win.quaternions(ts[i:j])
+            errs[i:j] = win.bound
+        else:
             for k in range(i, j):                     # certified, one sample at a time
                 out[k], errs[k] = kernel.evaluate(float(ts[k]))
-        else:
-            out[i:j, 0] = s2.imag
-            out[i:j, 1] = -s2.real
-            out[i:j, 2] = s1.imag
-            out[i:j, 3] = s1.real
-            errs[i:j] = bound
         i = j
     return out, errs

@@ -21,7 +21,7 @@ from mpmath import mp
 import numpy as np
 
 from . import quaternion as quat
-from .dense import dense_spinor
+from .dense import dense_spinor, Window
 from .kernel import (
     available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle, SETUP_PREC,
 )
@@ -254,6 +254,7 @@ class Solution:
             self._m_over_I = np.array([float(v / mI) for v in ms])
             self._rdot = float(ms[2] / mI3)                    # d r / dt = m3 / I3
         self._kernel = kernel
+        self._window = None
         self._left = quat.multiply(
             quat.multiply(np.array(scene.attitude0), quat.conjugate(q_b1b)), q_sk)
         self._mid = quat.conjugate(q_sk)
@@ -341,11 +342,22 @@ class Solution:
         w_b1 = np.stack([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * tt], axis=-1)
         return w_b1 @ self._perm_T.T
 
+    def _kernel_scalar(self, t):
+        """Kernel at one time; successive times reuse the current dense-output window."""
+        if not isinstance(self._kernel, (HyperKernel, TaylorKernel)):
+            return self._kernel.evaluate(t)
+        win = self._window
+        if win is None or not win.contains(t):
+            win = self._window = Window(self._kernel, t)
+        if not win.ok:
+            return self._kernel.evaluate(t)
+        return win.quaternion(t), win.bound
+
     def _at_scalar(self, t):
         """:meth:`at` for one time, in plain floats (the node's per-tick path)."""
         if not math.isfinite(t):
             raise ValueError('t must be finite')
-        k, kerr = self._kernel.evaluate(t)
+        k, kerr = self._kernel_scalar(t)
         f = self._f.angle(t)
         c, s = math.cos(f), math.sin(f)
         h = 0.5 * f
