@@ -184,3 +184,21 @@ def test_fine_sweep_across_the_delta_switch_is_continuous():
     step = (rel[1] - rel[0]) * u0 * t ** 2
     for a, b in zip(quats, quats[1:]):
         assert np.all(quat.angle_between(a, b) <= step + 2e-12)
+
+
+@pytest.mark.parametrize('model', ['sphere', 'oblique-virtual'])
+def test_scalar_stream_reuses_windows_within_bounds(model, rng, monkeypatch):
+    """Tick-by-tick scalar calls (the node's path) against single evaluations at 2e-14."""
+    from conftest import random_scene
+    import rigidrot_ros.core.models as models
+    scene = random_scene(model, rng)
+    sol = solve(scene)
+    t = np.arange(0.0, 20.0, 0.01)
+    ticks = [sol.at(float(x)) for x in t]
+    q = np.array([s.quaternion for s in ticks])
+    bound = np.array([float(s.error_bound) for s in ticks])
+    monkeypatch.setattr(models, 'DENSE_MIN', 10 ** 9)
+    ref = solve(scene, tol=2e-14).at(t)
+    assert np.all(quat.angle_between(q, ref.quaternion) <= bound + ref.error_bound)
+    assert np.all(bound <= 1e-12)
+    assert_allclose(np.array([s.omega for s in ticks]), ref.omega, rtol=0, atol=1e-13)
