@@ -287,3 +287,36 @@ def test_compare_honours_resets_in_the_log(tmp_path):
     topics = {t['topic']: t for t in json.loads((tmp_path / 'r.json').read_text())['topics']}
     assert topics['/attitude']['count'] > 150 and topics['/attitude']['max'] <= 1e-12
     assert topics['/angular_velocity']['max'] <= 1e-12
+
+
+CLOCK_LISTENER = textwrap.dedent('''
+    import json, sys, time
+    import rclpy
+    from rosgraph_msgs.msg import Clock
+    rclpy.init()
+    node = rclpy.create_node('clock_listener')
+    got = []
+    node.create_subscription(Clock, '/clock',
+                             lambda m: got.append(m.clock.sec * 10**9 + m.clock.nanosec), 100)
+    print('ready', flush=True)
+    end = time.monotonic() + float(sys.argv[1])
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.01)
+    print(json.dumps(got))
+''')
+
+
+def test_replay_publishes_clock_from_the_log(tmp_path):
+    env = ros_env(next_domain_id())
+    bag, code, err = _record(tmp_path, env, 1.0)
+    log_times = [m[2] for m in read_bag(str(bag)).messages]
+    env2 = ros_env(next_domain_id())
+    lis = start([sys.executable, '-c', CLOCK_LISTENER, '6'], env2)
+    assert lis.stdout.readline().strip() == 'ready'
+    rep = _run(['rigidrot_replay', str(bag), '--clock', '--quiet', '--duration', '0.5'], env2)
+    assert rep.returncode == 0, rep.stderr
+    clock = json.loads(lis.communicate(timeout=60)[0])
+    assert len(clock) > 50
+    assert set(clock) <= set(log_times)               # the log's own times
+    assert clock == sorted(clock)
+    assert (clock[-1] - clock[0]) * 1e-9 <= 0.5 + 1e-9
