@@ -327,9 +327,15 @@ def envelope(quick, log, max_turn=2e5):
     return rows
 
 
-def ratios(quick, log, budget=900.0):
+#: A spacecraft-like scene for the long-horizon ratios: I = 100 kg m^2, 10 mN m, so
+#: U = 1.08e-4 rad/s^2 and delta = 300 (the Taylor path); the rates stay near 1 rad/s.
+RATIO_SCENE = Scene(inertia=(100.0, 100.0, 100.0), torque=(0.006, -0.004, 0.008),
+                    omega0=(0.3, -0.2, 0.5), attitude0=(0.1, 0.2, 0.3, 0.9))
+
+
+def ratios(quick, log, budget=600.0):
     """Exact against DOP853 at equal accuracy: (a) one query, (b) a 100 Hz stream, at T."""
-    scene = SCENES['axial torque (Thm 2)']
+    scene = RATIO_SCENE
     ref_sol = solve(scene, tol=REF_TOL)
     rows = []
     horizons = (60.0,) if quick else (60.0, 1e4)
@@ -342,7 +348,7 @@ def ratios(quick, log, budget=900.0):
             for tol in (1e-9, 1e-12):
                 cpu, q = _timed(lambda: solve(scene, tol=tol).at(t_eval).quaternion, 1)
                 runs.append(('exact (flint)', tol, cpu, float(quat.angle_between(q, ref).max())))
-            for rt in (1e-9, 1e-10, 1e-11, 1e-12, 1e-13):
+            for rt in ((1e-9, 1e-10, 1e-11, 1e-12, 1e-13) if T < 1e3 else (1e-10, 1e-13)):
                 try:
                     cpu, q = _timed(lambda: peers.scipy_ivp(scene, t_eval, 'DOP853', rt,
                                                             budget=budget), 1)
