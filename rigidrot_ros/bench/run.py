@@ -327,8 +327,9 @@ def envelope(quick, log, max_turn=2e5):
     return rows
 
 
-#: A spacecraft-like scene for the long-horizon ratios: I = 100 kg m^2, 10 mN m, so
-#: U = 1.08e-4 rad/s^2 and delta = 300 (the Taylor path); the rates stay near 1 rad/s.
+#: A spacecraft-like scene for the long-horizon ratios: I = 100 kg m^2, 10.8 mN m, so
+#: U = 1.08e-4 rad/s^2; omega0 lies near the torque axis (delta = 10.4, the 1F1 path) and
+#: the rates stay near 1 rad/s over 1e4 s.
 RATIO_SCENE = Scene(inertia=(100.0, 100.0, 100.0), torque=(0.006, -0.004, 0.008),
                     omega0=(0.3, -0.2, 0.5), attitude0=(0.1, 0.2, 0.3, 0.9))
 
