@@ -300,8 +300,8 @@ def envelope(quick, log, max_turn=2e5):
             delta = (float(p) ** 2 + float(q) ** 2) / (4 * float(ku))
             try:
                 if isinstance(kern, TaylorKernel) and delta < 300:
-                    alt = HyperKernel(float(p), float(q), float(kr0), float(ku), 'flint',
-                                      tol=kern.tol)
+                    # the same exact (256-bit) inputs: floats would move long phases
+                    alt = HyperKernel(p, q, kr0, ku, 'flint', tol=kern.tol)
                 elif isinstance(kern, HyperKernel) and abs(float(kr0)) + float(ku) * t0 \
                         + math.hypot(float(p), float(q)) < 1e5 / max(t0, 1):
                     alt = TaylorKernel(*(mpmath.mpf(v) for v in (p, q, kr0, ku)),
