@@ -193,8 +193,10 @@ class Solution:
     model : str
         Which exact model covers the scene (a key of :data:`MODELS`).
     method : str
-        How the kernel is evaluated: 'closed-form', 'hypergeometric-flint' or
-        'hypergeometric-mpmath'.
+        How the kernel is evaluated: 'closed-form', 'hypergeometric-flint',
+        'hypergeometric-mpmath', 'taylor-series-flint' (certified Taylor continuation,
+        for large delta), or 'hypergeometric-flint+taylor-series-flint' once single
+        samples fell back from 1F1 to Taylor.
     backend : str
         The special-function backend ('flint' or 'mpmath'), also for closed forms.
     tol : float
