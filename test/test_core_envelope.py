@@ -202,3 +202,20 @@ def test_scalar_stream_reuses_windows_within_bounds(model, rng, monkeypatch):
     assert np.all(quat.angle_between(q, ref.quaternion) <= bound + ref.error_bound)
     assert np.all(bound <= 1e-12)
     assert_allclose(np.array([s.omega for s in ticks]), ref.omega, rtol=0, atol=1e-13)
+
+
+def test_far_first_query_seeds_a_checkpoint_by_1f1():
+    """A query 4e4 rad away tries certified 1F1 first; it equals pure stepping, and a stream
+    continues from the seeded checkpoint."""
+    p, q, r0 = 6.0, 8.0, 0.5
+    u = (p * p + q * q) / (4 * 2500.0)
+    args = [mpmath.mpf(v) for v in (p, q, r0, u)]
+    hybrid = TaylorKernel(*args, tol=4e-13)
+    stepping = TaylorKernel(*args, tol=4e-13)
+    stepping._hyper = False                                 # never try 1F1
+    for t in (2000.0, 2000.01, 2000.02):
+        a, ea = hybrid.evaluate(t)
+        b, eb = stepping.evaluate(t)
+        assert np.linalg.norm(a - b) <= ea + eb
+    assert isinstance(hybrid._hyper, HyperKernel)            # the 1F1 seed was used
+    assert 2000.0 in hybrid._ck[1][0]

@@ -257,14 +257,18 @@ class HyperKernel:
         Error asked of the kernel quaternion (Euclidean norm of the component error).
     max_prec : int
         Ceiling on the working precision, bits.
+    fallback : bool
+        With flint, continue a sample by Taylor series when 1F1 would need more than
+        ``FALLBACK_BITS``; when false, try up to ``max_prec`` and raise PrecisionError.
     """
 
     #: With flint, a sample whose 1F1 would need more bits than this is continued by
     #: certified Taylor series instead (see :mod:`rigidrot_ros.core.taylor`).
     FALLBACK_BITS = 1024
 
-    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096):
+    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=True):
         self.backend = make_backend(backend)
+        self.fallback = bool(fallback)
         self.method = f'hypergeometric-{self.backend.name}'
         self.tol = float(tol)
         self.max_prec = int(max_prec)
@@ -375,7 +379,7 @@ class HyperKernel:
         prec = self.prec
         last_err = math.inf
         ceiling = self.max_prec
-        if self.backend.certified:
+        if self.backend.certified and self.fallback:
             ceiling = min(ceiling, self.FALLBACK_BITS)
             prec = min(prec, ceiling)
             if self.predicted > 2 * self.FALLBACK_BITS:
@@ -393,7 +397,7 @@ class HyperKernel:
                 break
             step = 32 if not math.isfinite(err) else max(32, int(math.log2(err / self.tol)) + 16)
             prec = min(ceiling, max(prec + step, int(prec * 1.25)))
-        if self.backend.certified:
+        if self.backend.certified and self.fallback:
             if self._fallback is None:
                 from .taylor import TaylorKernel
                 self._fallback = TaylorKernel(*self._inputs, tol=self.tol,

@@ -27,6 +27,13 @@ import numpy as np
 
 __all__ = ['TaylorKernel']
 
+#: A query that would step across more than this many radians first tries one certified
+#: 1F1 evaluation (within HYBRID_BITS) and, if it succeeds, seeds a checkpoint there:
+#: measured here, delta = 3000 at t = 1e4 s costs 59 ms by 1F1 (4096 bits) against 216 ms
+#: of stepping; at delta = 3e4, 1F1 fails within 4096 bits and stepping remains.
+HYBRID_TURN = 2e4
+HYBRID_BITS = 4096
+
 
 class TaylorKernel:
     """Spinor ``(v1, v2)`` of omega_K = (p, q, r0 + U t) by certified Taylor stepping.
@@ -52,6 +59,7 @@ class TaylorKernel:
         self.params = {'p': float(p), 'q': float(q), 'r0': float(r0), 'U': float(U)}
         self._u = float(U)
         self._dabs = math.hypot(float(p), float(q))
+        self._hyper = None              # a 1F1 evaluator for far queries; False once it failed
         self.prec = 128
         self._reset(self.prec)
 
@@ -129,6 +137,29 @@ class TaylorKernel:
             h *= 0.5
         return math.ldexp(1.0, math.floor(math.log2(h)))     # exact binary step
 
+    def _seed_by_1f1(self, t, sign):
+        """Try one certified 1F1 evaluation at a far t; on success store it as checkpoint."""
+        from .kernel import HyperKernel, PrecisionError
+        if self._hyper is False:
+            return None
+        try:
+            if self._hyper is None:
+                self._hyper = HyperKernel(*self._inputs, backend='flint', tol=0.5 * self.tol,
+                                          max_prec=HYBRID_BITS, fallback=False)
+            (x, y, z, w), err = self._hyper.evaluate(t)
+        except PrecisionError:
+            self._hyper = False                                # not affordable: step
+            return None
+        acb = self.flint.acb
+        with self.flint.ctx.workprec(self.prec):
+            st = (acb(w, z), acb(-y, x), err)
+        times, states = self._ck[sign]
+        key = [sign * v for v in times]
+        j = bisect.bisect_right(key, sign * t)
+        times.insert(j, t)
+        states.insert(j, st)
+        return st
+
     def _state(self, t):
         """Spinor midpoints at t and their error bound, from the nearest checkpoint."""
         sign = 1 if t >= 0 else -1
@@ -136,6 +167,11 @@ class TaylorKernel:
         key = [sign * x for x in times]                        # increasing
         i = bisect.bisect_right(key, sign * t) - 1
         tk, st = times[i], states[i]
+        turn = max(self._rate(tk), self._rate(t)) * abs(t - tk)
+        if turn > HYBRID_TURN:
+            seeded = self._seed_by_1f1(t, sign)
+            if seeded is not None:
+                return seeded
         with self.flint.ctx.workprec(self.prec):
             while tk != t:
                 h = self._hmax(tk)
