@@ -13,6 +13,7 @@ import pytest
 from conftest import integrate
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
+from rigidrot_ros.core.adiabatic import ADIABATIC_DELTA, AdiabaticKernel
 from rigidrot_ros.core.kernel import HyperKernel
 from rigidrot_ros.core.models import DELTA_SWITCH
 from rigidrot_ros.core.taylor import TaylorKernel
@@ -37,7 +38,7 @@ def test_spacecraft_torque_against_dop853():
     scene = Scene(inertia=(1000.0, 1000.0, 1000.0), torque=(0.0, 6e-4, 8e-4),
                   omega0=(0.3, -0.2, 0.5), attitude0=(0.1, 0.2, 0.3, 0.9))
     sol = solve(scene)
-    assert sol.method == 'taylor-series-flint'
+    assert sol.method == 'adiabatic-series'
     t = np.linspace(0.0, 10.0, 11)
     s = sol.at(t)
     w, q = integrate(scene, t)
@@ -219,3 +220,56 @@ def test_far_first_query_seeds_a_checkpoint_by_1f1():
         assert np.linalg.norm(a - b) <= ea + eb
     assert isinstance(hybrid._hyper, HyperKernel)            # the 1F1 seed was used
     assert 2000.0 in hybrid._ck[1][0]
+
+
+@pytest.mark.parametrize('delta', [1e4, 1e5, 1e6, 1e8])
+def test_adiabatic_series_against_certified_taylor(delta, rng):
+    """Two representations sharing no formula: superadiabatic frames vs Taylor balls."""
+    p, q = rng.uniform(-3, 3, 2)
+    r0 = rng.uniform(-2, 2)
+    u = (p * p + q * q) / (4 * delta)
+    adiabatic = AdiabaticKernel(p, q, r0, u, tol=4e-13)
+    taylor = TaylorKernel(*(mpmath.mpf(v) for v in (p, q, r0, u)), tol=4e-14)
+    taylor._hyper = False
+    for t in (0.0, 0.3, 7.0, 90.0, 800.0):
+        a, ea = adiabatic.evaluate(t)
+        b, eb = taylor.evaluate(t)
+        assert np.dot(a, b) > 0                                # same sign: continuous
+        assert np.linalg.norm(a - b) <= ea + eb
+        assert np.linalg.norm(a - b) <= 1e-14
+
+
+def test_continuity_at_the_adiabatic_switch():
+    p, q, r0 = 0.3, -0.2, 0.5
+    u = (p * p + q * q) / (4 * ADIABATIC_DELTA)
+    t = np.array([0.0, 10.0, 200.0])
+    below = solve(Scene(inertia=(1.0, 1.0, 1.0), torque=(0.0, 0.0, u * (1 + 1e-13)),
+                        omega0=(p, q, r0)))
+    above = solve(Scene(inertia=(1.0, 1.0, 1.0), torque=(0.0, 0.0, u * (1 - 1e-13)),
+                        omega0=(p, q, r0)))
+    assert below.method == 'taylor-series-flint' and above.method == 'adiabatic-series'
+    diff = quat.angle_between(below.at(t).quaternion, above.at(t).quaternion)
+    assert diff.max() < 2e-12
+
+
+def test_mpmath_backend_covers_small_torque_through_the_adiabatic_series():
+    scene = Scene(inertia=(1000.0, 1000.0, 1000.0), torque=(0.0, 6e-4, 8e-4),
+                  omega0=(0.3, -0.2, 0.5))
+    a = solve(scene, backend='mpmath')
+    b = solve(scene, backend='flint')
+    assert a.method == b.method == 'adiabatic-series'
+    t = np.array([1.0, 1e3, 1e5])
+    assert quat.angle_between(a.at(t).quaternion, b.at(t).quaternion).max() <= 1e-15
+
+
+@pytest.mark.parametrize('transverse, r0, U', [(10.0, 100.0, 1e-10), (10.0, -100.0, 1e-6),
+                                               (0.5, 0.0, 1e-8)])
+def test_far_corners_at_1e5_s(transverse, r0, U):
+    """Fast spin, tiny torque, t = 1e5 s: the corner the Taylor path could not reach cheaply."""
+    scene = Scene(inertia=(2.0, 2.0, 1.0), torque=(2.0 * U, 0.0, 0.0),
+                  torque_frame='virtual', omega0=(transverse * 0.6, transverse * 0.8, r0))
+    sol = solve(scene)
+    assert sol.method == 'adiabatic-series'
+    s = sol.at(np.array([0.0, 5e4, 1e5, 1e5 + 0.01]))
+    assert np.all(np.isfinite(s.quaternion)) and np.all(s.error_bound <= 1e-12)
+    assert_allclose(np.linalg.norm(s.quaternion, axis=-1), 1.0, atol=1e-15)

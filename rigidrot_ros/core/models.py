@@ -21,6 +21,7 @@ from mpmath import mp
 import numpy as np
 
 from . import quaternion as quat
+from .adiabatic import ADIABATIC_DELTA, AdiabaticKernel
 from .dense import dense_spinor, Window
 from .kernel import (
     available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle, SETUP_PREC,
@@ -42,6 +43,7 @@ DELTA_SWITCH = 80.0
 #: Batches of at least this many times use dense output (:mod:`.dense`): one exact
 #: evaluation per window, the exact solution's Taylor series inside it.
 DENSE_MIN = 8
+_SPINOR_KERNELS = (HyperKernel, TaylorKernel, AdiabaticKernel)
 
 #: Model names and the paper's results they evaluate.
 MODELS = {
@@ -195,8 +197,9 @@ class Solution:
     method : str
         How the kernel is evaluated: 'closed-form', 'hypergeometric-flint',
         'hypergeometric-mpmath', 'taylor-series-flint' (certified Taylor continuation,
-        for large delta), or 'hypergeometric-flint+taylor-series-flint' once single
-        samples fell back from 1F1 to Taylor.
+        for large delta), 'hypergeometric-flint+taylor-series-flint' once single
+        samples fell back from 1F1 to Taylor, or 'adiabatic-series' (delta >= 1e4; its
+        error bound is an estimate, not certified).
     backend : str
         The special-function backend ('flint' or 'mpmath'), also for closed forms.
     tol : float
@@ -245,7 +248,9 @@ class Solution:
                     # the kernel quaternion may take 2/5 of the attitude budget
                     ktol = 0.4 * (tol - FLOAT_FLOOR)
                     delta = float((wk[0] ** 2 + wk[1] ** 2) / (4 * U))
-                    if backend == 'flint' and delta > DELTA_SWITCH:
+                    if delta >= ADIABATIC_DELTA:
+                        kernel = AdiabaticKernel(wk[0], wk[1], wk[2], U, tol=ktol)
+                    elif backend == 'flint' and delta > DELTA_SWITCH:
                         kernel = TaylorKernel(wk[0], wk[1], wk[2], U, tol=ktol,
                                               max_prec=max_prec)
                     else:
@@ -311,7 +316,7 @@ class Solution:
         n = len(tt)
         k = np.empty((n, 4))
         kerr = np.empty(n)
-        if n >= DENSE_MIN and isinstance(self._kernel, (HyperKernel, TaylorKernel)):
+        if n >= DENSE_MIN and isinstance(self._kernel, _SPINOR_KERNELS):
             order = np.argsort(tt, kind='stable')
             k[order], kerr[order] = dense_spinor(self._kernel, tt[order])
         else:
@@ -346,7 +351,7 @@ class Solution:
 
     def _kernel_scalar(self, t):
         """Kernel at one time; successive times reuse the current dense-output window."""
-        if not isinstance(self._kernel, (HyperKernel, TaylorKernel)):
+        if not isinstance(self._kernel, _SPINOR_KERNELS):
             return self._kernel.evaluate(t)
         win = self._window
         if win is None or not win.contains(t):
