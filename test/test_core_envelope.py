@@ -273,3 +273,31 @@ def test_far_corners_at_1e5_s(transverse, r0, U):
     s = sol.at(np.array([0.0, 5e4, 1e5, 1e5 + 0.01]))
     assert np.all(np.isfinite(s.quaternion)) and np.all(s.error_bound <= 1e-12)
     assert_allclose(np.linalg.norm(s.quaternion, axis=-1), 1.0, atol=1e-15)
+
+
+def test_fine_sweep_across_the_adiabatic_switch_is_continuous():
+    p, q, r0 = 0.3, -0.2, 0.5
+    t = np.array([5.0, 300.0])
+    u0 = (p * p + q * q) / (4 * ADIABATIC_DELTA)
+    rel = np.linspace(-1e-10, 1e-10, 21)
+    methods, quats = [], []
+    for r in rel:
+        sol = solve(Scene(inertia=(1.0, 1.0, 1.0), torque=(0.0, 0.0, u0 * (1 + r)),
+                          omega0=(p, q, r0)))
+        methods.append(sol.method)
+        quats.append(sol.at(t).quaternion)
+    assert 'adiabatic-series' in methods and 'taylor-series-flint' in methods
+    step = (rel[1] - rel[0]) * u0 * t ** 2
+    for a, b in zip(quats, quats[1:]):
+        assert np.all(quat.angle_between(a, b) <= step + 2e-12)
+
+
+def test_mpmath_backend_continues_by_taylor_where_its_1f1_cannot():
+    p, q, r0 = 0.3, -0.2, 0.5
+    u = (p * p + q * q) / (4 * 3000.0)                        # ~7000 bits for mpmath's 1F1
+    scene = Scene(inertia=(1.0, 1.0, 1.0), torque=(0.0, 0.0, u), omega0=(p, q, r0))
+    a = solve(scene, backend='mpmath')
+    assert a.method == 'taylor-series-flint'
+    t = np.array([0.0, 10.0, 100.0])
+    b = solve(scene, backend='flint', tol=2e-14).at(t)
+    assert quat.angle_between(a.at(t).quaternion, b.quaternion).max() <= 1e-12

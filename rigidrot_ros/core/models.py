@@ -248,9 +248,13 @@ class Solution:
                     # the kernel quaternion may take 2/5 of the attitude budget
                     ktol = 0.4 * (tol - FLOAT_FLOOR)
                     delta = float((wk[0] ** 2 + wk[1] ** 2) / (4 * U))
+                    # bits mpmath's 1F1 would need (HyperKernel's own predictor)
+                    mp_bits = 24 - math.log2(ktol) + 2 * math.log2(math.e) * math.pi * delta / 4
+                    mp_hopeless = backend == 'mpmath' and mp_bits > max_prec and \
+                        'flint' in available_backends()
                     if delta >= ADIABATIC_DELTA:
                         kernel = AdiabaticKernel(wk[0], wk[1], wk[2], U, tol=ktol)
-                    elif backend == 'flint' and delta > DELTA_SWITCH:
+                    elif (backend == 'flint' and delta > DELTA_SWITCH) or mp_hopeless:
                         kernel = TaylorKernel(wk[0], wk[1], wk[2], U, tol=ktol,
                                               max_prec=max_prec)
                     else:

@@ -27,12 +27,14 @@ import numpy as np
 
 __all__ = ['TaylorKernel']
 
-#: A query that would step across more than this many radians first tries one certified
-#: 1F1 evaluation (within HYBRID_BITS) and, if it succeeds, seeds a checkpoint there:
-#: measured here, delta = 3000 at t = 1e4 s costs 59 ms by 1F1 (4096 bits) against 216 ms
-#: of stepping; at delta = 3e4, 1F1 fails within 4096 bits and stepping remains.
+#: A query that would step across more than HYBRID_TURN radians first tries one certified
+#: 1F1 evaluation and, if it succeeds, seeds a checkpoint there. Its bit budget grows with
+#: the stepping it would replace (about 0.27 ms per 10 rad): measured here, delta = 3000 at
+#: t = 1e4 s takes 59 ms at 4096 bits against 216 ms of stepping; delta = 1271, 2886 and
+#: 8747 at t = 2e4...8e4 s take 0.63 s (8192 bits), 2.7 s (16384) and 0.19 s (8192)
+#: against 16 s, 100 s and 293 s of stepping.
 HYBRID_TURN = 2e4
-HYBRID_BITS = 4096
+HYBRID_BITS = ((2e5, 4096), (2e6, 16384), (math.inf, 32768))
 
 
 class TaylorKernel:
@@ -59,7 +61,8 @@ class TaylorKernel:
         self.params = {'p': float(p), 'q': float(q), 'r0': float(r0), 'U': float(U)}
         self._u = float(U)
         self._dabs = math.hypot(float(p), float(q))
-        self._hyper = None              # a 1F1 evaluator for far queries; False once it failed
+        self._hyper = None              # a 1F1 evaluator for far queries (False: never try)
+        self._hyper_failed_at = 0       # the largest bit budget at which it failed
         self.prec = 128
         self._reset(self.prec)
 
@@ -137,18 +140,20 @@ class TaylorKernel:
             h *= 0.5
         return math.ldexp(1.0, math.floor(math.log2(h)))     # exact binary step
 
-    def _seed_by_1f1(self, t, sign):
+    def _seed_by_1f1(self, t, sign, turn):
         """Try one certified 1F1 evaluation at a far t; on success store it as checkpoint."""
         from .kernel import HyperKernel, PrecisionError
-        if self._hyper is False:
+        bits = next(b for limit, b in HYBRID_BITS if turn <= limit)
+        if self._hyper is False or bits <= self._hyper_failed_at:
             return None
         try:
-            if self._hyper is None:
+            if self._hyper is None or self._hyper.max_prec < bits:
                 self._hyper = HyperKernel(*self._inputs, backend='flint', tol=0.5 * self.tol,
-                                          max_prec=HYBRID_BITS, fallback=False)
+                                          max_prec=bits, fallback=False)
             (x, y, z, w), err = self._hyper.evaluate(t)
         except PrecisionError:
-            self._hyper = False                                # not affordable: step
+            self._hyper = None                       # not affordable at this budget: step
+            self._hyper_failed_at = bits
             return None
         acb = self.flint.acb
         with self.flint.ctx.workprec(self.prec):
@@ -169,7 +174,7 @@ class TaylorKernel:
         tk, st = times[i], states[i]
         turn = max(self._rate(tk), self._rate(t)) * abs(t - tk)
         if turn > HYBRID_TURN:
-            seeded = self._seed_by_1f1(t, sign)
+            seeded = self._seed_by_1f1(t, sign, turn)
             if seeded is not None:
                 return seeded
         with self.flint.ctx.workprec(self.prec):
