@@ -301,3 +301,15 @@ def test_mpmath_backend_continues_by_taylor_where_its_1f1_cannot():
     t = np.array([0.0, 10.0, 100.0])
     b = solve(scene, backend='flint', tol=2e-14).at(t)
     assert quat.angle_between(a.at(t).quaternion, b.quaternion).max() <= 1e-12
+
+
+def test_tight_tol_uses_the_certified_route_where_the_series_estimate_is_too_coarse():
+    p, q, r0 = 0.3, -0.2, 0.5
+    u = (p * p + q * q) / (4 * 2e4)                            # 10 eps^3 = 1.25e-15
+    scene = Scene(inertia=(1.0, 1.0, 1.0), torque=(0.0, 0.0, u), omega0=(p, q, r0))
+    assert solve(scene, tol=1e-12).method == 'adiabatic-series'
+    tight = solve(scene, tol=2e-14)
+    assert tight.method == 'taylor-series-flint'
+    t = np.array([1.0, 500.0])
+    assert quat.angle_between(tight.at(t).quaternion,
+                              solve(scene).at(t).quaternion).max() <= 1e-12 + 2e-14

@@ -252,7 +252,9 @@ class Solution:
                     mp_bits = 24 - math.log2(ktol) + 2 * math.log2(math.e) * math.pi * delta / 4
                     mp_hopeless = backend == 'mpmath' and mp_bits > max_prec and \
                         'flint' in available_backends()
-                    if delta >= ADIABATIC_DELTA:
+                    # the adiabatic series only where its estimate 10 eps^3 meets the tol
+                    adiabatic_ok = 10.0 / (4.0 * delta) ** 3 + 1e-15 <= ktol
+                    if delta >= ADIABATIC_DELTA and adiabatic_ok:
                         kernel = AdiabaticKernel(wk[0], wk[1], wk[2], U, tol=ktol)
                     elif (backend == 'flint' and delta > DELTA_SWITCH) or mp_hopeless:
                         kernel = TaylorKernel(wk[0], wk[1], wk[2], U, tol=ktol,
