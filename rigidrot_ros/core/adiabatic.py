@@ -89,7 +89,7 @@ class AdiabaticKernel:
             u / (6 * d * d) * x * (2 * x * x + 3 * d * d) / (r * r * r)
 
     def _frame(self, x):
-        """The frame F at X = x: rotations about e2 (theta), e1 (alpha), e2 (beta)."""
+        """Return the frame F at X = x: rotations about e2 (theta), e1 (alpha), e2 (beta)."""
         d, u = self._df, self._uf
         r = math.hypot(x, d)
         theta = math.atan2(d, x)
