@@ -16,12 +16,15 @@ import platform
 import sys
 import time
 
+import mpmath
 import numpy as np
 
 from rigidrot_ros import __version__
 from rigidrot_ros.bench import peers
 from rigidrot_ros.core import PrecisionError, Scene, solve
 from rigidrot_ros.core import quaternion as quat
+from rigidrot_ros.core.kernel import HyperKernel
+from rigidrot_ros.core.taylor import TaylorKernel
 
 REF_TOL = 2e-14
 
@@ -51,7 +54,6 @@ def _cpu():
 
 def footer():
     """Versions, CPU and date: printed with every result."""
-    import mpmath
     import scipy
     try:
         import flint
@@ -293,9 +295,6 @@ def envelope(quick, log, max_turn=2e5):
         other = math.nan
         kern = sol._kernel
         if type(kern).__name__ in ('HyperKernel', 'TaylorKernel'):
-            from rigidrot_ros.core.kernel import HyperKernel
-            from rigidrot_ros.core.taylor import TaylorKernel
-            import mpmath
             p, q, kr0, ku = kern._inputs if hasattr(kern, '_inputs') else (None,) * 4
             delta = (float(p) ** 2 + float(q) ** 2) / (4 * float(ku))
             try:

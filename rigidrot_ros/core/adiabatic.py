@@ -33,25 +33,13 @@ from mpmath import mp
 import numpy as np
 
 from .kernel import reduce_angle, SETUP_PREC
+from .quaternion import axis_floats as _axis
+from .quaternion import multiply_floats as _qmul
 
 __all__ = ['AdiabaticKernel', 'ADIABATIC_DELTA']
 
 #: Used from this delta = (p^2 + q^2) / (4U) up: 10 eps^3 = 1.6e-13 here, and less above.
 ADIABATIC_DELTA = 1e4
-
-
-def _qmul(a, b):
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
-
-
-def _axis(k, angle):
-    h = 0.5 * angle
-    v = [0.0, 0.0, 0.0, math.cos(h)]
-    v[k] = math.sin(h)
-    return tuple(v)
 
 
 class AdiabaticKernel:

@@ -93,14 +93,6 @@ class Samples:
         return quat.to_matrix(self.quaternion)
 
 
-def _qmul(a, b):
-    """Hamilton product of two quaternions given as float 4-tuples (x, y, z, w)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
-
-
 def _cyclic(k):
     """Proper rotation ``R_B'B`` (rows e_{k+1}, e_{k+2}, e_k) moving axis k to the third."""
     eye = np.eye(3)
@@ -373,10 +365,9 @@ class Solution:
         k, kerr = self._kernel_scalar(t)
         f = self._f.angle(t)
         c, s = math.cos(f), math.sin(f)
-        h = 0.5 * f
-        q = _qmul(_qmul(self._left_t, tuple(k)),
-                  _qmul(_qmul(self._mid_t, (0.0, 0.0, math.sin(h), math.cos(h))),
-                        self._right_t))
+        mul = quat.multiply_floats
+        q = mul(mul(self._left_t, tuple(k)),
+                mul(mul(self._mid_t, quat.axis_floats(2, f)), self._right_t))
         a = self._w_s0[0] + self._m_over_I[0] * t
         b = self._w_s0[1] + self._m_over_I[1] * t
         w_b1 = np.array([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * t])

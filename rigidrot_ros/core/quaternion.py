@@ -6,11 +6,13 @@ inertial frame, and the matching matrix ``R_NB`` means ``v_N = R_NB @ v_B``.
 All functions broadcast over leading axes.
 """
 
+import math
+
 import numpy as np
 
 __all__ = [
     'multiply', 'conjugate', 'about_z', 'from_rotvec', 'to_matrix', 'from_matrix',
-    'angle_between',
+    'angle_between', 'multiply_floats', 'axis_floats',
 ]
 
 
@@ -26,6 +28,25 @@ def multiply(a, b):
         aw * bz + ax * by - ay * bx + az * bw,
         aw * bw - ax * bx - ay * by - az * bz,
     ], axis=-1)
+
+
+def multiply_floats(a, b):
+    """Hamilton product ``a ⊗ b`` of two quaternions given as float 4-tuples (x, y, z, w).
+
+    The per-sample paths use this instead of :func:`multiply`: no array overhead.
+    """
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+
+
+def axis_floats(k, angle):
+    """Quaternion (x, y, z, w) tuple of a rotation by ``angle`` rad about axis k (0, 1, 2)."""
+    h = 0.5 * angle
+    v = [0.0, 0.0, 0.0, math.cos(h)]
+    v[k] = math.sin(h)
+    return tuple(v)
 
 
 def conjugate(q):
