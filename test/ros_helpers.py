@@ -11,8 +11,14 @@ _counter = itertools.count()
 
 
 def next_domain_id():
-    """Return a ROS_DOMAIN_ID not used by any earlier test of this run (1..100)."""
-    return 1 + (os.getpid() * 7 + next(_counter)) % 100
+    """Return a ROS_DOMAIN_ID not used by any earlier test of this run.
+
+    IDs run from ``RIGIDROT_TEST_DOMAIN_BASE`` (default 1) over ``RIGIDROT_TEST_DOMAIN_SPAN``
+    values (default 100), so test runs side by side on one machine can be kept apart.
+    """
+    base = int(os.environ.get('RIGIDROT_TEST_DOMAIN_BASE', '1'))
+    span = int(os.environ.get('RIGIDROT_TEST_DOMAIN_SPAN', '100'))
+    return base + (os.getpid() * 7 + next(_counter)) % span
 
 
 def ros_env(domain_id):
