@@ -192,7 +192,8 @@ def _dense_safe(kernel):
     if not all(math.isfinite(v) for v in (p, q, r0, u)):
         return None
     d = math.hypot(p, q)
-    if max(d, math.sqrt(u)) < DENSE_RATES[0] or math.hypot(r0, d) > DENSE_RATES[1]:
+    if max(d, math.sqrt(u)) < DENSE_RATES[0] or \
+            max(math.hypot(r0, d), math.sqrt(u)) > DENSE_RATES[1]:
         return None
     return d, r0, u
 
@@ -452,6 +453,9 @@ class Solution:
         if not np.all(np.isfinite(tt)):
             raise ValueError('t must be finite')
         n = len(tt)
+        kin = self._input_error(tt)
+        if self._kin:                                          # refuse before the work
+            self._check(tt, 2.0 * kin + FLOAT_FLOOR, np.zeros(3))
         k = np.empty((n, 4))
         kerr = np.empty(n)
         if n >= DENSE_MIN and self._dense_at(float(np.max(np.abs(tt)))):
@@ -460,7 +464,7 @@ class Solution:
         else:
             for i, ti in enumerate(tt):
                 k[i], kerr[i] = self._kernel.evaluate(float(ti))
-        kerr = kerr + self._input_error(tt)
+        kerr = kerr + kin
         f = np.array([self._f.angle(float(ti)) for ti in tt])
         q = quat.multiply(quat.multiply(self._left, k),
                           quat.multiply(quat.multiply(self._mid, quat.about_z(f)), self._right))
@@ -500,8 +504,11 @@ class Solution:
         """:meth:`at` for one time, in plain floats (the node's per-tick path)."""
         if not math.isfinite(t):
             raise ValueError('t must be finite')
+        kin = self._input_error(t)
+        if kin:                                                # refuse before the work
+            self._check(np.asarray(t), np.float64(2.0 * kin + FLOAT_FLOOR), np.zeros(3))
         k, kerr = self._kernel_scalar(t)
-        kerr = kerr + self._input_error(t)
+        kerr = kerr + kin
         f = self._f.angle(t)
         c, s = math.cos(f), math.sin(f)
         mul = quat.multiply_floats
