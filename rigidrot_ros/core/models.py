@@ -14,7 +14,9 @@ with ``k(t)`` the spherical-body kernel in K (starting at the identity) and
 """
 
 from dataclasses import dataclass
+from fractions import Fraction
 import math
+import reprlib
 
 import mpmath
 from mpmath import mp
@@ -24,13 +26,14 @@ from . import quaternion as quat
 from .adiabatic import ADIABATIC_DELTA, AdiabaticKernel
 from .dense import dense_spinor, Window
 from .kernel import (
-    available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle, PrecisionError,
-    SETUP_PREC,
+    angle_prec, available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle,
+    PrecisionError, SETUP_PREC,
 )
 from .scene import Scene
 from .taylor import TaylorKernel
 
-__all__ = ['solve', 'Solution', 'Samples', 'NoExactSolution', 'MODELS', 'FLOAT_FLOOR', 'MIN_TOL']
+__all__ = ['solve', 'Solution', 'Samples', 'NoExactSolution', 'MODELS', 'FLOAT_FLOOR', 'MIN_TOL',
+           'MAX_PREC']
 
 #: Attitude error (rad) of composing float64 quaternions, included in every error bound.
 FLOAT_FLOOR = 1e-14
@@ -48,6 +51,10 @@ DENSE_MIN = 8
 #: neglected: the attitude bound then grows by rate * |t|, under 1e-14 rad to 1e16 s.
 DROP_RATE = 1e-30
 _SPINOR_KERNELS = (HyperKernel, TaylorKernel, AdiabaticKernel)
+
+#: The highest precision ceiling ``solve`` accepts, bits: Arb's 1F1 at 65536 bits takes
+#: seconds to minutes a value; beyond that a request would effectively hang.
+MAX_PREC = 65536
 
 #: Model names and the paper's results they evaluate.
 MODELS = {
@@ -198,6 +205,29 @@ def _dense_safe(kernel):
     return d, r0, u
 
 
+def _transverse_sq(w0, m, i_t, i_3):
+    """Exact ``|omega_S x m|^2 / |m|^2`` (Fraction): the squared transverse rate in K."""
+    a = [Fraction(i_t) * Fraction(w0[0]), Fraction(i_t) * Fraction(w0[1]),
+         Fraction(i_3) * Fraction(w0[2])]                      # I omega_S
+    b = [Fraction(v) for v in m]
+    c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    return sum(x * x for x in c) / (sum(x * x for x in b) * Fraction(i_t) ** 2)
+
+
+def _mag(x):
+    """Return an integer e with ``|x| <= 2^e`` (a large negative one for zero)."""
+    return -100000 if x == 0 else int(mpmath.mag(x))
+
+
+def _times(t):
+    """``t`` as a float array, or ValueError naming the problem."""
+    try:
+        return np.asarray(t, dtype=float)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ValueError(f't must be a float or a 1-D array of floats (seconds), got '
+                         f'{reprlib.repr(t)}: {exc}') from None
+
+
 def _default_backend():
     return available_backends()[0]
 
@@ -294,12 +324,26 @@ class Solution:
             else:
                 q_sk, wk, U = c['q_sk'], c['wk'], c['U']
                 wnorm = mpmath.sqrt(sum(v * v for v in wk))
-                dk = mpmath.hypot(wk[0], wk[1])
+                # the transverse rate |omega_S x m| / |m| in K, exactly (rationals): at
+                # SETUP_PREC a tiny one would drown in the rounding of the K frame
+                d2 = _transverse_sq(w0f, mf, i_t, i_3)
+                dk = mpmath.sqrt(mpmath.mpf(d2.numerator) / d2.denominator)
+                prec_in = SETUP_PREC
+                if d2 and dk < wnorm * mpmath.mpf(2) ** (64 - SETUP_PREC):
+                    prec_in = angle_prec(_mag(wnorm) - _mag(dk) + SETUP_PREC - 16)
+                    with mp.workprec(prec_in):
+                        wk, U = constants()['wk'], constants()['U']
+
+                def inputs():
+                    """(p, q, r0, U) in K with at least prec_in bits."""
+                    with mp.workprec(max(mp.prec, prec_in)):
+                        c = constants()
+                        return c['wk'] + [c['U']]
                 # a transverse rate below 2^-200 of the motion's rate scale and below
                 # DROP_RATE is dropped; the kernel's bound grows by dk |t| (AxisKernel's
                 # 'dropped'), checked against tol at every sample
                 tiny = mpmath.mpf(2) ** (-200) * max(wnorm, mpmath.sqrt(U))
-                if dk <= tiny and dk <= DROP_RATE:
+                if d2 == 0 or (dk <= tiny and dk <= DROP_RATE):
                     kernel = AxisKernel(const('wk', 2), const('U'), dropped=float(dk))
                 else:
                     # the kernel quaternion may take 2/5 of the attitude budget
@@ -313,14 +357,13 @@ class Solution:
                     # the adiabatic series only where its estimate 10 eps^3 meets the tol
                     adiabatic_ok = 10 / (4 * delta_mp) ** 3 + mpmath.mpf(1e-15) <= ktol
                     if delta >= ADIABATIC_DELTA and adiabatic_ok:
-                        kernel = AdiabaticKernel(
-                            wk[0], wk[1], wk[2], U, tol=ktol,
-                            inputs=lambda: constants()['wk'] + [constants()['U']])
+                        kernel = AdiabaticKernel(wk[0], wk[1], wk[2], U, tol=ktol,
+                                                 inputs=inputs)
                     else:
                         # inputs rounded at SETUP_PREC: relative error < 2^-(SETUP_PREC - 8)
                         # of the rate, so the attitude drifts by at most that times
                         # int |omega_K| dt <= |omega_K(0)| |t| + U t^2 / 2
-                        kin = 2.0 ** -(SETUP_PREC - 8)
+                        kin = 2.0 ** -(prec_in - 8)
                         self._kin_rates = (float(wnorm), float(U))
                         if (backend == 'flint' and delta > DELTA_SWITCH) or mp_hopeless:
                             kernel = TaylorKernel(wk[0], wk[1], wk[2], U, tol=ktol,
@@ -444,7 +487,7 @@ class Solution:
         >>> round(float(sol.at(math.pi).quaternion[2]), 12)
         1.0
         """
-        t_arr = np.asarray(t, dtype=float)
+        t_arr = _times(t)
         if t_arr.ndim == 0:
             return self._at_scalar(float(t_arr))
         if t_arr.ndim > 1:
@@ -480,7 +523,7 @@ class Solution:
         The dynamics alone, in closed form (Eq. 39, 47, 56, 58): no special function is
         evaluated, so this is cheap.
         """
-        tt = np.asarray(t, dtype=float)
+        tt = _times(t)
         if not np.all(np.isfinite(tt)):
             raise ValueError('t must be finite')
         f = np.vectorize(self._f.angle, otypes=[float])(tt)
@@ -536,7 +579,8 @@ def solve(scene, tol=1e-12, backend=None, max_prec=4096):
     backend : {None, 'flint', 'mpmath'}
         Special-function backend; None picks the fastest installed (flint, else mpmath).
     max_prec : int
-        Ceiling on the working precision of the special functions, bits.
+        Ceiling on the working precision of the special functions, bits (64 to
+        ``MAX_PREC`` = 65536).
 
     Returns
     -------
@@ -556,8 +600,12 @@ def solve(scene, tol=1e-12, backend=None, max_prec=4096):
     """
     if not isinstance(scene, Scene):
         raise TypeError(f'scene must be a rigidrot_ros.core.Scene, got {type(scene).__name__}')
-    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not math.isfinite(tol):
-        raise ValueError(f'tol must be a finite number of radians, got {tol!r}')
+    try:
+        tol_f = float(tol) if isinstance(tol, (int, float)) else math.nan
+    except OverflowError:                                       # int(10**400)
+        tol_f = math.inf
+    if isinstance(tol, bool) or not math.isfinite(tol_f):
+        raise ValueError(f'tol must be a finite number of radians, got {reprlib.repr(tol)}')
     if tol < MIN_TOL:
         raise ValueError(f'tol = {tol!r} rad is below {MIN_TOL} rad, twice the float64 '
                          f'floor of the returned samples')
@@ -565,6 +613,8 @@ def solve(scene, tol=1e-12, backend=None, max_prec=4096):
         backend = _default_backend()
     if backend not in ('flint', 'mpmath'):
         raise ValueError(f"backend must be None, 'flint' or 'mpmath', got {backend!r}")
-    if not isinstance(max_prec, int) or max_prec < 64:
-        raise ValueError(f'max_prec must be an integer >= 64 bits, got {max_prec!r}')
-    return Solution(scene, float(tol), backend, max_prec)
+    if isinstance(max_prec, bool) or not isinstance(max_prec, int) or \
+            not 64 <= max_prec <= MAX_PREC:
+        raise ValueError(f'max_prec must be an integer from 64 to {MAX_PREC} bits (a higher '
+                         f'ceiling could run for hours), got {max_prec!r}')
+    return Solution(scene, tol_f, backend, max_prec)
