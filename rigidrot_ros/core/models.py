@@ -547,9 +547,12 @@ class Solution:
         """:meth:`at` for one time, in plain floats (the node's per-tick path)."""
         if not math.isfinite(t):
             raise ValueError('t must be finite')
-        kin = self._input_error(t)
-        if kin:                                                # refuse before the work
-            self._check(np.asarray(t), np.float64(2.0 * kin + FLOAT_FLOOR), np.zeros(3))
+        kin = 0.0
+        if self._kin:                                          # python floats: fast, no warning
+            w, u = self._kin_rates
+            kin = 0.5 * self._kin * (w * abs(t) + 0.5 * u * t * t)
+            if not 2.0 * kin + FLOAT_FLOOR <= self.tol:       # refuse before the work
+                self._check(np.asarray(t), np.float64(2.0 * kin + FLOAT_FLOOR), np.zeros(3))
         k, kerr = self._kernel_scalar(t)
         kerr = kerr + kin
         f = self._f.angle(t)
