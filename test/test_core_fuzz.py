@@ -12,8 +12,9 @@ is within the stated bound of it:
   exp(t lambda e_k)``, Landau & Lifshitz Sec. 33), not the package's formulas;
 - every scene at t = 0: ``attitude0``;
 - the rest: invariants of Euler's equations (angular momentum in N without torque, the
-  rate laws below), and DOP853 (``conftest.integrate``) where rates and horizon are
-  moderate.
+  rate laws below), DOP853 (``conftest.integrate``) where rates and horizon are moderate,
+  and the scaled twin: the same motion with every field scaled exactly by powers of two
+  to moderate magnitudes must give the same attitude within both bounds.
 
 10 000 scenes run by default (about 25 s of CPU here); ``pytest -m fuzz`` runs
 50 000 more.
@@ -225,6 +226,36 @@ def _moderate(scene, t):
         max(inertia) / min(inertia) <= 20
 
 
+def _twin(scene, t):
+    """The same motion scaled by powers of two to moderate magnitudes: (scene, t), or None.
+
+    Euler's equations and the kinematics are invariant under ``I -> mu I``,
+    ``m -> mu lam^2 m``, ``omega -> lam omega``, ``t -> t / lam``; with ``mu`` and ``lam``
+    powers of two every field scales exactly (checked), so the two attitudes must agree.
+    """
+    imax = max(scene.inertia)
+    acc = max(abs(v) for v in scene.torque) / imax
+    rate = max(max(abs(v) for v in scene.omega0), math.sqrt(acc))
+    if rate == 0.0 or not math.isfinite(rate):
+        return None
+    a, b = -math.frexp(imax)[1], -math.frexp(rate)[1]
+    if abs(a) + abs(b) < 20:                                  # already moderate
+        return None
+    fields = {
+        'inertia': [math.ldexp(v, a) for v in scene.inertia],
+        'torque': [math.ldexp(v, a + 2 * b) for v in scene.torque],
+        'omega0': [math.ldexp(v, b) for v in scene.omega0],
+    }
+    shift = {'inertia': a, 'torque': a + 2 * b, 'omega0': b}
+    for key, vals in fields.items():
+        if [math.ldexp(v, -shift[key]) for v in vals] != list(getattr(scene, key)):
+            return None                                       # not exact (under/overflow)
+    t2 = math.ldexp(t, -b)
+    if not math.isfinite(t2) or math.ldexp(t2, b) != t:
+        return None
+    return Scene(torque_frame=scene.torque_frame, attitude0=scene.attitude0, **fields), t2
+
+
 class _Stats:
     def __init__(self):
         self.counts = {}
@@ -292,6 +323,19 @@ def _check_samples(stats, sol, scene, ts, tol):
         e = float(quat.angle_between(q_ref[-1], q))
         assert e <= err + 1e-9, (t, e, err, scene)
         stats.add('checked: DOP853 (torque, moderate)')
+    if samples and any(scene.torque):
+        t, q, err, _ = samples[-1]
+        twin = _twin(scene, t)
+        if twin is not None:
+            # the twin may differ in what it refuses: DROP_RATE and DENSE_RATES are in rad/s
+            try:
+                s2 = solve(twin[0], tol=tol, backend=sol.backend).at(twin[1])
+            except (ValueError, PrecisionError) as exc:
+                _refused(stats, 'the scaled twin', exc)
+            else:
+                gap = float(quat.angle_between(q, s2.quaternion))
+                assert gap <= err + float(s2.error_bound), (t, gap, err, scene, twin)
+                stats.add('checked: scaled twin (powers of two) agrees')
     if len(samples) >= 2:
         ts_ok = np.array([t for t, *_ in samples])
         batch = sol.at(ts_ok)
