@@ -346,13 +346,16 @@ class HyperKernel:
     fallback : bool
         With flint, continue a sample by Taylor series when 1F1 would need more than
         ``FALLBACK_BITS``; when false, try up to ``max_prec`` and raise PrecisionError.
+    setup_prec : int
+        Bits for the derived constants (sqrt U, ...): at least those of the inputs.
     """
 
     #: With flint, a sample whose 1F1 would need more bits than this is continued by
     #: certified Taylor series instead (see :mod:`rigidrot_ros.core.taylor`).
     FALLBACK_BITS = 1024
 
-    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=True):
+    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=True,
+                 setup_prec=SETUP_PREC):
         self.backend = make_backend(backend)
         self.fallback = bool(fallback)
         self.method = f'hypergeometric-{self.backend.name}'
@@ -360,7 +363,10 @@ class HyperKernel:
         self.max_prec = int(max_prec)
         self._fallback = None
         self._inputs = (p, q, r0, U)
-        with mp.workprec(SETUP_PREC):
+        # sqrt(U), s0 and conj(Delta)/sqrt(U) are rounded here: at least as finely as the
+        # inputs, whose rounding the caller accounts for (the phase s^2 / 4 can be 1e100 rad)
+        self.setup_prec = max(SETUP_PREC, int(setup_prec))
+        with mp.workprec(self.setup_prec):
             p, q, r0, U = (mpmath.mpf(v) for v in (p, q, r0, U))
             self.sqrtU = mpmath.sqrt(U)
             self.delta = (p * p + q * q) / (4 * U)
@@ -488,7 +494,8 @@ class HyperKernel:
             if self._fallback is None:
                 from .taylor import TaylorKernel
                 self._fallback = TaylorKernel(*self._inputs, tol=self.tol,
-                                              max_prec=self.max_prec)
+                                              max_prec=self.max_prec,
+                                              setup_prec=self.setup_prec)
                 self.method = 'hypergeometric-flint+taylor-series-flint'
             return self._fallback.evaluate(t)
         pr = self.params

@@ -186,9 +186,10 @@ def _classify(scene):
 
 
 #: Dense output runs its Taylor recurrence in float64: it is used only where the kernel's
-#: rates stay within [DENSE_RATES[0], DENSE_RATES[1]] rad/s (no overflow or underflow of
-#: the coefficients, whose scale is rate^n); elsewhere samples are evaluated one by one.
-DENSE_RATES = (1e-12, 1e12)
+#: rates (and sqrt U) stay within [DENSE_RATES[0], DENSE_RATES[1]] rad/s, so that its
+#: coefficients and majorants (about rate^n / n!, n up to ~40) neither overflow nor
+#: underflow; elsewhere samples are evaluated one by one.
+DENSE_RATES = (1e-6, 1e7)
 
 
 def _dense_safe(kernel):
@@ -367,10 +368,10 @@ class Solution:
                         self._kin_rates = (float(wnorm), float(U))
                         if (backend == 'flint' and delta > DELTA_SWITCH) or mp_hopeless:
                             kernel = TaylorKernel(wk[0], wk[1], wk[2], U, tol=ktol,
-                                                  max_prec=max_prec)
+                                                  max_prec=max_prec, setup_prec=prec_in)
                         else:
                             kernel = HyperKernel(wk[0], wk[1], wk[2], U, backend, tol=ktol,
-                                                 max_prec=max_prec)
+                                                 max_prec=max_prec, setup_prec=prec_in)
             self._kin = kin
             q_sk = np.array([float(v) for v in q_sk])
             self._w_s0 = np.array([float(v) for v in w_s])
@@ -425,10 +426,12 @@ class Solution:
     def _why_bound(self):
         if isinstance(self._kernel, AxisKernel) and self._kernel.dropped:
             return (f'a transverse rate of {self._kernel.dropped:.3g} rad/s, below 2^-200 of '
-                    f'the rate, is neglected: the bound grows by that times |t|')
+                    f'the rate, is neglected: the bound grows by that times |t|, to the limit '
+                    f'tol at |t| = {self.tol / self._kernel.dropped:.3g} s')
         if self._kin:
-            return (f'its inputs carry {SETUP_PREC} bits, so the bound grows with the turn '
-                    f'|omega_K| |t| + U t^2 / 2 (limit about 1e55 rad)')
+            return (f'its inputs carry {round(8 - math.log2(self._kin))} bits, so the bound '
+                    f'grows with the turn |omega_K| |t| + U t^2 / 2, whose limit at this tol '
+                    f'is about {self.tol / self._kin:.2g} rad')
         return 'the kernel bound'
 
     def _omega_overflow(self, tt, omega):

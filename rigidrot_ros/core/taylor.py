@@ -54,16 +54,19 @@ class TaylorKernel:
         Bound asked on the kernel quaternion's component error (2-norm).
     max_prec : int
         Ceiling on the working precision, bits.
+    setup_prec : int
+        Bits of the inputs, passed on to the 1F1 seeds' derived constants.
     """
 
     method = 'taylor-series-flint'
 
-    def __init__(self, p, q, r0, U, tol, max_prec=4096):
+    def __init__(self, p, q, r0, U, tol, max_prec=4096, setup_prec=256):
         import flint
         self.flint = flint
         self.tol = float(tol)
         self.max_prec = int(max_prec)
         self._inputs = (p, q, r0, U)
+        self.setup_prec = setup_prec                    # for the 1F1 seeds' constants
         self.params = {'p': float(p), 'q': float(q), 'r0': float(r0), 'U': float(U)}
         self._u = float(U)
         self._dabs = math.hypot(float(p), float(q))
@@ -157,7 +160,8 @@ class TaylorKernel:
         try:
             if self._hyper is None or self._hyper.max_prec < bits:
                 self._hyper = HyperKernel(*self._inputs, backend='flint', tol=0.5 * self.tol,
-                                          max_prec=bits, fallback=False)
+                                          max_prec=bits, fallback=False,
+                                          setup_prec=self.setup_prec)
             (x, y, z, w), err = self._hyper.evaluate(t)
         except PrecisionError:
             self._hyper = None                       # not affordable at this budget: step
