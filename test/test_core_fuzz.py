@@ -301,8 +301,7 @@ def _check_samples(stats, sol, scene, ts, tol):
             assert 't = ' in str(exc) or 't must' in str(exc), str(exc)
             continue
         q, err = s.quaternion, float(s.error_bound)
-        # unit to rounding, or to the kernel's component error (<= err / 2) at a coarse tol
-        assert np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1.0) <= 4e-15 + err / 2
+        assert np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1.0) <= 4e-15, (q, t)
         assert np.all(np.isfinite(s.omega)) and np.all(np.isfinite(w)), (s.omega, t)
         np.testing.assert_array_equal(s.omega, w)
         assert 1e-14 <= err <= tol, (err, t)
@@ -332,7 +331,8 @@ def _check_samples(stats, sol, scene, ts, tol):
         stats.add('checked: L_N conserved', len(ln))
     if samples and any(scene.torque) and _moderate(scene, samples[-1][0]):
         t, q, err, _ = samples[-1]
-        _, q_ref = integrate(scene, np.array([0.0, t]), rtol=1e-13, atol=1e-14)
+        with np.errstate(all='ignore'):        # scipy's step control divides 0 / 0 at rest
+            _, q_ref = integrate(scene, np.array([0.0, t]), rtol=1e-13, atol=1e-14)
         e = float(quat.angle_between(q_ref[-1], q))
         assert e <= err + 1e-9, (t, e, err, scene)
         stats.add('checked: DOP853 (torque, moderate)')

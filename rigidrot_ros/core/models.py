@@ -361,8 +361,9 @@ class Solution:
                         kernel = AdiabaticKernel(wk[0], wk[1], wk[2], U, tol=ktol,
                                                  inputs=inputs)
                     else:
-                        # inputs rounded at SETUP_PREC: relative error < 2^-(SETUP_PREC - 8)
-                        # of the rate, so the attitude drifts by at most that times
+                        # inputs (and the kernels' derived constants) rounded at prec_in
+                        # bits: relative error < 2^-(prec_in - 8) of the rate, so the
+                        # attitude drifts by at most that times the turn
                         # int |omega_K| dt <= |omega_K(0)| |t| + U t^2 / 2
                         kin = 2.0 ** -(prec_in - 8)
                         self._kin_rates = (float(wnorm), float(U))
@@ -378,6 +379,8 @@ class Solution:
             self._m_over_I = np.array([float(v / mI) for v in ms])
             self._rdot = float(ms[2] / mI3)                    # d r / dt = m3 / I3
         self._dense_ok = _dense_safe(kernel)
+        # spinor kernels return |k| = 1 only to within their error: normalise them
+        self._unit_fix = isinstance(kernel, _SPINOR_KERNELS)
         self._kernel = kernel
         self._window = None
         self._left = quat.multiply(
@@ -398,7 +401,7 @@ class Solution:
         return math.hypot(abs(r0) + u * tmax, d) <= DENSE_RATES[1]
 
     def _input_error(self, t):
-        """Kernel component error from rounding its inputs at SETUP_PREC, at |t| (array).
+        """Kernel component error from rounding its inputs (prec_in bits), at |t| (array).
 
         The rate is off by at most ``kin`` of itself, so the attitude by at most
         ``kin * int |omega_K| dt``; a quaternion moves by half the attitude angle.
@@ -511,6 +514,14 @@ class Solution:
             for i, ti in enumerate(tt):
                 k[i], kerr[i] = self._kernel.evaluate(float(ti))
         kerr = kerr + kin
+        if self._unit_fix:
+            # return unit quaternions at any tol: |k/|k| - k*| <= |k - k*| + ||k| - 1|
+            norm = np.linalg.norm(k, axis=-1)
+            bad = ~(norm > 0) | ~np.isfinite(norm)               # only at a meaningless tol
+            norm[bad] = 1.0
+            k[bad] = (0.0, 0.0, 0.0, 1.0)
+            k = k / norm[:, None]
+            kerr = kerr + np.abs(norm - 1.0) + np.where(bad, np.inf, 0.0)
         f = np.array([self._f.angle(float(ti)) for ti in tt])
         q = quat.multiply(quat.multiply(self._left, k),
                           quat.multiply(quat.multiply(self._mid, quat.about_z(f)), self._right))
@@ -558,6 +569,14 @@ class Solution:
                 self._check(np.asarray(t), np.float64(2.0 * kin + FLOAT_FLOOR), np.zeros(3))
         k, kerr = self._kernel_scalar(t)
         kerr = kerr + kin
+        if self._unit_fix:
+            x, y, z, w = k
+            norm = math.sqrt(x * x + y * y + z * z + w * w)
+            if 0.0 < norm < math.inf:
+                k = (x / norm, y / norm, z / norm, w / norm)
+                kerr += abs(norm - 1.0)
+            else:                                              # only at a meaningless tol
+                k, kerr = (0.0, 0.0, 0.0, 1.0), math.inf
         f = self._f.angle(t)
         c, s = math.cos(f), math.sin(f)
         mul = quat.multiply_floats
