@@ -216,7 +216,9 @@ def _rate_laws(sol, scene, t, omega):
         perp = math.hypot(*w0[tr])
     else:                                            # transverse torque fixed in S
         perp = math.hypot(*(w0[tr] + m[tr] / inertia[tr] * t))
-    assert abs(math.hypot(*omega[tr]) - perp) <= tol
+    got = math.hypot(*omega[tr])
+    if math.isfinite(perp) and math.isfinite(got):   # else |omega_perp| beyond 1.8e308
+        assert abs(got - perp) <= tol
 
 
 def _angular_momentum_n(scene, q, omega):
@@ -331,11 +333,15 @@ def _check_samples(stats, sol, scene, ts, tol):
         stats.add('checked: L_N conserved', len(ln))
     if samples and any(scene.torque) and _moderate(scene, samples[-1][0]):
         t, q, err, _ = samples[-1]
-        with np.errstate(all='ignore'):        # scipy's step control divides 0 / 0 at rest
-            _, q_ref = integrate(scene, np.array([0.0, t]), rtol=1e-13, atol=1e-14)
-        e = float(quat.angle_between(q_ref[-1], q))
-        assert e <= err + 1e-9, (t, e, err, scene)
-        stats.add('checked: DOP853 (torque, moderate)')
+        try:
+            with np.errstate(all='ignore'):    # scipy's step control divides 0 / 0 at rest
+                _, q_ref = integrate(scene, np.array([0.0, t]), rtol=1e-13, atol=1e-14)
+        except AssertionError:                 # DOP853 gave up (step below spacing)
+            stats.add('DOP853 gave up (not checked)')
+        else:
+            e = float(quat.angle_between(q_ref[-1], q))
+            assert e <= err + 1e-9, (t, e, err, scene)
+            stats.add('checked: DOP853 (torque, moderate)')
     if samples and any(scene.torque):
         t, q, err, _ = samples[-1]
         twin = _twin(scene, t)

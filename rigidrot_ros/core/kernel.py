@@ -380,6 +380,8 @@ class HyperKernel:
         # Start where the magnitudes of the even/odd solutions (about e^{pi delta/4}
         # each) would leave the tolerance's bits plus guard bits.
         need = -math.log2(self.tol) + 2 * math.log2(math.e) * math.pi * float(self.delta) / 4
+        # ... plus the bits of the phase s0^2 / 4, formed at the working precision
+        need += max(0, 2 * _mag(self.s0))
         self.predicted = int(max(64, 24 + min(need, 1e9)))
         self.prec = min(self.predicted, self.max_prec)
         if not self.backend.certified and self.predicted > self.max_prec:
@@ -452,11 +454,14 @@ class HyperKernel:
             if b.certified:
                 err = math.hypot(r1, r2)
             else:
-                # running-error estimate: eps * ||Y(s)|| * ||Y(s0)^-1|| * |u0| * v2 gain
+                # running-error estimate: eps * ||Y(s)|| * ||Y(s0)^-1|| * |u0| * v2 gain,
+                # times the phases s^2 / 4 and s0^2 / 4 (rounding s moves them by eps s^2 / 2)
                 ns = max(b.abs(ye), b.abs(yep), b.abs(yo), b.abs(yop))
                 su = b.abs(s)
+                s0 = abs(float(self.s0))
                 gain = 1.0 + (2.0 + su) / b.abs(c['dbar'])
-                err = 64.0 * 2.0 ** -prec * ns * c['cond0'] * (1.0 + abs(float(self.s0))) * gain
+                phase = 1.0 + 0.5 * (su * su + s0 * s0)
+                err = 64.0 * 2.0 ** -prec * ns * c['cond0'] * (1.0 + s0) * gain * phase
         if not np.all(np.isfinite(q)):
             err = math.inf
         # float64 rounding of the four components

@@ -65,8 +65,11 @@ class Scene:
     Raises
     ------
     ValueError
-        Naming the field: non-finite or non-numeric values, non-positive moments, moments
-        that break the triangle inequality, a zero quaternion, an unknown torque_frame.
+        Naming the field: non-finite or non-numeric values, numbers beyond the float64
+        range (an int of 10**400), non-positive moments, moments that break the triangle
+        inequality, a zero quaternion, an unknown torque_frame. Any finite float is
+        accepted otherwise (5e-324 ... 1.8e308); :func:`solve` refuses what it cannot
+        evaluate, with the reason.
 
     Examples
     --------
