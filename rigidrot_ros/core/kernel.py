@@ -380,8 +380,13 @@ class HyperKernel:
         # Start where the magnitudes of the even/odd solutions (about e^{pi delta/4}
         # each) would leave the tolerance's bits plus guard bits.
         need = -math.log2(self.tol) + 2 * math.log2(math.e) * math.pi * float(self.delta) / 4
-        # ... plus the bits of the phase s0^2 / 4, formed at the working precision
-        need += max(0, 2 * _mag(self.s0))
+        # ... plus the bits of the phase s0^2 / 4, formed at the working precision, and
+        # (mpmath's estimate) of |s0| and of the v2 gain (2 + |s0|) / |conj(Delta) / sqrt U|
+        ms0 = max(0, _mag(self.s0))
+        need += 2 * ms0
+        if not self.backend.certified:
+            dbar = mpmath.hypot(self.dbar_re, self.dbar_im)
+            need += ms0 + max(0, max(ms0, 2) - _mag(dbar))
         self.predicted = int(max(64, 24 + min(need, 1e9)))
         self.prec = min(self.predicted, self.max_prec)
         if not self.backend.certified and self.predicted > self.max_prec:

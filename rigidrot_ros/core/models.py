@@ -192,18 +192,18 @@ def _classify(scene):
 DENSE_RATES = (1e-6, 1e7)
 
 
-def _dense_safe(kernel):
-    """Float (p, q, r0, U) of a spinor kernel whose rates suit dense output, else None."""
+def _dense_tmax(kernel):
+    """Largest |t| to which dense output suits the kernel's rates (-1: never)."""
     if not isinstance(kernel, _SPINOR_KERNELS):
-        return None
+        return -1.0
     p, q, r0, u = (kernel.params[k] for k in ('p', 'q', 'r0', 'U'))
     if not all(math.isfinite(v) for v in (p, q, r0, u)):
-        return None
-    d = math.hypot(p, q)
-    if max(d, math.sqrt(u)) < DENSE_RATES[0] or \
-            max(math.hypot(r0, d), math.sqrt(u)) > DENSE_RATES[1]:
-        return None
-    return d, r0, u
+        return -1.0
+    d, top = math.hypot(p, q), DENSE_RATES[1]
+    if max(d, math.sqrt(u)) < DENSE_RATES[0] or max(math.hypot(r0, d), math.sqrt(u)) > top:
+        return -1.0
+    # |r0| + U t <= sqrt(top^2 - d^2): the rate at t stays below the top
+    return (math.sqrt(top * top - d * d) - abs(r0)) / u * (1 - 1e-12) if u > 0 else math.inf
 
 
 def _transverse_sq(w0, m, i_t, i_3):
@@ -378,7 +378,7 @@ class Solution:
             self._w_s0 = np.array([float(v) for v in w_s])
             self._m_over_I = np.array([float(v / mI) for v in ms])
             self._rdot = float(ms[2] / mI3)                    # d r / dt = m3 / I3
-        self._dense_ok = _dense_safe(kernel)
+        self._dense_tmax = _dense_tmax(kernel)
         # spinor kernels return |k| = 1 only to within their error: normalise them
         self._unit_fix = isinstance(kernel, _SPINOR_KERNELS)
         self._kernel = kernel
@@ -395,10 +395,7 @@ class Solution:
 
     def _dense_at(self, tmax):
         """Whether dense output is safe up to |t| = tmax (see DENSE_RATES)."""
-        if self._dense_ok is None:
-            return False
-        d, r0, u = self._dense_ok
-        return math.hypot(abs(r0) + u * tmax, d) <= DENSE_RATES[1]
+        return tmax <= self._dense_tmax
 
     def _input_error(self, t):
         """Kernel component error from rounding its inputs (prec_in bits), at |t| (array).
@@ -571,12 +568,14 @@ class Solution:
         kerr = kerr + kin
         if self._unit_fix:
             x, y, z, w = k
-            norm = math.sqrt(x * x + y * y + z * z + w * w)
-            if 0.0 < norm < math.inf:
-                k = (x / norm, y / norm, z / norm, w / norm)
-                kerr += abs(norm - 1.0)
-            else:                                              # only at a meaningless tol
-                k, kerr = (0.0, 0.0, 0.0, 1.0), math.inf
+            n2 = x * x + y * y + z * z + w * w
+            if not abs(n2 - 1.0) <= 1e-15:                     # off unit (coarse tol)
+                norm = math.sqrt(n2)
+                if 0.0 < norm < math.inf:
+                    k = (x / norm, y / norm, z / norm, w / norm)
+                    kerr += abs(norm - 1.0)
+                else:                                          # only at a meaningless tol
+                    k, kerr = (0.0, 0.0, 0.0, 1.0), math.inf
         f = self._f.angle(t)
         c, s = math.cos(f), math.sin(f)
         mul = quat.multiply_floats
