@@ -202,7 +202,7 @@ class _Stats:
         self.last_error = ''
 
     def window(self):
-        """Evaluation seconds (mean, p99, max) since the last call, and the same of ticks."""
+        """Return evaluation seconds (mean, p99, max) since the last call, then the ticks'."""
         t = np.array(self.times) if self.times else np.zeros(1)
         w = np.array(self.tick_times) * 1e-9 if self.tick_times else np.zeros(1)
         self.times = []
@@ -370,7 +370,7 @@ class AttitudeNode(Node):
         return True
 
     def _truth_messages(self, stamp, s):
-        """The truth of one sample as ``(publisher, msg)`` pairs, all with one stamp."""
+        """Build the truth of one sample as ``(publisher, msg)`` pairs, all with one stamp."""
         frame = self.get_parameter('frame_id').value
         body = self.get_parameter('body_frame_id').value
         q, omega = s.quaternion, s.omega
