@@ -43,7 +43,7 @@ DELTA_TOL = 1e-13
 _EPS = np.finfo(float).eps
 _NODES = (2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 24, 32)
 _RULES = {n: np.polynomial.legendre.leggauss(n) for n in _NODES}
-_RHO = np.geomspace(1.02, 1e6, 200)
+_RHO = np.geomspace(1.02, 1e6, 40)
 _A_RHO = 0.5 * (_RHO + 1.0 / _RHO)           # semi-axes of the Bernstein ellipses
 _B_RHO = 0.5 * (_RHO - 1.0 / _RHO)
 _LOG_RHO = np.log(_RHO)
@@ -71,6 +71,7 @@ class RateBound:
 
     def __init__(self, solution):
         self.solution = solution
+        self.last_rule = 0          # index into the rules of the last one that sufficed
         scene = solution.scene
         inertia = np.array(scene.inertia, dtype=float)
         m = np.array(scene.torque, dtype=float)
@@ -209,9 +210,13 @@ def delta_angle(solution, t0, t1, tol=DELTA_TOL, bound=None):
     while pieces <= _MAX_PIECES:
         edges = np.linspace(t0, t1, pieces + 1)
         edges[0], edges[-1] = t0, t1
-        for n in _NODES:
+        # a stream of like intervals: start at the rule that served the last one
+        first = bound.last_rule if pieces == 1 else 0
+        for n in _NODES[first:]:
             trunc = sum(bound.truncation(a, b, n) for a, b in zip(edges[:-1], edges[1:]))
             if trunc <= 0.5 * tol:
+                if pieces == 1:
+                    bound.last_rule = max(0, _NODES.index(n) - 1)
                 total, w = np.zeros(3), 0.0
                 for a, b in zip(edges[:-1], edges[1:]):
                     part, w_part = _gauss(solution, a, b, n)
