@@ -295,3 +295,14 @@ def test_unknown_override_is_named_not_dropped_in_silence():
     code, out, err = stop(proc, signal.SIGINT)
     assert code == 0, err
     assert "unknown parameter 'imu.enabel'" in err and 'did you mean imu.enable' in err
+
+
+def test_a_clock_jump_restarts_the_sensor_grid_and_is_counted():
+    node = _node(**{'imu.enable': True, 'imu.rate': 100.0})
+    node._t_start = rclpy.time.Time(nanoseconds=1_000_000_000)
+    first, last = node._grid(100.0, 0, 1_000_000_000 + 5_000_000_000)     # 5 s of backlog
+    assert (first, last) == (500, 500) and node._stats.skipped == 499
+    assert node._grid(100.0, 500, 1_000_000_000 + 5_029_999_999) == (501, 502)
+    assert node._grid(100.0, 502, 1_000_000_000 + 5_029_999_999) == (503, 502)   # none due
+    assert node._grid(100.0, 502, 0)[1] < 503                     # clock before t_start
+    node.destroy_node()

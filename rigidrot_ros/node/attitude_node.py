@@ -145,6 +145,8 @@ _SEEDS = ('imu.seed', 'star_tracker.seed')
 #: Parameters rclpy declares by itself.
 _BUILTIN = ('use_sim_time',)
 _EPS = float(np.finfo(float).eps)
+#: Work one sensor callback may do before it leaves due samples to the next one, s.
+_BUDGET_S = 0.02
 
 
 class SceneError(ValueError):
@@ -194,6 +196,7 @@ class _Stats:
         self.imu_samples = 0
         self.star_samples = 0
         self.skipped = 0
+        self.skipped_reported = 0
         self.increment_bound = 0.0
         self.late = 0
         self.missed = 0
@@ -454,7 +457,11 @@ class AttitudeNode(Node):
             return
         body = self.get_parameter('body_frame_id').value
         pairs = []
+        c0 = time.perf_counter()
         for k in range(first, last + 1):
+            if time.perf_counter() - c0 > _BUDGET_S:
+                last = k - 1        # the rest stays due: the next callback goes on
+                break
             ns1 = self._stamp_ns(rate, k)
             t0, t1 = self._scene_time(self._stamp_ns(rate, k - 1)), self._scene_time(ns1)
             try:
@@ -482,7 +489,11 @@ class AttitudeNode(Node):
             return
         frame = self.get_parameter('frame_id').value
         pairs = []
+        c0 = time.perf_counter()
         for k in range(first, last + 1):
+            if time.perf_counter() - c0 > _BUDGET_S:
+                last = k - 1
+                break
             ns = self._stamp_ns(rate, k)
             try:
                 r = self._star.read(self._scene_time(ns))
@@ -506,6 +517,10 @@ class AttitudeNode(Node):
             level, msg = DiagnosticStatus.WARN, 'evaluation slower than the timer period'
         if bound > sol.tol:
             level, msg = DiagnosticStatus.WARN, 'error bound above tol'
+        if st.skipped > st.skipped_reported:
+            st.skipped_reported = st.skipped
+            level, msg = DiagnosticStatus.WARN, ('sensor samples skipped (a clock jump, or '
+                                                 'sensor rates above what this CPU keeps up)')
         if st.errors:
             level, msg = DiagnosticStatus.ERROR, f'evaluation failed: {st.last_error}'
             st.errors = 0
