@@ -221,6 +221,13 @@ class _Stats:
         return float(g.mean()), float(g.max())
 
 
+def _make_sensors(solution, cfg):
+    """Return ``(gyro, star_tracker)`` of validated settings (None where off)."""
+    gyro = Gyro(solution, cfg.gyro) if cfg.imu else None
+    star = StarTracker(solution, cfg.attitude_noise) if cfg.star_tracker else None
+    return gyro, star
+
+
 class AttitudeNode(Node):
     """Publishes the exact attitude and body angular velocity of a rigid body."""
 
@@ -248,13 +255,13 @@ class AttitudeNode(Node):
         try:
             self._solution = build_solution(self._values())
             self._sensors = sensor_settings(self._values())
+            self._use_sensors(_make_sensors(self._solution, self._sensors))
         except ValueError as exc:
             raise SceneError(str(exc)) from None
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
         self._last_sample = None
         self._stats = _Stats()
-        self._make_sensors()
         self.add_on_set_parameters_callback(self._on_set)
         qos = QoSProfile(depth=self.get_parameter('qos_depth').value,
                          reliability=ReliabilityPolicy.RELIABLE)
@@ -304,12 +311,9 @@ class AttitudeNode(Node):
                 f'parameter')
         self.unknown_overrides = unknown
 
-    def _make_sensors(self):
-        """Sensors of the current run, from the validated settings (fresh noise streams)."""
-        cfg = self._sensors
-        self._gyro = Gyro(self._solution, cfg.gyro) if cfg.imu else None
-        self._star = (StarTracker(self._solution, cfg.attitude_noise)
-                      if cfg.star_tracker else None)
+    def _use_sensors(self, sensors):
+        """Start the sensors of a run (fresh noise streams, grids from k = 0)."""
+        self._gyro, self._star = sensors
         self._imu_k = 0             # the last gyro sample published (k = 0 is t = 0)
         self._star_k = -1           # the last star tracker sample published
 
@@ -656,6 +660,7 @@ class AttitudeNode(Node):
         try:
             solution = build_solution(self._values())
             sensors = sensor_settings(self._values())
+            devices = _make_sensors(solution, sensors)
         except ValueError as exc:
             response.success = False
             response.message = f'reset refused, previous scene keeps running: {exc}'
@@ -665,7 +670,7 @@ class AttitudeNode(Node):
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
         self._last_sample = None
-        self._make_sensors()
+        self._use_sensors(devices)
         self._make_sensor_timers()
         response.success = True
         response.message = f'running model {solution.model} ({solution.method})'
