@@ -192,12 +192,14 @@ class TaylorKernel:
         if not turn <= MAX_STEP_TURN:
             from .kernel import PrecisionError
             p = self.params
+            seed = (f'no 1F1 evaluation within {HYBRID_BITS[-1][1]} bits could seed it '
+                    f'there' if turn <= MAX_SEED_TURN else
+                    f'a 1F1 seed is not tried past {MAX_SEED_TURN:.3g} rad')
             raise PrecisionError(
                 f't = {t!r} s is out of reach: the certified Taylor continuation would '
                 f'step across {turn:.3g} rad from its nearest checkpoint (t = {tk!r} s), '
                 f'beyond its limit of {MAX_STEP_TURN:.3g} rad (about a minute of CPU), and '
-                f'no 1F1 evaluation within {HYBRID_BITS[-1][1]} bits could seed it there '
-                f'(kernel p, q, r0 = {p["p"]:.4g}, {p["q"]:.4g}, {p["r0"]:.4g} rad/s, '
+                f'{seed} (kernel p, q, r0 = {p["p"]:.4g}, {p["q"]:.4g}, {p["r0"]:.4g} rad/s, '
                 f'U = {p["U"]:.4g} rad/s^2). Use a shorter horizon (a larger torque / '
                 f'inertia or a smaller spin turns less per second).')
         with self.flint.ctx.workprec(self.prec):
