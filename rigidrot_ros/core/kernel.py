@@ -38,6 +38,8 @@ import mpmath
 from mpmath import mp
 import numpy as np
 
+from .ddphase import DDPoly
+
 __all__ = [
     'PrecisionError', 'SETUP_PREC', 'available_backends', 'ConstantKernel', 'AxisKernel',
     'HyperKernel', 'PolyAngle',
@@ -68,8 +70,10 @@ def reduce_angle(x):
 class PolyAngle:
     """Angle ``c1 t + c2 t^2`` (rad) evaluated from exact inputs, reduced modulo 4 pi.
 
-    Float64 would carry ``|angle| * 1e-16`` rad of error (1e-6 rad at 1e10 rad); this
-    evaluates in ``SETUP_PREC`` bits and reduces before rounding to float.
+    Float64 would carry ``|angle| * 1e-16`` rad of error (1e-6 rad at 1e10 rad). Where
+    it applies (|angle| up to about 1.4e16 rad) the angle is evaluated in double-double
+    arithmetic with a proved bound (:mod:`.ddphase`); beyond, in ``SETUP_PREC`` bits,
+    reduced before rounding to float.
     """
 
     def __init__(self, c1, c2):
@@ -78,14 +82,41 @@ class PolyAngle:
             self.c2 = +mpmath.mpf(c2)
         self.zero = (self.c1 == 0 and self.c2 == 0)
         self._c1f, self._c2f = float(self.c1), float(self.c2)
+        self._dd = DDPoly(self.c1, self.c2)
 
-    def angle(self, t):
-        """Angle at t (float, reduced to (-2 pi, 2 pi])."""
-        if self.zero:
-            return 0.0
+    def _angle_mp(self, t):
         with mp.workprec(SETUP_PREC):
             tt = mpmath.mpf(t)
             return reduce_angle((self.c1 + self.c2 * tt) * tt)
+
+    def angle_bound(self, t):
+        """Angle at one float t (reduced to about (-2 pi, 2 pi]) and its error bound, rad.
+
+        The bound excludes the final rounding of the reduced angle to float64 (part of
+        the composition floor of every sample).
+        """
+        if self.zero:
+            return 0.0, 0.0
+        out = self._dd.angle(t)
+        if out is None:
+            return self._angle_mp(t), 0.0
+        return out
+
+    def angle(self, t):
+        """Angle at t (float, reduced to about (-2 pi, 2 pi])."""
+        return self.angle_bound(t)[0]
+
+    def angles(self, t):
+        """Angles and their error bounds at the times ``t`` (float ndarray), rad."""
+        t = np.asarray(t, dtype=float)
+        if self.zero:
+            return np.zeros_like(t), np.zeros_like(t)
+        ang, bound, covered = self._dd.angles(t)
+        if not covered.all():
+            for i in np.flatnonzero(~covered):
+                ang.flat[i] = self._angle_mp(float(t.flat[i]))
+                bound.flat[i] = 0.0
+        return ang, bound
 
     def rate(self, t):
         """Time derivative of the angle at t, rad/s."""
@@ -103,16 +134,30 @@ class ConstantKernel:
             self.norm = mpmath.sqrt(sum(w * w for w in self.omega))
             self.axis = (np.array([float(w / self.norm) for w in self.omega])
                          if self.norm != 0 else np.zeros(3))
+            self.phase = PolyAngle(self.norm, 0)
         self.prec = SETUP_PREC
 
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and its error bound (quaternion norm)."""
         if self.norm == 0:
             return np.array([0.0, 0.0, 0.0, 1.0]), 0.0
-        with mp.workprec(SETUP_PREC):
-            phi = reduce_angle(self.norm * mpmath.mpf(t))
+        phi, err = self.phase.angle_bound(t)
         h = 0.5 * phi
-        return np.append(math.sin(h) * self.axis, math.cos(h)), 0.0
+        return np.append(math.sin(h) * self.axis, math.cos(h)), 0.5 * err
+
+    def evaluate_many(self, t):
+        """Quaternions (n, 4) and component-error bounds (n,) at the times ``t``."""
+        t = np.asarray(t, dtype=float)
+        if self.norm == 0:
+            out = np.zeros(t.shape + (4,))
+            out[..., 3] = 1.0
+            return out, np.zeros(t.shape)
+        phi, err = self.phase.angles(t)
+        h = 0.5 * phi
+        out = np.empty(t.shape + (4,))
+        out[..., :3] = np.sin(h)[..., None] * self.axis
+        out[..., 3] = np.cos(h)
+        return out, 0.5 * err
 
 
 class AxisKernel:
@@ -127,8 +172,18 @@ class AxisKernel:
 
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and its error bound (quaternion norm)."""
-        h = 0.5 * self.angle.angle(t)
-        return np.array([0.0, 0.0, math.sin(h), math.cos(h)]), 0.0
+        phi, err = self.angle.angle_bound(t)
+        h = 0.5 * phi
+        return np.array([0.0, 0.0, math.sin(h), math.cos(h)]), 0.5 * err
+
+    def evaluate_many(self, t):
+        """Quaternions (n, 4) and component-error bounds (n,) at the times ``t``."""
+        phi, err = self.angle.angles(t)
+        h = 0.5 * phi
+        out = np.zeros(np.shape(phi) + (4,))
+        out[..., 2] = np.sin(h)
+        out[..., 3] = np.cos(h)
+        return out, 0.5 * err
 
 
 # ---------------------------------------------------------------------------------------

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import quaternion as quat
 from .adiabatic import ADIABATIC_DELTA, AdiabaticKernel
-from .dense import dense_spinor, Window
+from .dense import DenseSpinor
 from .kernel import (
     available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle, SETUP_PREC,
 )
@@ -43,6 +43,8 @@ DELTA_SWITCH = 80.0
 #: Batches of at least this many times use dense output (:mod:`.dense`): one exact
 #: evaluation per window, the exact solution's Taylor series inside it.
 DENSE_MIN = 8
+#: Batches are evaluated in chunks of this many samples (bounded temporary memory).
+CHUNK = 32768
 _SPINOR_KERNELS = (HyperKernel, TaylorKernel, AdiabaticKernel)
 
 #: Model names and the paper's results they evaluate.
@@ -259,14 +261,22 @@ class Solution:
             self._m_over_I = np.array([float(v / mI) for v in ms])
             self._rdot = float(ms[2] / mI3)                    # d r / dt = m3 / I3
         self._kernel = kernel
-        self._window = None
+        self._dense = DenseSpinor(kernel) if isinstance(kernel, _SPINOR_KERNELS) else None
         self._left = quat.multiply(
             quat.multiply(np.array(scene.attitude0), quat.conjugate(q_b1b)), q_sk)
         self._mid = quat.conjugate(q_sk)
         self._right = q_b1b
-        self._left_t, self._mid_t, self._right_t = (
-            tuple(float(v) for v in x) for x in (self._left, self._mid, self._right))
-        self._r0 = w0[2]
+        # q = left ⊗ k ⊗ (cos(f/2) P0 + sin(f/2) P1): q_z(f) is linear in (cos, sin)
+        eye = np.eye(4)
+        self._lmat = np.stack([quat.multiply(self._left, e) for e in eye], axis=-1)
+        self._p0 = quat.multiply(self._mid, self._right)
+        self._p1 = quat.multiply(quat.multiply(self._mid, eye[2]), self._right)
+        self._left_t, self._p0_t, self._p1_t = (
+            tuple(float(v) for v in x) for x in (self._left, self._p0, self._p1))
+        self._r0 = float(w0[2])
+        self._perm_idx = [int(np.argmax(row)) for row in self._perm_T]
+        self._w_s0_t = tuple(float(v) for v in self._w_s0)
+        self._m_over_I_t = tuple(float(v) for v in self._m_over_I)
 
     @property
     def method(self):
@@ -312,26 +322,60 @@ class Solution:
         if not np.all(np.isfinite(tt)):
             raise ValueError('t must be finite')
         n = len(tt)
-        k = np.empty((n, 4))
-        kerr = np.empty(n)
-        if n >= DENSE_MIN and isinstance(self._kernel, _SPINOR_KERNELS):
+        q = np.empty((n, 4))
+        omega = np.empty((n, 3))
+        err = np.empty(n)
+        if n == 0:
+            return Samples(tt, q, omega, err)
+        order = None
+        if n > 1 and not np.all(tt[1:] >= tt[:-1]):
             order = np.argsort(tt, kind='stable')
-            k[order], kerr[order] = dense_spinor(self._kernel, tt[order])
-        else:
-            for i, ti in enumerate(tt):
-                k[i], kerr[i] = self._kernel.evaluate(float(ti))
-        f = np.array([self._f.angle(float(ti)) for ti in tt])
-        q = quat.multiply(quat.multiply(self._left, k),
-                          quat.multiply(quat.multiply(self._mid, quat.about_z(f)), self._right))
-        # omega_S(t) = omega_S(0) + (m/I) t; omega_B' = (Rz(-f) omega_S_perp, r(t))
-        a = self._w_s0[0] + self._m_over_I[0] * tt
-        b = self._w_s0[1] + self._m_over_I[1] * tt
-        c, s = np.cos(f), np.sin(f)
-        w_b1 = np.stack([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * tt], axis=-1)
-        omega = w_b1 @ self._perm_T.T
-        # a component error e of a unit quaternion moves the attitude by <= 2 asin(e)
-        err = 2.0 * np.arcsin(np.minimum(kerr, 1.0)) + FLOAT_FLOOR
+        ts = tt if order is None else tt[order]
+        # chunks from t = 0 outwards, so windows chain in their own direction
+        neg = int(np.searchsorted(ts, 0.0, side='left'))
+        chunks = [(max(0, e - CHUNK), e) for e in range(neg, 0, -CHUNK)]
+        chunks += [(s, min(n, s + CHUNK)) for s in range(neg, n, CHUNK)]
+        dense = self._dense is not None and n >= DENSE_MIN
+        for a, b in chunks:
+            tc = ts[a:b]
+            qc, wc, ec = self._chunk(tc, dense)
+            if order is None:
+                q[a:b], omega[a:b], err[a:b] = qc, wc, ec
+            else:
+                idx = order[a:b]
+                q[idx], omega[idx], err[idx] = qc, wc, ec
         return Samples(tt, q, omega, err)
+
+    def _chunk(self, tc, dense):
+        """Quaternions, rates and bounds at the sorted times ``tc`` (one chunk)."""
+        m = len(tc)
+        kernel = self._kernel
+        if dense:
+            k = np.empty((m, 4))
+            kerr = np.empty(m)
+            self._dense.many(tc, k, kerr)
+        elif hasattr(kernel, 'evaluate_many'):
+            k, kerr = kernel.evaluate_many(tc)
+        else:
+            k = np.empty((m, 4))
+            kerr = np.empty(m)
+            for i, ti in enumerate(tc):
+                k[i], kerr[i] = kernel.evaluate(float(ti))
+        f, ferr = self._f.angles(tc)
+        h = 0.5 * f
+        c, s = np.cos(h), np.sin(h)
+        q2 = c[:, None] * self._p0 + s[:, None] * self._p1
+        q = quat.multiply(k @ self._lmat.T, q2)
+        # omega_S(t) = omega_S(0) + (m/I) t; omega_B' = (Rz(-f) omega_S_perp, r(t))
+        cf, sf = c * c - s * s, 2.0 * s * c
+        a = self._w_s0[0] + self._m_over_I[0] * tc
+        b = self._w_s0[1] + self._m_over_I[1] * tc
+        w_b1 = np.stack([a * cf + b * sf, b * cf - a * sf, self._r0 + self._rdot * tc],
+                        axis=-1)
+        omega = w_b1[:, self._perm_idx]
+        # a component error e of a unit quaternion moves the attitude by <= 2 asin(e)
+        err = 2.0 * np.arcsin(np.minimum(kerr, 1.0)) + ferr + FLOAT_FLOOR
+        return q, omega, err
 
     def omega_at(self, t):
         """Angular velocity of B relative to N, in B, rad/s, at t (float or 1-D array).
@@ -340,7 +384,7 @@ class Solution:
         evaluated, so this is cheap.
         """
         tt = np.asarray(t, dtype=float)
-        f = np.vectorize(self._f.angle, otypes=[float])(tt)
+        f = self._f.angles(tt)[0]
         a = self._w_s0[0] + self._m_over_I[0] * tt
         b = self._w_s0[1] + self._m_over_I[1] * tt
         c, s = np.cos(f), np.sin(f)
@@ -348,31 +392,34 @@ class Solution:
         return w_b1 @ self._perm_T.T
 
     def _kernel_scalar(self, t):
-        """Kernel at one time; successive times reuse the current dense-output window."""
-        if not isinstance(self._kernel, _SPINOR_KERNELS):
-            return self._kernel.evaluate(t)
-        win = self._window
-        if win is None or not win.contains(t):
-            win = self._window = Window(self._kernel, t)
-        if not win.ok:
-            return self._kernel.evaluate(t)
-        return win.quaternion(t), win.bound
+        """Kernel at one time as a float 4-tuple; the node's stream reuses dense windows."""
+        if self._dense is not None:
+            return self._dense.at(t)
+        k, kerr = self._kernel.evaluate(t)
+        return tuple(k.tolist()), kerr
 
     def _at_scalar(self, t):
         """:meth:`at` for one time, in plain floats (the node's per-tick path)."""
         if not math.isfinite(t):
             raise ValueError('t must be finite')
         k, kerr = self._kernel_scalar(t)
-        f = self._f.angle(t)
-        c, s = math.cos(f), math.sin(f)
+        f, ferr = self._f.angle_bound(t)
+        h = 0.5 * f
+        c, s = math.cos(h), math.sin(h)
+        p0, p1 = self._p0_t, self._p1_t
+        q2 = (c * p0[0] + s * p1[0], c * p0[1] + s * p1[1], c * p0[2] + s * p1[2],
+              c * p0[3] + s * p1[3])
         mul = quat.multiply_floats
-        q = mul(mul(self._left_t, tuple(k)),
-                mul(mul(self._mid_t, quat.axis_floats(2, f)), self._right_t))
-        a = self._w_s0[0] + self._m_over_I[0] * t
-        b = self._w_s0[1] + self._m_over_I[1] * t
-        w_b1 = np.array([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * t])
-        err = 2.0 * math.asin(min(kerr, 1.0)) + FLOAT_FLOOR
-        return Samples(np.asarray(t), np.array(q), self._perm_T @ w_b1, np.float64(err))
+        q = mul(mul(self._left_t, k), q2)
+        cf, sf = c * c - s * s, 2.0 * s * c
+        w0, mi = self._w_s0_t, self._m_over_I_t
+        a = w0[0] + mi[0] * t
+        b = w0[1] + mi[1] * t
+        w_b1 = (a * cf + b * sf, b * cf - a * sf, self._r0 + self._rdot * t)
+        pi = self._perm_idx
+        err = 2.0 * math.asin(min(kerr, 1.0)) + ferr + FLOAT_FLOOR
+        return Samples(np.asarray(t), np.array(q),
+                       np.array((w_b1[pi[0]], w_b1[pi[1]], w_b1[pi[2]])), np.float64(err))
 
 
 def solve(scene, tol=1e-12, backend=None, max_prec=4096):
