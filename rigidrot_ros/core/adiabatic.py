@@ -32,7 +32,7 @@ import mpmath
 from mpmath import mp
 import numpy as np
 
-from .kernel import reduce_angle, SETUP_PREC
+from .backends import PrecisionError, reduce_angle, SETUP_PREC
 from .quaternion import axis_floats as _axis
 from .quaternion import multiply_floats as _qmul
 
@@ -65,7 +65,6 @@ class AdiabaticKernel:
         self._f0 = self._frame(float(r0))
         self.prec = SETUP_PREC
         if self.err > self.tol:
-            from .kernel import PrecisionError
             raise PrecisionError(f'adiabatic series estimate {self.err:.2g} exceeds tol '
                                  f'{self.tol:.2g}: delta too small for it')
 

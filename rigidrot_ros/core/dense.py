@@ -73,8 +73,8 @@ class DenseSpinor:
         self.dabs = abs(self.d)
         with mp.workprec(256):
             ex = [mpmath.mpf(v) for v in kernel._inputs]
-            dp, dq, dr, du = (abs(e - f) for e, f in zip(ex, (self.p, self.q, self.r0,
-                                                               self.u)))
+            fl = (self.p, self.q, self.r0, self.u)
+            dp, dq, dr, du = (abs(e - f) for e, f in zip(ex, fl))
             self.d_r0 = float(dr) * 1.0001
             self.d_u = float(du) * 1.0001
             self.d_d = float(mpmath.sqrt(dp * dp + dq * dq)) * 1.0001

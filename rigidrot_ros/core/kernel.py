@@ -38,33 +38,16 @@ import mpmath
 from mpmath import mp
 import numpy as np
 
+from .backends import (  # noqa: F401  (re-exported)
+    _FlintBackend, _MpmathBackend, available_backends, make_backend, PrecisionError,
+    reduce_angle, SETUP_PREC,
+)
 from .ddphase import DDPoly
 
 __all__ = [
     'PrecisionError', 'SETUP_PREC', 'available_backends', 'ConstantKernel', 'AxisKernel',
     'HyperKernel', 'PolyAngle',
 ]
-
-#: Bits used for per-scene constants (exact float inputs carried far beyond float64).
-SETUP_PREC = 256
-_FOUR_PI_CACHE = {}
-
-
-class PrecisionError(ArithmeticError):
-    """The special-function evaluation did not reach the requested accuracy."""
-
-
-def _four_pi():
-    p = mp.prec
-    if p not in _FOUR_PI_CACHE:
-        _FOUR_PI_CACHE[p] = 4 * mp.pi
-    return _FOUR_PI_CACHE[p]
-
-
-def reduce_angle(x):
-    """Reduce an mpf angle modulo 4 pi (the period of the half-angle) to a float."""
-    four_pi = _four_pi()
-    return float(x - four_pi * mpmath.nint(x / four_pi))
 
 
 class PolyAngle:
@@ -186,117 +169,6 @@ class AxisKernel:
         return out, 0.5 * err
 
 
-# ---------------------------------------------------------------------------------------
-# special-function backends
-
-class _MpmathBackend:
-    name = 'mpmath'
-    certified = False
-
-    @staticmethod
-    def workprec(p):
-        return mp.workprec(p)
-
-    @staticmethod
-    def real(x):
-        return mpmath.mpf(x)
-
-    @staticmethod
-    def cplx(re, im):
-        return mpmath.mpc(re, im)
-
-    @staticmethod
-    def hyp1f1(a, b, z):
-        try:
-            return mpmath.hyp1f1(a, b, z)
-        except mpmath.libmp.NoConvergence as exc:
-            raise PrecisionError(f'mpmath hyp1f1 did not converge: {exc}') from None
-
-    @staticmethod
-    def exp(z):
-        return mpmath.exp(z)
-
-    @staticmethod
-    def abs(z):
-        return float(abs(z))
-
-    @staticmethod
-    def parts(z):
-        """(re mid, im mid, radius) as floats; mpmath numbers carry no radius."""
-        return float(z.real), float(z.imag), 0.0
-
-
-class _FlintBackend:
-    name = 'flint'
-    certified = True
-
-    def __init__(self):
-        import flint
-        self.flint = flint
-
-    def workprec(self, p):
-        return self.flint.ctx.workprec(p)
-
-    def real(self, x):
-        """Exact (or correctly rounded) conversion of an mpf/float to an arb ball."""
-        # mpmath.mpf(mpf) would round to the ambient precision: read the bits directly
-        if not isinstance(x, mpmath.mpf):
-            with mp.workprec(SETUP_PREC):
-                x = mpmath.mpf(x)
-        sign, man, exp, _ = x._mpf_
-        if man == 0:
-            return self.flint.arb(0)
-        val = self.flint.arb(self.flint.fmpz(-man if sign else man))
-        return val * self.flint.arb(2) ** exp if exp >= 0 else val / self.flint.arb(2) ** (-exp)
-
-    def cplx(self, re, im):
-        return self.flint.acb(self.real(re), self.real(im))
-
-    @staticmethod
-    def hyp1f1(a, b, z):
-        return z.hypgeom_1f1(a, b)
-
-    @staticmethod
-    def exp(z):
-        return z.exp()
-
-    @staticmethod
-    def abs(z):
-        return float(abs(z).upper())
-
-    @staticmethod
-    def parts(z):
-        re, im = z.real, z.imag
-        rad = math.hypot(float(re.rad()), float(im.rad()))
-        if not (re.is_finite() and im.is_finite()):
-            return math.nan, math.nan, math.inf
-        return float(re.mid()), float(im.mid()), rad
-
-
-def available_backends():
-    """Names of the installed special-function backends, fastest first."""
-    names = []
-    try:
-        import flint  # noqa: F401
-        names.append('flint')
-    except ImportError:
-        pass
-    names.append('mpmath')
-    return names
-
-
-def make_backend(name):
-    if name == 'flint':
-        try:
-            return _FlintBackend()
-        except ImportError:
-            raise ValueError("backend 'flint' needs python-flint: pip install python-flint") \
-                from None
-    if name == 'mpmath':
-        return _MpmathBackend()
-    raise ValueError(f"backend must be None, 'flint' or 'mpmath', got {name!r}")
-
-
 class HyperKernel:
     """Torque along K3 with a transverse rate (U > 0, p + i q != 0): 1F1 spinor solution.
 
@@ -312,18 +184,22 @@ class HyperKernel:
         Error asked of the kernel quaternion (Euclidean norm of the component error).
     max_prec : int
         Ceiling on the working precision, bits.
-    fallback : bool
-        With flint, continue a sample by Taylor series when 1F1 would need more than
-        ``FALLBACK_BITS``; when false, try up to ``max_prec`` and raise PrecisionError.
+    fallback : callable or None
+        With flint, a factory of the kernel that continues a sample when 1F1 would need
+        more than ``FALLBACK_BITS`` (:func:`rigidrot_ros.core.method.hyper_kernel` passes
+        the certified Taylor continuation); None: try up to ``max_prec`` and raise
+        PrecisionError.
+    check : bool
+        Evaluate at t = 0 on construction, so that an impossible scene fails at once.
     """
 
     #: With flint, a sample whose 1F1 would need more bits than this is continued by
     #: certified Taylor series instead (see :mod:`rigidrot_ros.core.taylor`).
     FALLBACK_BITS = 1024
 
-    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=True):
+    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=None, check=True):
         self.backend = make_backend(backend)
-        self.fallback = bool(fallback)
+        self.fallback = fallback if callable(fallback) else None
         self.method = f'hypergeometric-{self.backend.name}'
         self.tol = float(tol)
         self.max_prec = int(max_prec)
@@ -353,7 +229,8 @@ class HyperKernel:
                 f'{float(self.delta):.4g} is large (small torque against the transverse '
                 f"rate). Use backend='flint' (certified Taylor continuation) or raise "
                 f'max_prec.')
-        self.evaluate(0.0)                       # fail now, not at the first sample
+        if check:
+            self.evaluate(0.0)                   # fail now, not at the first sample
 
     # -- per-precision constants ----------------------------------------------------------
     def _constants(self, prec):
@@ -434,7 +311,7 @@ class HyperKernel:
         prec = self.prec
         last_err = math.inf
         ceiling = self.max_prec
-        if self.backend.certified and self.fallback:
+        if self.backend.certified and self.fallback is not None:
             ceiling = min(ceiling, self.FALLBACK_BITS)
             prec = min(prec, ceiling)
             if self.predicted > 2 * self.FALLBACK_BITS:
@@ -452,12 +329,10 @@ class HyperKernel:
                 break
             step = 32 if not math.isfinite(err) else max(32, int(math.log2(err / self.tol)) + 16)
             prec = min(ceiling, max(prec + step, int(prec * 1.25)))
-        if self.backend.certified and self.fallback:
+        if self.backend.certified and self.fallback is not None:
             if self._fallback is None:
-                from .taylor import TaylorKernel
-                self._fallback = TaylorKernel(*self._inputs, tol=self.tol,
-                                              max_prec=self.max_prec)
-                self.method = 'hypergeometric-flint+taylor-series-flint'
+                self._fallback = self.fallback()
+                self.method = f'hypergeometric-flint+{self._fallback.method}'
             return self._fallback.evaluate(t)
         pr = self.params
         raise PrecisionError(

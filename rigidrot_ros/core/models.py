@@ -21,11 +21,11 @@ from mpmath import mp
 import numpy as np
 
 from . import quaternion as quat
-from .adiabatic import ADIABATIC_DELTA, AdiabaticKernel
+from .adiabatic import AdiabaticKernel
 from .dense import DenseSpinor
-from .kernel import (
-    available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle, SETUP_PREC,
-)
+from .kernel import available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle
+from .kernel import SETUP_PREC
+from .method import DELTA_SWITCH, spinor_kernel  # noqa: F401  (DELTA_SWITCH re-exported)
 from .scene import Scene
 from .taylor import TaylorKernel
 
@@ -35,11 +35,6 @@ __all__ = ['solve', 'Solution', 'Samples', 'NoExactSolution', 'MODELS', 'FLOAT_F
 FLOAT_FLOOR = 1e-14
 #: The smallest tol accepted, rad: twice the float64 floor.
 MIN_TOL = 2 * FLOAT_FLOOR
-#: Above this delta = (p^2 + q^2) / (4U) the flint backend continues the spinor by
-#: certified Taylor series instead of 1F1: measured here, 1F1 needs about 65 + 2.3 delta
-#: bits and costs 2.6 ms a sample at delta = 80 (5 ms at 160), while the Taylor
-#: continuation streams at 0.3-0.5 ms a sample.
-DELTA_SWITCH = 80.0
 #: Batches of at least this many times use dense output (:mod:`.dense`): one exact
 #: evaluation per window, the exact solution's Taylor series inside it.
 DENSE_MIN = 8
@@ -241,21 +236,7 @@ class Solution:
                 else:
                     # the kernel quaternion may take 2/5 of the attitude budget
                     ktol = 0.4 * (tol - FLOAT_FLOOR)
-                    delta = float((wk[0] ** 2 + wk[1] ** 2) / (4 * U))
-                    # bits mpmath's 1F1 would need (HyperKernel's own predictor)
-                    mp_bits = 24 - math.log2(ktol) + 2 * math.log2(math.e) * math.pi * delta / 4
-                    mp_hopeless = backend == 'mpmath' and mp_bits > max_prec and \
-                        'flint' in available_backends()
-                    # the adiabatic series only where its estimate 10 eps^3 meets the tol
-                    adiabatic_ok = 10.0 / (4.0 * delta) ** 3 + 1e-15 <= ktol
-                    if delta >= ADIABATIC_DELTA and adiabatic_ok:
-                        kernel = AdiabaticKernel(wk[0], wk[1], wk[2], U, tol=ktol)
-                    elif (backend == 'flint' and delta > DELTA_SWITCH) or mp_hopeless:
-                        kernel = TaylorKernel(wk[0], wk[1], wk[2], U, tol=ktol,
-                                              max_prec=max_prec)
-                    else:
-                        kernel = HyperKernel(wk[0], wk[1], wk[2], U, backend, tol=ktol,
-                                             max_prec=max_prec)
+                    kernel = spinor_kernel(wk[0], wk[1], wk[2], U, ktol, backend, max_prec)
             q_sk = np.array([float(v) for v in q_sk])
             self._w_s0 = np.array([float(v) for v in w_s])
             self._m_over_I = np.array([float(v / mI) for v in ms])
