@@ -180,5 +180,5 @@ class DDPoly:
 
 
 def bound(turns, t, r1=0.0, r2=0.0):
-    """The documented bound (rad) for a phase of ``turns`` turns of 4 pi at time t."""
+    """Return the error limit, rad, documented above for a phase of so many turns."""
     return 4.0 * math.pi * 1.0000001 * (_B_REL * (abs(turns) + 1.0) + r1 * abs(t) + r2 * t * t)

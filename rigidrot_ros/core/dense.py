@@ -114,7 +114,7 @@ class DenseSpinor:
         return math.frexp(at)[1] - 1
 
     def key(self, t):
-        """Window key (sign, e, j) of time t, or None where windows do not apply."""
+        """Return the (sign, e, j) identifying the window of a time; None: no windows there."""
         sign = -1 if t < 0 else 1
         at = abs(t)
         e = self._exponent(at)
@@ -137,7 +137,7 @@ class DenseSpinor:
 
     # -- windows --------------------------------------------------------------------------
     def window(self, key):
-        """The window of ``key``, from the cache or built (chained where possible)."""
+        """Return the window of a key, from the cache or built (chained where possible)."""
         win = self._cache.get(key)
         if win is not None:
             self._cache.move_to_end(key)
@@ -240,7 +240,7 @@ class DenseSpinor:
 
     # -- evaluation -----------------------------------------------------------------------
     def at(self, t):
-        """Kernel quaternion (x, y, z, w) tuple and its bound at one float t."""
+        """Return the kernel quaternion (x, y, z, w) tuple and its bound at one float time."""
         k = self.key(t)
         if k is not None:
             win = self.window(k)

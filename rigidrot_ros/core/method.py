@@ -38,7 +38,7 @@ CHEAP_BITS = 128
 
 
 def _seed_cost_ms(bits):
-    """Expected cost of one 1F1 seed (constants and value, 8 calls), ms.
+    """Estimate the cost of one 1F1 seed (constants and value, 8 calls), ms.
 
     Measured here: 1 ms at 128 bits and 8.6 ms at 800 bits (delta = 325, t = 1e3 s).
     """
