@@ -118,7 +118,8 @@ class DDPoly:
         if self.zero:
             return np.zeros_like(t), np.zeros_like(t), np.ones(t.shape, dtype=bool)
         at = np.abs(t)
-        mag = self._ag1 * at + self._ag2 * (at * at)
+        with np.errstate(over='ignore', invalid='ignore'):
+            mag = self._ag1 * at + self._ag2 * (at * at)
         covered = ((at == 0.0) | ((at >= _T_MIN) & (at <= _T_MAX))) & (mag <= MAX_TURNS)
         if not self.usable:
             covered[...] = False
@@ -134,9 +135,10 @@ class DDPoly:
         fh, fl = two_sum(big - k, low)
         ah, ae = two_prod(self.p_hi, fh)
         angle = ah + (ae + (self.p_hi * fl + self.p_lo * fh))
-        bound = (4.0 * math.pi * 1.0000001) * (
-            _B_REL * (mag + 1.0) + self.r1 * at + self.r2 * (at * at))
-        return angle, bound, covered
+        with np.errstate(over='ignore', invalid='ignore'):
+            bound = (4.0 * math.pi * 1.0000001) * (
+                _B_REL * (mag + 1.0) + self.r1 * at + self.r2 * (at * at))
+        return angle, np.where(covered, bound, np.inf), covered
 
     # -- one time, plain floats -----------------------------------------------------------
     def angle(self, t):
