@@ -16,7 +16,7 @@ Bound for every sample of a window (2-norm of the spinor error), all terms a pri
     E_a                                   the anchor's bound (exact or chained)
     + 4 max(m_N h^N, m_(N-1) h^(N-1))     the truncated tail (majorant ratio <= 1/4)
     + 8.1 eps sum n m_n h^n               rounding in the coefficient recurrence
-    + 2.02 eps sum (n + 1) m_n h^n        rounding in Horner's rule
+    + 2.02 eps sum (n + 1) m_n h^n        rounding in Horner's rule (scalar calls, chaining)
     + (dX + dD) h / 2 + dU h^2 / 4        float64 parameters against the exact ones
 
 with the majorant ``(n + 1) m_(n+1) = (R_a/2) m_n + (U/2) m_(n-1)``, ``m_0 = 1 + E_a``
@@ -51,7 +51,7 @@ WALK = 8
 
 
 class _Win:
-    __slots__ = ('a', 'h', 'sign', 'c1', 'c2', 'arr', 'bound', 'own', 'end', 'ok')
+    __slots__ = ('a', 'h', 'sign', 'c1', 'c2', 'arr', 'bound', 'bound_mm', 'own', 'end', 'ok')
 
 
 class DenseSpinor:
@@ -214,13 +214,17 @@ class DenseSpinor:
         tail = 4.0 * max(mpow, prev_term)
         d_x = self.d_r0 + self.d_u * abs(a) + 2.0 * _EPS * (abs(r0) + 2.0 * abs(u * a))
         pert = (d_x + self.d_d) * tau / 2 + self.d_u * tau * tau / 4
-        own = (tail + 8.1 * _EPS * s1 + 2.02 * _EPS * (s0 + s1) + pert) * (1 + 1e-9)
+        common = tail + 8.1 * _EPS * s1 + pert
+        own = (common + 2.02 * _EPS * (s0 + s1)) * (1 + 1e-9)
+        # batches sum c_n dt^n with cumulative-product powers and a dot product
+        own_mm = (common + 1.01 * _EPS * (s1 + (n + 1) * s0)) * (1 + 1e-9)
         win = _Win()
         win.a, win.h, win.sign = a, hs, (1 if hs > 0 else -1)
         win.c1, win.c2 = l1, l2
         win.arr = None
         win.own = own
         win.bound = err_a + own
+        win.bound_mm = err_a + own_mm
         win.ok = win.bound <= self.tol
         if win.ok and n <= 200:
             e1, e2 = self._horner(l1, l2, hs)
@@ -268,14 +272,12 @@ class DenseSpinor:
         bounds = np.flatnonzero(np.diff(e_arr)) + 1
         starts = np.concatenate([[0], bounds])
         ends = np.concatenate([bounds, [len(t)]])
-        wins, widx = [], np.empty(len(t), dtype=np.intp)
-        slow = []
+        segs, slow = [], []
         for s, e_ in zip(starts, ends):
             e = int(e_arr[s])
             lo, hi, h = self._octave(sign, e)
             if h is None:
                 slow.append((s, e_))
-                widx[s:e_] = -1
                 continue
             j = ((at[s:e_] - lo) // h).astype(np.int64)
             change = np.flatnonzero(np.diff(j)) + 1
@@ -283,39 +285,28 @@ class DenseSpinor:
             je = np.concatenate([change, [e_ - s]])
             for a0, b0 in zip(js, je):
                 win = self.window((sign, e, int(j[a0])))
-                if win.ok:
-                    widx[s + a0:s + b0] = len(wins)
-                    wins.append(win)
+                if win.ok and win.bound_mm <= self.tol:
+                    segs.append((s + a0, s + b0, win))
                 else:
-                    widx[s + a0:s + b0] = -1
                     slow.append((s + a0, s + b0))
-        good = widx >= 0
-        if wins:
-            nmax = max(len(w.c1) for w in wins)
-            coef = np.zeros((len(wins), nmax, 4))
-            anchor = np.empty(len(wins))
-            bound = np.empty(len(wins))
-            for i, w in enumerate(wins):
+        if segs:
+            dt = np.empty(len(t))
+            nmax = 1
+            for a0, b0, w in segs:
+                np.subtract(t[a0:b0], w.a, out=dt[a0:b0])
+                nmax = max(nmax, len(w.c1))
+            # powers dt^0 .. dt^(nmax-1) by cumulative products (error bound: bound_mm)
+            pw = np.empty((len(t), nmax))
+            pw[:, 0] = 1.0
+            pw[:, 1:] = dt[:, None]
+            np.cumprod(pw, axis=1, out=pw)
+            for a0, b0, w in segs:
                 if w.arr is None:
                     c1 = np.array(w.c1)
                     c2 = np.array(w.c2)
                     w.arr = np.stack([c2.imag, -c2.real, c1.imag, c1.real], axis=-1)
-                coef[i, :len(w.c1)] = w.arr
-                anchor[i] = w.a
-                bound[i] = w.bound
-            idx = widx[good] if not good.all() else widx
-            dt = (t[good] if not good.all() else t) - anchor[idx]
-            acc = coef[idx, nmax - 1]
-            dtc = dt[:, None]
-            for k in range(nmax - 2, -1, -1):
-                acc *= dtc
-                acc += coef[idx, k]
-            if good.all():
-                out_q[...] = acc
-                out_err[...] = bound[idx]
-            else:
-                out_q[good] = acc
-                out_err[good] = bound[idx]
+                out_q[a0:b0] = pw[a0:b0, :len(w.c1)] @ w.arr
+                out_err[a0:b0] = w.bound_mm
         for s, e_ in slow:
             for i in range(s, e_):
                 q, err = self.kernel.evaluate(float(t[i]))
