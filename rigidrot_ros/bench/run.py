@@ -338,7 +338,7 @@ RATIO_FIELDS = (
 
 
 def ratio_scenes():
-    """The preset scenes (config/*.yaml) and the spacecraft scene, by name."""
+    """Return the preset scenes (config/*.yaml) and the spacecraft scene, by name."""
     from rigidrot_ros import settings
     folder = os.path.dirname(settings.find_config('default.yaml'))
     out = {}
@@ -405,7 +405,7 @@ def _latencies(fn, times):
 
 
 def ratios(quick, log, budget=600.0):
-    """The issue's ratios against scipy DOP853 at rtol 1e-12, all measured in one run.
+    """Measure the issue's ratios against scipy DOP853 at rtol 1e-12, all in one run.
 
     (a) a 100 Hz stream over 60 s per scene; (b) 1e6 samples over 1e4 s (spacecraft);
     (c) one query at T = 1e3 s, ``solve`` included; (d) random-access scalar ``at(t)``,
