@@ -9,8 +9,8 @@ import math
 import mpmath
 from mpmath import mp
 
-__all__ = ['PrecisionError', 'SETUP_PREC', 'reduce_angle', 'available_backends',
-           'make_backend']
+__all__ = ['PrecisionError', 'SETUP_PREC', 'reduce_angle', 'angle_prec', 'ANGLE_GUARD_BITS',
+           'available_backends', 'make_backend']
 
 #: Bits used for per-scene constants (exact float inputs carried far beyond float64).
 SETUP_PREC = 256
@@ -29,9 +29,62 @@ def _four_pi():
 
 
 def reduce_angle(x):
-    """Reduce an mpf angle modulo 4 pi (the period of the half-angle) to a float."""
+    """Reduce an mpf angle modulo 4 pi (the period of the half-angle) to a float.
+
+    Exact to the current mp precision: the caller must carry ``log2 |x| + 70`` bits (see
+    :func:`angle_prec`) for the result to be good to float64.
+    """
     four_pi = _four_pi()
     return float(x - four_pi * mpmath.nint(x / four_pi))
+
+
+#: Bits carried beyond ``log2 |angle|`` so that an angle reduced modulo 4 pi keeps about
+#: 2^-70 rad absolute accuracy (constants and 4 pi have relative error ~2^-prec).
+ANGLE_GUARD_BITS = 80
+
+
+def angle_prec(mag):
+    """Working precision (bits) for an angle with ``|angle| <= 2^mag``: SETUP_PREC or more.
+
+    Rounded up to a multiple of 64 so that precisions (and their cached constants) repeat.
+    """
+    need = int(mag) + ANGLE_GUARD_BITS
+    if need <= SETUP_PREC:
+        return SETUP_PREC
+    return -(-need // 64) * 64
+
+
+def _t_mag(t):
+    """Return an integer e with ``|t| < 2^e`` (t a finite float; 0 gives a large negative e)."""
+    return math.frexp(t)[1] if t != 0.0 else -2000
+
+
+class _Exact:
+    """Per-scene constants computed from exact float inputs at any precision, cached.
+
+    ``source`` is a number (taken as exact) or a function of no arguments that computes
+    the value (or a list of values) at the current mpmath precision.
+    """
+
+    def __init__(self, source):
+        self._source = source
+        self._cache = {}
+
+    def at(self, prec):
+        """Return the value(s) at ``prec`` bits."""
+        v = self._cache.get(prec)
+        if v is None:
+            with mp.workprec(prec):
+                v = self._source() if callable(self._source) else self._source
+                v = [+mpmath.mpf(x) for x in v] if isinstance(v, (list, tuple)) \
+                    else +mpmath.mpf(v)
+            self._cache[prec] = v
+        return v
+
+
+def _mag(x):
+    """``mpmath.mag`` with -inf for zero replaced by a large negative integer."""
+    return -100000 if x == 0 else int(mpmath.mag(x))
 
 
 # ---------------------------------------------------------------------------------------

@@ -8,7 +8,8 @@ split and two-product; Dekker 1971, Ogita-Rump-Oishi 2005) the products ``hi * t
 ``t * t`` are exact, the leading sum is exact, and everything else is a correction some
 2^-52 smaller. The integer part of the leading sum is removed exactly (``S - rint(S)`` is
 exact for ``|S| < 2^52``), and the fraction is multiplied by ``4 pi`` split into two
-doubles. Error, before the final rounding of the reduced angle to a float:
+doubles. Error, before the final rounding of the reduced angle to a float (the methods
+return it net of ``IN_FLOOR``, which the samples' float64 floor covers):
 
     |phi_reduced - (phi mod 4 pi)| <= 4 pi (2^-100 (|g1 t| + |g2| t^2 + 1)
                                              + |r_1| |t| + |r_2| t^2),
@@ -27,10 +28,14 @@ import mpmath
 from mpmath import mp
 import numpy as np
 
-__all__ = ['DDPoly', 'two_sum', 'two_prod', 'MAX_TURNS']
+__all__ = ['DDPoly', 'two_sum', 'two_prod', 'MAX_TURNS', 'IN_FLOOR']
 
 #: Largest |phase| in turns of 4 pi that the double-double path covers.
 MAX_TURNS = 2.0 ** 50
+#: The part of a phase's bound (rad) that the samples' float64 floor (FLOAT_FLOOR of
+#: :mod:`.models`, 1e-14 rad against some 4e-15 of rounding) already covers; the bounds
+#: returned by :meth:`DDPoly.angles` and :meth:`DDPoly.angle` are net of it.
+IN_FLOOR = 1e-18
 _SPLIT = 134217729.0                    # 2^27 + 1 (Dekker's splitter)
 _T_MIN, _T_MAX = 2.0 ** -200, 2.0 ** 200
 _G_MIN, _G_MAX = 2.0 ** -400, 2.0 ** 400
@@ -115,8 +120,10 @@ class DDPoly:
             meaningless there and the caller must evaluate in multiple precision).
         """
         t = np.asarray(t, dtype=float)
+        shape = t.shape
+        t = t.reshape(-1)
         if self.zero:
-            return np.zeros_like(t), np.zeros_like(t), np.ones(t.shape, dtype=bool)
+            return np.zeros(shape), np.zeros(shape), np.ones(shape, dtype=bool)
         at = np.abs(t)
         with np.errstate(over='ignore', invalid='ignore'):
             mag = self._ag1 * at + self._ag2 * (at * at)
@@ -138,7 +145,8 @@ class DDPoly:
         with np.errstate(over='ignore', invalid='ignore'):
             bound = (4.0 * math.pi * 1.0000001) * (
                 _B_REL * (mag + 1.0) + self.r1 * at + self.r2 * (at * at))
-        return angle, np.where(covered, bound, np.inf), covered
+        bound = np.where(covered, np.maximum(bound - IN_FLOOR, 0.0), np.inf)
+        return angle.reshape(shape), bound.reshape(shape), covered.reshape(shape)
 
     # -- one time, plain floats -----------------------------------------------------------
     def angle(self, t):
@@ -178,7 +186,7 @@ class DDPoly:
         out = x + (xe + (ph * fl + self.p_lo * fh))
         bound = (4.0 * math.pi * 1.0000001) * (
             _B_REL * (mag + 1.0) + self.r1 * at + self.r2 * at * at)
-        return out, bound
+        return out, max(bound - IN_FLOOR, 0.0)
 
 
 def bound(turns, t, r1=0.0, r2=0.0):

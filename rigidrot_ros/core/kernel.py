@@ -39,14 +39,14 @@ from mpmath import mp
 import numpy as np
 
 from .backends import (  # noqa: F401  (re-exported)
-    _FlintBackend, _MpmathBackend, available_backends, make_backend, PrecisionError,
-    reduce_angle, SETUP_PREC,
+    _Exact, _FlintBackend, _mag, _MpmathBackend, _t_mag, ANGLE_GUARD_BITS, angle_prec,
+    available_backends, make_backend, PrecisionError, reduce_angle, SETUP_PREC,
 )
 from .ddphase import DDPoly
 
 __all__ = [
     'PrecisionError', 'SETUP_PREC', 'available_backends', 'ConstantKernel', 'AxisKernel',
-    'HyperKernel', 'PolyAngle',
+    'HyperKernel', 'PolyAngle', 'angle_prec', 'reduce_angle',
 ]
 
 
@@ -55,22 +55,39 @@ class PolyAngle:
 
     Float64 would carry ``|angle| * 1e-16`` rad of error (1e-6 rad at 1e10 rad). Where
     it applies (|angle| up to about 1.4e16 rad) the angle is evaluated in double-double
-    arithmetic with a proved bound (:mod:`.ddphase`); beyond, in ``SETUP_PREC`` bits,
-    reduced before rounding to float.
+    arithmetic with a proved bound (:mod:`.ddphase`); beyond, in ``SETUP_PREC`` bits, or
+    ``log2 |angle| + ANGLE_GUARD_BITS`` where the angle is larger (a phase of 1e300 rad
+    needs some 1080 bits), recomputing ``c1`` and ``c2`` at that precision, and reduced
+    before rounding to float.
+
+    Parameters
+    ----------
+    c1, c2 : mpf, float, or callable
+        Numbers (taken as exact), or functions of no argument computing the coefficient
+        from the scene's exact inputs at the current mpmath precision.
     """
 
     def __init__(self, c1, c2):
-        with mp.workprec(SETUP_PREC):
-            self.c1 = +mpmath.mpf(c1)
-            self.c2 = +mpmath.mpf(c2)
+        self._c = _Exact(lambda: [c() if callable(c) else c for c in (c1, c2)])
+        self.c1, self.c2 = self._c.at(SETUP_PREC)
         self.zero = (self.c1 == 0 and self.c2 == 0)
         self._c1f, self._c2f = float(self.c1), float(self.c2)
-        self._dd = DDPoly(self.c1, self.c2)
+        # |c1| < 2^e1, |c2| < 2^e2 (+1 for the rounding at SETUP_PREC)
+        self._e1, self._e2 = _mag(self.c1) + 1, _mag(self.c2) + 1
+        # the double-double coefficients from the exact ones at 2 SETUP_PREC bits
+        self._dd = DDPoly(*self._c.at(2 * SETUP_PREC))
+
+    def prec_at(self, t):
+        """Working precision (bits) that the multiple-precision path uses at t."""
+        et = _t_mag(t)
+        return angle_prec(max(self._e1 + et, self._e2 + 2 * et) + 1)
 
     def _angle_mp(self, t):
-        with mp.workprec(SETUP_PREC):
+        prec = self.prec_at(t)
+        c1, c2 = self._c.at(prec)
+        with mp.workprec(prec):
             tt = mpmath.mpf(t)
-            return reduce_angle((self.c1 + self.c2 * tt) * tt)
+            return reduce_angle((c1 + c2 * tt) * tt)
 
     def angle_bound(self, t):
         """Angle at one float t (reduced to about (-2 pi, 2 pi]) and its error bound, rad.
@@ -96,9 +113,12 @@ class PolyAngle:
             return np.zeros_like(t), np.zeros_like(t)
         ang, bound, covered = self._dd.angles(t)
         if not covered.all():
-            for i in np.flatnonzero(~covered):
-                ang.flat[i] = self._angle_mp(float(t.flat[i]))
-                bound.flat[i] = 0.0
+            ang, bound = ang.reshape(-1), bound.reshape(-1)
+            flat = t.reshape(-1)
+            for i in np.flatnonzero(~covered.reshape(-1)):
+                ang[i] = self._angle_mp(float(flat[i]))
+                bound[i] = 0.0
+            ang, bound = ang.reshape(t.shape), bound.reshape(t.shape)
         return ang, bound
 
     def rate(self, t):
@@ -107,17 +127,24 @@ class PolyAngle:
 
 
 class ConstantKernel:
-    """Constant angular velocity (no torque): ``q(t) = exp(omega t / 2)`` (Eq. 6, 62-64)."""
+    """Constant angular velocity (no torque): ``q(t) = exp(omega t / 2)`` (Eq. 6, 62-64).
+
+    ``omega`` is a list of numbers (exact) or a function computing it at the current
+    mpmath precision; the angle ``|omega| t`` is formed in double-double or at the
+    precision it needs (:class:`PolyAngle`).
+    """
 
     method = 'closed-form'
 
     def __init__(self, omega):
+        self._omega = _Exact(omega)
+        self._norm = _Exact(lambda: mpmath.sqrt(sum(w * w for w in self._omega.at(mp.prec))))
+        self.omega = self._omega.at(SETUP_PREC)
+        self.norm = self._norm.at(SETUP_PREC)
         with mp.workprec(SETUP_PREC):
-            self.omega = [mpmath.mpf(w) for w in omega]
-            self.norm = mpmath.sqrt(sum(w * w for w in self.omega))
             self.axis = (np.array([float(w / self.norm) for w in self.omega])
                          if self.norm != 0 else np.zeros(3))
-            self.phase = PolyAngle(self.norm, 0)
+        self.phase = PolyAngle(lambda: self._norm.at(mp.prec), 0)
         self.prec = SETUP_PREC
 
     def evaluate(self, t):
@@ -144,20 +171,29 @@ class ConstantKernel:
 
 
 class AxisKernel:
-    """Rotation about K3 only (p = q = 0): angle ``r0 t + U t^2 / 2``."""
+    """Rotation about K3 only (p = q = 0): angle ``r0 t + U t^2 / 2``.
+
+    ``r0`` and ``U`` are numbers (exact) or functions computing them at the current
+    mpmath precision. ``dropped`` (rad/s) is a transverse rate neglected by the caller;
+    it moves the attitude by at most ``dropped * |t|``, which the error bound includes.
+    """
 
     method = 'closed-form'
 
-    def __init__(self, r0, U):
-        with mp.workprec(SETUP_PREC):
-            self.angle = PolyAngle(r0, mpmath.mpf(U) / 2)
+    def __init__(self, r0, U, dropped=0.0):
+        def half_u():
+            return (U() if callable(U) else mpmath.mpf(U)) / 2
+        self.angle = PolyAngle(r0, half_u)
+        self.dropped = float(dropped)
         self.prec = SETUP_PREC
 
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and its error bound (quaternion norm)."""
         phi, err = self.angle.angle_bound(t)
         h = 0.5 * phi
-        return np.array([0.0, 0.0, math.sin(h), math.cos(h)]), 0.5 * err
+        # an attitude error e moves the quaternion by 2 sin(e / 4) <= e / 2
+        return (np.array([0.0, 0.0, math.sin(h), math.cos(h)]),
+                0.5 * (err + self.dropped * abs(t)))
 
     def evaluate_many(self, t):
         """Quaternions (n, 4) and component-error bounds (n,) at the times ``t``."""
@@ -166,7 +202,7 @@ class AxisKernel:
         out = np.zeros(np.shape(phi) + (4,))
         out[..., 2] = np.sin(h)
         out[..., 3] = np.cos(h)
-        return out, 0.5 * err
+        return out, 0.5 * (err + self.dropped * np.abs(t))
 
 
 class HyperKernel:
@@ -219,7 +255,7 @@ class HyperKernel:
         # Start where the magnitudes of the even/odd solutions (about e^{pi delta/4}
         # each) would leave the tolerance's bits plus guard bits.
         need = -math.log2(self.tol) + 2 * math.log2(math.e) * math.pi * float(self.delta) / 4
-        self.predicted = int(max(64, 24 + need))
+        self.predicted = int(max(64, 24 + min(need, 1e9)))
         self.prec = min(self.predicted, self.max_prec)
         if not self.backend.certified and self.predicted > self.max_prec:
             # mpmath would grind through hopeless precisions: say so at once
@@ -327,7 +363,8 @@ class HyperKernel:
             last_err = err
             if prec >= ceiling:
                 break
-            step = 32 if not math.isfinite(err) else max(32, int(math.log2(err / self.tol)) + 16)
+            step = 32 if not math.isfinite(err) else \
+                max(32, int(math.log2(err) - math.log2(self.tol)) + 16)
             prec = min(ceiling, max(prec + step, int(prec * 1.25)))
         if self.backend.certified and self.fallback is not None:
             if self._fallback is None:

@@ -11,6 +11,8 @@ than stepping there.
 
 import math
 
+import mpmath
+
 from .adiabatic import ADIABATIC_DELTA, AdiabaticKernel
 from .backends import available_backends, PrecisionError
 from .kernel import HyperKernel
@@ -107,24 +109,26 @@ def hyper_kernel(p, q, r0, U, backend, tol, max_prec=4096, fallback=True):
                        fallback=factory if fallback else None)
 
 
-def spinor_kernel(p, q, r0, U, ktol, backend, max_prec):
+def spinor_kernel(p, q, r0, U, ktol, backend, max_prec, inputs=None):
     """Choose the kernel of omega_K = (p, q, r0 + U t) for a transverse rate p + i q != 0.
 
     Parameters are the exact (mpf) inputs, ``ktol`` the bound asked of the kernel
-    quaternion. The regimes (README, "How it is computed"): the superadiabatic series
-    where delta >= ADIABATIC_DELTA and its estimate meets ktol; certified Taylor
-    continuation above DELTA_SWITCH (flint), or where mpmath's 1F1 would exceed
-    ``max_prec``; 1F1 otherwise.
+    quaternion; ``inputs`` (optional) computes ``[p, q, r0, U]`` at the current mpmath
+    precision for the adiabatic series' long phases. The regimes (README, "How it is
+    computed"): the superadiabatic series where delta >= ADIABATIC_DELTA and its estimate
+    meets ktol; certified Taylor continuation above DELTA_SWITCH (flint), or where
+    mpmath's 1F1 would exceed ``max_prec``; 1F1 otherwise.
     """
-    delta = float((p ** 2 + q ** 2) / (4 * U))
+    delta_mp = (p ** 2 + q ** 2) / (4 * U)
+    delta = float(delta_mp)
     # bits mpmath's 1F1 would need (HyperKernel's own predictor)
     mp_bits = 24 - math.log2(ktol) + 2 * math.log2(math.e) * math.pi * delta / 4
     mp_hopeless = backend == 'mpmath' and mp_bits > max_prec and \
         'flint' in available_backends()
     # the adiabatic series only where its estimate 10 eps^3 meets the tol
-    adiabatic_ok = 10.0 / (4.0 * delta) ** 3 + 1e-15 <= ktol
+    adiabatic_ok = 10 / (4 * delta_mp) ** 3 + mpmath.mpf(1e-15) <= ktol
     if delta >= ADIABATIC_DELTA and adiabatic_ok:
-        return AdiabaticKernel(p, q, r0, U, tol=ktol)
+        return AdiabaticKernel(p, q, r0, U, tol=ktol, inputs=inputs)
     if (backend == 'flint' and delta > DELTA_SWITCH) or mp_hopeless:
         return taylor_kernel(p, q, r0, U, tol=ktol, max_prec=max_prec)
     return hyper_kernel(p, q, r0, U, backend, tol=ktol, max_prec=max_prec)
