@@ -45,8 +45,10 @@ MIN_TOL = 2 * FLOAT_FLOOR
 #: Batches of at least this many times use dense output (:mod:`.dense`): one exact
 #: evaluation per window, the exact solution's Taylor series inside it.
 DENSE_MIN = 8
-#: Batches are evaluated in chunks of this many samples (bounded temporary memory).
-CHUNK = 32768
+#: Batches are evaluated in chunks of this many samples: bounded temporary memory, and
+#: temporaries small enough to be reused rather than mapped afresh (measured here: 1e6
+#: samples in 0.74 s at 8192, 1.7 s at 32768).
+CHUNK = 8192
 #: A transverse kernel rate (rad/s) at most this, and below 2^-200 of the rate scale, is
 #: neglected: the attitude bound then grows by rate * |t|, under 1e-14 rad to 1e16 s.
 DROP_RATE = 1e-30

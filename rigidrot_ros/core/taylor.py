@@ -193,7 +193,11 @@ class TaylorKernel:
             while tk != t:
                 h = self._hmax(tk)
                 if abs(t - tk) <= h:
-                    return self._advance(tk, st, t - tk)
+                    st = self._advance(tk, st, t - tk)
+                    if i == len(times) - 1 and abs(t - tk) >= 0.25 * h:
+                        times.append(t)                        # a stream resumes from t
+                        states.append(st)
+                    return st
                 st = self._advance(tk, st, sign * h)
                 tk = tk + sign * h
                 if i == len(times) - 1:                        # extend the stored path
