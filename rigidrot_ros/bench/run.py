@@ -465,6 +465,41 @@ def ratios(quick, log, budget=600.0):
     return rows
 
 
+def ratios_chart(rows, foot, out):
+    """Bar chart of the speed-ups over DOP853 (both forms), per part and scene."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from rigidrot_ros.bench.charts import _caption, _save
+    timed = [r for r in rows if math.isfinite(r['speedup_vs_dop853'])]
+    if not timed:
+        return []
+    parts = list(dict.fromkeys(r['part'] for r in timed))
+    fig, axes = plt.subplots(1, len(parts), figsize=(4.6 * len(parts), 4.4), squeeze=False)
+    for ax, part in zip(axes[0], parts):
+        sel = [r for r in timed if r['part'] == part]
+        x = np.arange(len(sel))
+        ax.bar(x - 0.2, [r['speedup_vs_dop853'] for r in sel], 0.4,
+               label='vs DOP853 (peers.scipy_ivp)')
+        ax.bar(x + 0.2, [r['speedup_vs_dop853_lean'] for r in sel], 0.4,
+               label='vs DOP853, plain-float RHS')
+        ax.axhline(10.0, color='gray', lw=0.8, ls='--')
+        ax.set_yscale('log')
+        ax.set_xticks(x)
+        ax.set_xticklabels([r['scene'] for r in sel], rotation=35, ha='right', fontsize=7)
+        ax.set_title(f'{part} ({sel[0]["samples"]} samples to {sel[0]["horizon_s"]:g} s)',
+                     fontsize=8)
+        ax.set_ylabel('DOP853 CPU time / exact CPU time (solve included)', fontsize=7)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle('exact solution (tol 1e-12) against scipy DOP853 (rtol = atol = 1e-12)',
+                 fontsize=9)
+    fig.tight_layout(rect=(0, 0.03, 1, 0.95))
+    _caption(fig, foot)
+    paths = _save(fig, out, 'ratios')
+    plt.close(fig)
+    return paths
+
+
 def _write_csv(path, rows, foot):
     if not rows:
         return
@@ -512,6 +547,8 @@ def main(argv=None):
     if 'ratios' in parts:
         results['ratios'] = ratios(opts.quick, log)
         _write_csv(os.path.join(opts.out, 'ratios.csv'), results['ratios'], foot)
+        for path in ratios_chart(results['ratios'], foot, opts.out):
+            log(f'wrote {path}')
     if 'envelope' in parts:
         results['envelope'] = envelope(opts.quick, log)
         _write_csv(os.path.join(opts.out, 'envelope.csv'), results['envelope'], foot)

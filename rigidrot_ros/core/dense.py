@@ -437,16 +437,16 @@ class DenseSpinor:
                 np.subtract(t[a0:b0], w.a, out=dt[a0:b0])
                 nmax = max(nmax, len(w.c1))
             # powers dt^0 .. dt^(nmax-1) by cumulative products (error bound: bound_mm)
-            pw = np.empty((len(t), nmax))
-            pw[:, 0] = 1.0
-            pw[:, 1:] = dt[:, None]
-            np.cumprod(pw, axis=1, out=pw)
+            pw = np.empty((nmax, len(t)))
+            pw[0] = 1.0
+            pw[1:] = dt
+            np.cumprod(pw, axis=0, out=pw)
             for a0, b0, w in segs:
                 if w.arr is None:
                     c1 = np.array(w.c1)
                     c2 = np.array(w.c2)
                     w.arr = np.stack([c2.imag, -c2.real, c1.imag, c1.real], axis=-1)
-                out_q[a0:b0] = pw[a0:b0, :len(w.c1)] @ w.arr
+                out_q[a0:b0] = pw[:len(w.c1), a0:b0].T @ w.arr
                 out_err[a0:b0] = w.bound_mm
         for s, e_ in slow:
             for i in range(s, e_):
