@@ -194,3 +194,17 @@ def test_batch_memory_is_a_small_multiple_of_its_output():
         tracemalloc.stop()
     size = s.quaternion.nbytes + s.omega.nbytes + s.error_bound.nbytes + s.t.nbytes
     assert peak <= 3 * size
+
+
+def test_far_query_by_cheap_1f1_seed_equals_stepping():
+    """The spacecraft scene at t = 1e3 s: a 128-bit certified 1F1 seed, against stepping."""
+    from rigidrot_ros.core.taylor import TaylorKernel
+    sol = solve(SPACECRAFT)
+    kernel = sol._kernel
+    assert sol.method == 'taylor-series-flint'
+    a, ea = kernel.evaluate(1e3)
+    assert kernel.seeded == 1 and kernel.seeder.hyper is not None
+    stepping = TaylorKernel(*kernel._inputs, tol=kernel.tol)          # no seeder
+    b, eb = stepping.evaluate(1e3)
+    assert np.linalg.norm(a - b) <= ea + eb
+    assert ea <= kernel.tol
