@@ -32,7 +32,7 @@ import mpmath
 from mpmath import mp
 import numpy as np
 
-from .kernel import angle_prec, reduce_angle, SETUP_PREC
+from .backends import angle_prec, PrecisionError, reduce_angle, SETUP_PREC
 from .quaternion import axis_floats as _axis
 from .quaternion import multiply_floats as _qmul
 
@@ -72,7 +72,6 @@ class AdiabaticKernel:
         self._f0 = self._frame(r0)
         self.prec = SETUP_PREC
         if self.err > self.tol:
-            from .kernel import PrecisionError
             raise PrecisionError(f'adiabatic series estimate {self.err:.2g} exceeds tol '
                                  f'{self.tol:.2g}: delta too small for it')
 
