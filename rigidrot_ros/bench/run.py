@@ -535,8 +535,12 @@ def main(argv=None):
     violated = [r for r in results.get('work_precision', []) if r['status'] == 'claim violated']
     for r in violated:
         log(f'CLAIM VIOLATED: {r}')
+    soak_failed = 'soak' in parts and results['soak']['exit_code'] != 0
+    if soak_failed:
+        log(f'SOAK: attitude_node exited with status {results["soak"]["exit_code"]}: '
+            f'{results["soak"]["stderr_tail"][-500:]}')
     print(json.dumps(foot))
-    return 1 if violated else 0
+    return 1 if violated or soak_failed else 0
 
 
 if __name__ == '__main__':

@@ -113,7 +113,7 @@ def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
                 samples.append((el, m))
             if el >= next_log:
                 slope, hw = slope_mb_per_min(samples, warmup)
-                log(f'soak {el / 60:5.1f}/{minutes:g} min  RSS {m:7.1f} MB  slope so far '
+                log(f'soak {el / 60:5.1f}/{minutes:g} min  RSS {m or 0:7.1f} MB  slope so far '
                     f'{slope:+.3f} +- {hw:.3f} MB/min')
                 next_log += 60.0
             if el >= duration:
@@ -142,15 +142,16 @@ def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
                         for d, _, files in os.walk(tmp) for f in files)
         shutil.rmtree(tmp, ignore_errors=True)
     slope, hw = slope_mb_per_min(samples, warmup)
+    settled = [m for t, m in samples if t >= warmup]
     out = {
         'minutes': float(minutes), 'rate_hz': float(rate), 'record': bool(record),
-        'rss_start_mb': samples[0][1] if samples else float('nan'),
+        'rss_start_mb': settled[0] if settled else float('nan'),
         'rss_end_mb': samples[-1][1] if samples else float('nan'),
         'slope_mb_per_min': slope, 'slope_ci95_mb_per_min': hw, 'warmup_s': warmup,
         'samples': [[round(t, 2), round(m, 3)] for t, m in samples],
         'exit_code': node.returncode, 'bag_bytes': bag_bytes, 'stderr_tail': stderr_tail,
     }
-    log(f'soak: {minutes:g} min at {rate:g} Hz, recording {record}: RSS '
+    log(f'soak: {minutes:g} min at {rate:g} Hz, recording {record}: RSS after warm-up '
         f'{out["rss_start_mb"]:.1f} -> {out["rss_end_mb"]:.1f} MB, slope after '
         f'{warmup:.0f} s warm-up {slope:+.4f} +- {hw:.4f} MB/min '
         f'({slope * 60 * 24:+.1f} MB/day); node exit {node.returncode}, bag '
