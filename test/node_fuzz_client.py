@@ -27,12 +27,17 @@ import rclpy
 from rclpy.parameter import parameter_value_to_python
 from std_srvs.srv import Trigger
 
-SCENE = ('inertia', 'torque', 'torque_frame', 'omega0', 'attitude0', 'tol', 'backend')
-NAMES = SCENE + ('publish_rate', 'time_scale', 'frame_id', 'body_frame_id', 'qos_depth',
-                 'record', 'record_path', 'record_topics')
-READ_ONLY = ('qos_depth', 'record', 'record_path', 'record_topics')
-UNKNOWN = ('inertiaa', 'Torque', 'omega', 'foo.bar', 'publish-rate', 'x' * 40)
-SANE_RUN = {'publish_rate': 100.0, 'time_scale': 1.0}
+from rigidrot_ros.node.attitude_node import _DESCRIPTIONS, _READ_ONLY
+
+#: Changes that take effect at the next ~/reset (the sensor settings too).
+SCENE = ('inertia', 'torque', 'torque_frame', 'omega0', 'attitude0', 'tol', 'backend') + \
+    tuple(n for n in _DESCRIPTIONS if n.startswith(('imu.', 'star_tracker.')))
+NAMES = tuple(_DESCRIPTIONS)
+READ_ONLY = tuple(_READ_ONLY)
+UNKNOWN = ('inertiaa', 'Torque', 'omega', 'foo.bar', 'publish-rate', 'imu.rat', 'x' * 40)
+#: Run parameters put back after each set, so ticks keep coming at a checkable pace.
+SANE_RUN = {'publish_rate': 100.0, 'time_scale': 1.0, 'imu.rate': 0.0,
+            'star_tracker.rate': 10.0}
 T = ParameterType
 
 #: The issue's reproductions, sent first (atomically, with the default scene).
@@ -131,7 +136,20 @@ class Gen:
             return bool(rng.integers(2))
         if name == 'record_path':
             return '/tmp/x'
-        return ['']
+        if name == 'record_topics':
+            return ['']
+        return self.wild(name)[1]
+
+    def typed_plausible(self, name):
+        """Return ``(ptype, value)`` of a plausible value for ``name``."""
+        if name == 'record_topics':
+            return T.PARAMETER_STRING_ARRAY, ['']
+        if name not in ('inertia', 'torque', 'omega0', 'attitude0', 'torque_frame', 'tol',
+                        'backend', 'publish_rate', 'time_scale', 'frame_id',
+                        'body_frame_id', 'qos_depth', 'record', 'record_path'):
+            return self.wild(name)
+        v = self.plausible(name)
+        return _typed(v), v
 
     def wild(self, name):
         """Return ``(ptype, value)``: anything at all for ``name``."""
@@ -167,10 +185,7 @@ class Gen:
         out = []
         for name in names:
             if plausible and name in NAMES and rng.uniform() < 0.9:
-                v = self.plausible(name)
-                ptype = _typed(v) if not (isinstance(v, list) and v == ['']) else \
-                    T.PARAMETER_STRING_ARRAY
-                out.append((name, ptype, v))
+                out.append((name,) + self.typed_plausible(name))
             else:
                 out.append((name,) + self.wild(name))
         return out
@@ -238,7 +253,8 @@ def main():
     expected = cl.get_all()
     out = {'sets': 0, 'accepted': 0, 'rejected': 0, 'resets': 0, 'samples_checked': 0,
            'unnamed_reasons': [], 'reset_refused': [], 'silent': [], 'bad_quaternions': [],
-           'state_mismatch': [], 'stuck': None, 'by_service': {'atomic': 0, 'each': 0}, 'reasons': {}}
+           'state_mismatch': [], 'stuck': None, 'by_service': {'atomic': 0, 'each': 0},
+           'reasons': {}}
     t0 = time.monotonic()
     history = []
     plan = [([(k, _typed(v), v) for k, v in {**DEFAULT, **r}.items()], True)

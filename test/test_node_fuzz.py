@@ -25,7 +25,8 @@ CLIENT = str(Path(__file__).with_name('node_fuzz_client.py'))
 def test_node_survives_random_parameter_sets(seed):
     n = int(os.environ.get('RIGIDROT_NODE_FUZZ_N', '1000'))
     env = ros_env(next_domain_id())
-    node = start([script('attitude_node'), '--ros-args', '-r', '__node:=fuzzed'], env)
+    node = start([script('attitude_node'), '--ros-args', '-r', '__node:=fuzzed', '-p',
+                  'imu.enable:=true', '-p', 'star_tracker.enable:=true'], env)
     try:
         cli = subprocess.run([sys.executable, CLIENT, '/fuzzed', str(n), str(seed)], env=env,
                              capture_output=True, text=True, timeout=900)
