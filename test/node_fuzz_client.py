@@ -208,7 +208,7 @@ class Client:
         self.msgs = []
         n.create_subscription(QuaternionStamped, 'attitude', self.msgs.append, 50)
 
-    def call(self, client, req, timeout=20.0):
+    def call(self, client, req, timeout=120.0):
         fut = client.call_async(req)
         rclpy.spin_until_future_complete(self.node, fut, timeout_sec=timeout)
         if not fut.done():
@@ -245,6 +245,50 @@ def _same(a, b):
     return a == b
 
 
+def _step(cl, i, params, atomic, expected, out):
+    """Send one parameter set; on success restore the run rates, reset and check a sample."""
+    results = cl.send(params, atomic)
+    changed = set()
+    for (name, ptype, value), r in zip(params, results):
+        if r.successful:
+            expected[name] = parameter_value_to_python(_value(ptype, value))
+            changed.add(name)
+        else:
+            sent = [p[0] for p in params] if atomic else [name]
+            if not any(s in r.reason for s in sent):
+                out['unnamed_reasons'].append([i, sent, r.reason])
+            key = r.reason.split(':')[0][:60]
+            out['reasons'][key] = out['reasons'].get(key, 0) + 1
+    if atomic:
+        out['accepted' if results[0].successful else 'rejected'] += 1
+    else:
+        out['accepted'] += sum(r.successful for r in results)
+        out['rejected'] += sum(not r.successful for r in results)
+    restore = [(k, T.PARAMETER_DOUBLE, v) for k, v in SANE_RUN.items()
+               if not _same(expected.get(k), v)]
+    if restore:
+        rr = cl.send(restore, True)[0]
+        if not rr.successful:
+            out['state_mismatch'].append([i, 'restore refused', rr.reason])
+        else:
+            expected.update({k: v for k, _t, v in restore})
+    if not changed & set(SCENE):
+        return
+    stamp = time.time_ns()
+    res = cl.call(cl.reset, Trigger.Request())
+    out['resets'] += 1
+    if not res.success:
+        out['reset_refused'].append([i, [p[0] for p in params], res.message])
+        return
+    q = cl.wait_sample(stamp)
+    if q is None:
+        out['silent'].append([i, {k: expected[k] for k in SCENE}])
+        return
+    out['samples_checked'] += 1
+    if not (all(math.isfinite(x) for x in q) and abs(math.hypot(*q) - 1) < 1e-9):
+        out['bad_quaternions'].append([i, q])
+
+
 def main():
     target, n, seed = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
     rclpy.init()
@@ -267,54 +311,17 @@ def main():
         history.append([i, repr(params), atomic])
         out['by_service']['atomic' if atomic else 'each'] += 1
         try:
-            results = cl.send(params, atomic)
+            _step(cl, i, params, atomic, expected, out)
+            if i % 100 == 99 or i == len(plan) - 1:
+                actual = cl.get_all()
+                for k in NAMES:
+                    if not _same(actual[k], expected[k]):
+                        out['state_mismatch'].append([i, k, repr(actual[k]),
+                                                      repr(expected[k])])
+                        expected[k] = actual[k]
         except TimeoutError as exc:
-            out['stuck'] = [i, repr(params), atomic, str(exc), history[-4:], expected]
+            out['stuck'] = [i, str(exc), history[-4:], expected]
             break
-        changed = set()
-        for (name, ptype, value), r in zip(params, results):
-            if r.successful:
-                expected[name] = parameter_value_to_python(_value(ptype, value))
-                changed.add(name)
-            else:
-                sent = [p[0] for p in params] if atomic else [name]
-                if not any(s in r.reason for s in sent):
-                    out['unnamed_reasons'].append([i, sent, r.reason])
-                key = r.reason.split(':')[0][:60]
-                out['reasons'][key] = out['reasons'].get(key, 0) + 1
-        if atomic:
-            out['accepted' if results[0].successful else 'rejected'] += 1
-        else:
-            out['accepted'] += sum(r.successful for r in results)
-            out['rejected'] += sum(not r.successful for r in results)
-        restore = [(k, T.PARAMETER_DOUBLE, v) for k, v in SANE_RUN.items()
-                   if not _same(expected.get(k), v)]
-        if restore:
-            rr = cl.send(restore, True)[0]
-            if not rr.successful:
-                out['state_mismatch'].append([i, 'restore refused', rr.reason])
-            else:
-                expected.update({k: v for k, _t, v in restore})
-        if changed & set(SCENE):
-            stamp = time.time_ns()
-            res = cl.call(cl.reset, Trigger.Request())
-            out['resets'] += 1
-            if not res.success:
-                out['reset_refused'].append([i, [p[0] for p in params], res.message])
-                continue
-            q = cl.wait_sample(stamp)
-            if q is None:
-                out['silent'].append([i, {k: expected[k] for k in SCENE}])
-                continue
-            out['samples_checked'] += 1
-            if not (all(math.isfinite(x) for x in q) and abs(math.hypot(*q) - 1) < 1e-9):
-                out['bad_quaternions'].append([i, q])
-        if i % 100 == 99 or i == len(plan) - 1:
-            actual = cl.get_all()
-            for k in NAMES:
-                if not _same(actual[k], expected[k]):
-                    out['state_mismatch'].append([i, k, repr(actual[k]), repr(expected[k])])
-                    expected[k] = actual[k]
     out['seconds'] = time.monotonic() - t0
     print(json.dumps(out, default=repr))
     cl.node.destroy_node()

@@ -151,6 +151,10 @@ _EPS = float(np.finfo(float).eps)
 _BUDGET_S = 0.02
 
 
+#: A scene change is refused when one trial sample (t = 0) takes longer than this, s.
+_TRIAL_LIMIT_S = 1.0
+
+
 class SceneError(ValueError):
     """The parameters at start-up are invalid or do not describe a solvable scene."""
 
@@ -388,7 +392,15 @@ class AttitudeNode(Node):
         candidate = self._values(params)
         try:
             if any(n in SCENE_KEYS or n in ('tol', 'backend') for n in names):
-                build_solution(candidate)          # validate the whole scene, keep running
+                sol = build_solution(candidate)    # validate the whole scene, keep running
+                c0 = time.perf_counter()
+                sol.at(0.0)                        # and that a sample can be evaluated
+                cost = time.perf_counter() - c0
+                if cost > _TRIAL_LIMIT_S:
+                    return (f'parameter(s) {", ".join(names)}: one sample of this scene takes '
+                            f'{cost:.3g} s to evaluate ({sol.model}, {sol.method}), beyond '
+                            f"the node's limit of {_TRIAL_LIMIT_S:g} s; try backend 'auto' "
+                            'or a larger tol')
             else:
                 _check_run_params(candidate)
             sensor_settings(candidate)             # the sensors, and time_scale against them
