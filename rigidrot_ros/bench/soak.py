@@ -107,7 +107,8 @@ def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
         while True:
             el = time.monotonic() - t0
             if node.poll() is not None:
-                raise RuntimeError(f'attitude_node exited early with status {node.returncode}')
+                log(f'soak: attitude_node exited early with status {node.returncode}')
+                break
             m = rss_mb(node.pid)
             if m is not None:
                 samples.append((el, m))
