@@ -205,6 +205,29 @@ def build_solution(p):
                          'range)') from None
 
 
+def _trial(sol, p):
+    """Evaluate the first two ticks of a candidate scene; return None or why it fails.
+
+    A scene whose first tick (t = 0) or second (one period in, scaled by ``time_scale``)
+    cannot be evaluated, or costs more than :data:`_TRIAL_LIMIT_S`, would leave the node
+    publishing nothing, or blocking its services; it is refused instead.
+    """
+    t1 = float(p['time_scale']) / float(p['publish_rate'])
+    for t in (0.0, t1):
+        c0 = time.perf_counter()
+        try:
+            sol.at(t)
+        except Exception as exc:    # PrecisionError, ValueError, or anything else
+            return (f'the scene cannot be evaluated at t = {t:g} s (the first ticks): '
+                    f'{type(exc).__name__}: {exc}')
+        cost = time.perf_counter() - c0
+        if cost > _TRIAL_LIMIT_S:
+            return (f'one sample of this scene takes {cost:.3g} s to evaluate ({sol.model}, '
+                    f"{sol.method}), beyond the node's limit of {_TRIAL_LIMIT_S:g} s; try "
+                    "backend 'auto' or a larger tol")
+    return None
+
+
 class _Stats:
     """Evaluation times and tick accounting for the diagnostics."""
 
@@ -259,6 +282,9 @@ class AttitudeNode(Node):
         self._warn_unknown_overrides()
         try:
             self._solution = build_solution(self._values())
+            trial = _trial(self._solution, self._values())
+            if trial is not None:
+                raise ValueError(f'scene {self._scene_summary()}: {trial}')
             self._sensors = sensor_settings(self._values())
         except ValueError as exc:
             raise SceneError(str(exc)) from None
@@ -364,6 +390,10 @@ class AttitudeNode(Node):
         if unknown:
             raise UnknownParameterError(unknown, sorted(_DESCRIPTIONS))
 
+    def _scene_summary(self):
+        p = self._values()
+        return ', '.join(f'{k} {p[k]!r}' for k in ('inertia', 'torque', 'omega0'))
+
     def _on_set(self, params):
         """Validate a change against the whole scene; refuse with a reason naming it."""
         names = [p.name for p in params]
@@ -393,14 +423,9 @@ class AttitudeNode(Node):
         try:
             if any(n in SCENE_KEYS or n in ('tol', 'backend') for n in names):
                 sol = build_solution(candidate)    # validate the whole scene, keep running
-                c0 = time.perf_counter()
-                sol.at(0.0)                        # and that a sample can be evaluated
-                cost = time.perf_counter() - c0
-                if cost > _TRIAL_LIMIT_S:
-                    return (f'parameter(s) {", ".join(names)}: one sample of this scene takes '
-                            f'{cost:.3g} s to evaluate ({sol.model}, {sol.method}), beyond '
-                            f"the node's limit of {_TRIAL_LIMIT_S:g} s; try backend 'auto' "
-                            'or a larger tol')
+                reason = _trial(sol, candidate)
+                if reason is not None:
+                    return f'parameter(s) {", ".join(names)}: {reason}'
             else:
                 _check_run_params(candidate)
             sensor_settings(candidate)             # the sensors, and time_scale against them
