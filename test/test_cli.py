@@ -2,10 +2,10 @@
 
 Table-driven: one row per command line. A row gives the script, its arguments (``{tmp}``
 is the test's temporary directory, which holds the fixture files below), the expected exit
-status and words that must appear. Status 0 rows (``--help``) must print usage on stdout;
-every other row must print exactly ``lines`` lines on stderr (default one) and never a
-traceback. ``block`` names modules made unimportable, as after a plain ``pip install .``
-without the ``bench`` extra.
+status, words that must appear, and any environment overrides. Status 0 rows
+(``--help``) must print usage on stdout; every other row must print exactly ``lines``
+lines on stderr (default one) and never a traceback. ``block`` names modules made
+unimportable, as after a plain ``pip install .`` without the ``bench`` extra.
 """
 
 import json
@@ -21,9 +21,9 @@ from ros_helpers import next_domain_id, ros_env, script
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def row(prog, args, code, words=(), lines=1, block=(), id=None):
-    """One command line and what it must do."""
-    return pytest.param(prog, args, code, tuple(words), lines, tuple(block),
+def row(prog, args, code, words=(), lines=1, block=(), env=None, id=None):
+    """One command line (with ``env`` overrides) and what it must do."""
+    return pytest.param(prog, args, code, tuple(words), lines, tuple(block), env or {},
                         id=id or f'{prog} {" ".join(args)}'[:80])
 
 
@@ -55,6 +55,8 @@ CASES = [
     row('attitude_node', ['--ros-args', '-p', 'backend:=gpu'], 2, ['backend']),
     row('attitude_node', ['--ros-args', '-p', 'record:=true', '-p',
                           'record_path:=/proc/no/such/dir'], 2, ['cannot record']),
+    row('attitude_node', [], 2, ['invalid environment', 'ROS_DOMAIN_ID'],
+        env={'ROS_DOMAIN_ID': 'abc'}, id='attitude_node with ROS_DOMAIN_ID=abc'),
     # rigidrot_echo
     row('rigidrot_echo', ['--help'], 0, ['usage: rigidrot_echo', '--timeout', '--count']),
     row('rigidrot_echo', ['--bogus'], 2, ['unrecognized arguments: --bogus']),
@@ -132,10 +134,10 @@ def _run(prog, args, block, env, timeout=90):
 
 
 @pytest.mark.ros
-@pytest.mark.parametrize('prog, args, code, words, lines, block', CASES)
-def test_command_as_typed(files, prog, args, code, words, lines, block):
+@pytest.mark.parametrize('prog, args, code, words, lines, block, env', CASES)
+def test_command_as_typed(files, prog, args, code, words, lines, block, env):
     args = [a.replace('{tmp}', str(files)) for a in args]
-    out = _run(prog, args, block, ros_env(next_domain_id()))
+    out = _run(prog, args, block, {**ros_env(next_domain_id()), **env})
     both = out.stdout + out.stderr
     assert out.returncode == code, both[-3000:]
     assert 'Traceback' not in both, both[-3000:]

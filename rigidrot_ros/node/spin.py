@@ -99,7 +99,10 @@ def init_ros(prog, ros_args):
             try:
                 rclpy.init(args=[prog] + list(ros_args))
             except _rclpy.RCLError as exc:
-                reason = f'invalid --ros-args: {_clean_rcl_message(exc)}'
+                text = _clean_rcl_message(exc)
+                where = 'environment' if 'ROS_' in text and 'parse' not in text else \
+                    '--ros-args'
+                reason = f'invalid {where}: {text}'
             finally:
                 os.dup2(saved, 2)
             if reason is None:
