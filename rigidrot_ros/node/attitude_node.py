@@ -818,6 +818,11 @@ def usage():
         'timing, delivered rate',
         '  ~/reset             std_srvs/srv/Trigger             restart at t = 0 from the '
         'current parameters',
+        '  with imu.enable: imu (sensor_msgs/Imu), delta_angle, delta_rotation '
+        '(Vector3Stamped);',
+        '  with star_tracker.enable: star_tracker (PoseWithCovarianceStamped); with '
+        'odom.enable,',
+        '  transform.enable, markers.enable: odom, transform, markers (the truth)',
         '',
         f'Parameters (-p NAME:=VALUE or --params-file FILE; default in brackets){missing}:',
     ]
