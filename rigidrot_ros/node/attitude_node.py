@@ -432,7 +432,7 @@ class AttitudeNode(Node):
             return None                 # rclpy's own (use_sim_time, ...): rclpy checks them
         candidate = self._values(params)
         try:
-            if any(n in SCENE_KEYS or n in ('tol', 'backend') for n in names):
+            if any(n in SCENE_KEYS or n in ('tol', 'backend', 'time_scale') for n in names):
                 sol = build_solution(candidate)    # validate the whole scene, keep running
                 reason = _trial(sol, candidate)
                 if reason is not None:
@@ -772,6 +772,9 @@ class AttitudeNode(Node):
     def _on_reset(self, request, response):
         try:
             solution = build_solution(self._values())
+            trial = _trial(solution, self._values())
+            if trial is not None:
+                raise ValueError(trial)
             sensors = sensor_settings(self._values())
             devices = _make_sensors(solution, sensors)
         except ValueError as exc:
