@@ -8,6 +8,7 @@ chart says so and how many points it concerns.
 
 import math
 import os
+import textwrap
 
 import numpy as np
 
@@ -75,7 +76,8 @@ def draw(results, out):
     if results.get('horizon'):
         paths += _horizon(results['horizon'], foot, out, plt)
     if results.get('stability'):
-        paths += _stability(results['stability'], foot, out, plt, matplotlib)
+        paths += _stability(results['stability'], foot, out, plt, matplotlib,
+                            results.get('stability_crosscheck', []))
     return paths
 
 
@@ -146,28 +148,36 @@ def _horizon(hz, foot, out, plt):
     return paths
 
 
-def independent_marks(st):
-    """Map ``(axis, value, T)`` to DOP853's status there: the independent check of a cell.
+def independent_marks(st, cross=()):
+    """Map ``(axis, value, T)`` to the strongest independent check of that cell.
 
     The exact cells are scored against the exact solution at a tighter tol, which shares
-    its formulas with them; DOP853 on Euler's equations shares none, so where DOP853 meets
-    1e-12 (or 1e-9) against that reference, the reference is checked to that level.
+    its formulas with them. DOP853 on Euler's equations shares none: where it meets 1e-12
+    against that reference the mark is ``'meets 1e-12'``. Else, where the cross-check
+    (``cross``, rows of :func:`rigidrot_ros.bench.crosscheck.stability_crosscheck`) found
+    the two backends on different representations agreeing within 1e-12, the mark is
+    ``'other representation'``; else, where DOP853 meets 1e-9, ``'meets 1e-9'``.
     """
     marks = {}
     for c in st:
         if c['method'].startswith('DOP853') and c['status'] in ('meets 1e-12', 'meets 1e-9'):
             marks[(c['axis'], c['value'], c['T_s'])] = c['status']
+    for r in cross:
+        key = (r['axis'], r['value'], r['T_s'])
+        if r.get('independent') and r['flint_vs_mpmath_rad'] <= 1e-12 and \
+                marks.get(key) != 'meets 1e-12':
+            marks[key] = 'other representation'
     return marks
 
 
-def _stability(st, foot, out, plt, matplotlib):
+def _stability(st, foot, out, plt, matplotlib, cross=()):
     methods = list(dict.fromkeys(c['method'] for c in st))
     axes_kinds = list(dict.fromkeys(c['axis'] for c in st))
-    marks = independent_marks(st)
+    marks = independent_marks(st, cross)
     fig, axes = plt.subplots(len(axes_kinds), len(methods),
                              figsize=(3.3 * len(methods), 3.0 * len(axes_kinds) + 1.6),
                              squeeze=False)
-    glyph = {'meets 1e-12': '\u25cf', 'meets 1e-9': '\u25cb'}
+    glyph = {'meets 1e-12': '\u25cf', 'meets 1e-9': '\u25cb', 'other representation': '\u25c6'}
     n_marked = n_exact = 0
     for i, kind in enumerate(axes_kinds):
         vals = sorted({c['value'] for c in st if c['axis'] == kind})
@@ -201,11 +211,15 @@ def _stability(st, foot, out, plt, matplotlib):
                bbox_to_anchor=(0.5, 0.03))
     note = ('Colour: error against the exact solution at tol 2e-14 rad (flint). In the exact '
             'panels that reference shares their formulas, so the colour is a consistency check '
-            '(mpmath against flint: a second implementation\nof the special functions, not of '
-            "the formulas). Independent check, DOP853 (rtol 1e-13) on Euler's equations "
-            'against the same reference: \u25cf agrees within 1e-12, \u25cb within 1e-9; '
-            f'unmarked exact cells\n({n_exact - n_marked} of {n_exact}) have no independent '
-            'check on this chart (DOP853 did not reach them within its CPU budget).')
+            '(mpmath against flint: a second implementation of the special functions, not of '
+            "the formulas). Independent checks: DOP853 (rtol 1e-13) on Euler's equations "
+            'against the same reference, \u25cf within 1e-12, \u25cb within 1e-9; '
+            + ('\u25c6 flint and mpmath on different representations (Taylor against '
+               '\u2081F\u2081) agree within 1e-12; ' if cross else '')
+            + f'unmarked exact cells ({n_exact - n_marked} of {n_exact}) have no independent '
+            'check on this chart (DOP853 did not reach them within its CPU budget'
+            + (', and both backends took the same representation)' if cross else ')') + '.')
+    note = textwrap.fill(note, width=int(36 * len(methods) + 20))
     fig.text(0.5, 0.085, note, ha='center', va='bottom', fontsize=7)
     fig.suptitle('Where each method meets 1e-12 / 1e-9 rad, loses accuracy, or fails '
                  '(sphere, p0, q0 = 0.3, -0.2 rad/s; r0 = 0.5 or U = 0.01)', fontsize=9)

@@ -404,7 +404,7 @@ def _write_csv(path, rows, foot):
 
 
 _NEEDS = {'wp': ('scipy',), 'horizon': ('scipy',), 'stability': ('scipy',),
-          'envelope': (), 'ratios': ('scipy',), 'soak': ()}
+          'crosscheck': (), 'envelope': (), 'ratios': ('scipy',), 'soak': ()}
 
 
 def _missing(modules):
@@ -505,7 +505,10 @@ def main(argv=None):
             print(f'rigidrot_bench: {merged} is not JSON ({exc}); move it away or choose '
                   'another --out', file=sys.stderr)
             return 2
-    results['footer'] = foot
+    if parts == ['crosscheck'] and 'footer' in results:
+        results['footer_crosscheck_run'] = foot     # the charts keep the map's own footer
+    else:
+        results['footer'] = foot
     if 'wp' in parts:
         results['work_precision'] = work_precision(opts.quick, repeats, budget, log)
         _write_csv(os.path.join(opts.out, 'work_precision.csv'), results['work_precision'],
@@ -516,6 +519,16 @@ def main(argv=None):
     if 'stability' in parts:
         results['stability'] = stability_map(opts.quick, 20.0 if not opts.quick else 1.0, log)
         _write_csv(os.path.join(opts.out, 'stability.csv'), results['stability'], foot)
+    if 'crosscheck' in parts:
+        if not results.get('stability'):
+            print(f'rigidrot_bench: --only crosscheck needs the stability map in {merged} '
+                  '(run --only stability first)', file=sys.stderr)
+            return 2
+        from rigidrot_ros.bench import crosscheck
+        results['stability_crosscheck'] = crosscheck.stability_crosscheck(
+            results['stability'], log)
+        _write_csv(os.path.join(opts.out, 'stability_crosscheck.csv'),
+                   results['stability_crosscheck'], foot)
     if 'ratios' in parts:
         results['ratios'] = ratios(opts.quick, log)
         _write_csv(os.path.join(opts.out, 'ratios.csv'), results['ratios'], foot)
