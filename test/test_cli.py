@@ -77,6 +77,8 @@ CASES = [
     row('rigidrot_bench', ['--quick', '--bogus'], 2, ['unrecognized arguments']),
     row('rigidrot_bench', ['--only', 'soak', '--soak-minutes', '-1'], 2, ['--soak-minutes']),
     row('rigidrot_bench', ['--only', 'soak', '--soak-minutes', 'nan'], 2, ['--soak-minutes']),
+    row('rigidrot_bench', ['--only', 'crosscheck', '--out', '{tmp}/x'], 2,
+        ['needs the stability map']),
     row('rigidrot_bench', ['--charts-from', '{tmp}/nope.json'], 2, ['nope.json', 'No such']),
     row('rigidrot_bench', ['--charts-from', '{tmp}/garbage.yaml'], 2, ['not JSON']),
     row('rigidrot_bench', ['--charts-from', '{tmp}/other.json'], 2,
