@@ -6,7 +6,6 @@ reference far tighter than anything measured: the exact solution at tol = 2e-14 
 violated claim, not plotted as a win.
 """
 
-import argparse
 import csv
 import datetime
 import json
@@ -21,11 +20,19 @@ import mpmath
 import numpy as np
 
 from rigidrot_ros import __version__
-from rigidrot_ros.bench import peers
 from rigidrot_ros.core import PrecisionError, Scene, solve
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core.kernel import HyperKernel
 from rigidrot_ros.core.taylor import TaylorKernel
+from rigidrot_ros.tools.cli import OneLineParser
+
+try:
+    from rigidrot_ros.bench import peers
+except ImportError as _exc:     # scipy is the 'bench' extra: main() says what to install
+    peers = None
+    _PEERS_MISSING = _exc.name or str(_exc)
+else:
+    _PEERS_MISSING = None
 
 REF_TOL = 2e-14
 
@@ -55,7 +62,11 @@ def _cpu():
 
 def footer():
     """Versions, CPU and date: printed with every result."""
-    import scipy
+    try:
+        import scipy
+        sp = scipy.__version__
+    except ImportError:
+        sp = 'absent'
     try:
         import flint
         fl = flint.__version__
@@ -63,7 +74,7 @@ def footer():
         fl = 'absent'
     return {
         'rigidrot_ros': __version__, 'python': platform.python_version(),
-        'numpy': np.__version__, 'scipy': scipy.__version__, 'mpmath': mpmath.__version__,
+        'numpy': np.__version__, 'scipy': sp, 'mpmath': mpmath.__version__,
         'python-flint': fl, 'cpu': _cpu(), 'cores': os.cpu_count(),
         'machine': platform.node(),
         'date': datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
@@ -510,30 +521,112 @@ def _write_csv(path, rows, foot):
         fh.write('# ' + json.dumps(foot) + '\n')
 
 
+_NEEDS = {'wp': ('scipy',), 'horizon': ('scipy',), 'stability': ('scipy',),
+          'crosscheck': (), 'envelope': (), 'ratios': ('scipy',), 'soak': ()}
+
+
+def _missing(modules):
+    """Return the names among ``modules`` that cannot be imported."""
+    out = []
+    for name in modules:
+        if name == 'scipy' and _PEERS_MISSING is not None:
+            out.append(name)
+            continue
+        try:
+            __import__(name)
+        except ImportError:
+            out.append(name)
+    return out
+
+
+def _install_hint(missing):
+    return (f'rigidrot_bench needs {" and ".join(missing)}, which a plain `pip install .` '
+            "does not install: pip install -e '.[bench]' in the checkout (or pip install "
+            f'{" ".join(missing)})')
+
+
+def charts_only(path, out, log):
+    """Redraw every chart from a ``results.json`` into ``out``; return the exit status."""
+    try:
+        with open(path, encoding='utf-8') as fh:
+            results = json.load(fh)
+    except OSError as exc:
+        print(f'rigidrot_bench: --charts-from {path}: {exc.strerror or exc}', file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        print(f'rigidrot_bench: --charts-from {path}: not JSON ({exc})', file=sys.stderr)
+        return 2
+    if not isinstance(results, dict) or not isinstance(results.get('footer'), dict):
+        print(f'rigidrot_bench: --charts-from {path}: not a rigidrot_bench results.json '
+              '(no footer)', file=sys.stderr)
+        return 2
+    os.makedirs(out, exist_ok=True)
+    from rigidrot_ros.bench import charts
+    paths = charts.draw(results, out)
+    if not paths:
+        print(f'rigidrot_bench: --charts-from {path}: no chartable results in it',
+              file=sys.stderr)
+        return 2
+    for p in paths:
+        log(f'wrote {p}')
+    return 0
+
+
 def main(argv=None):
     """Entry point of ``rigidrot_bench``."""
-    ap = argparse.ArgumentParser(prog='rigidrot_bench', description=__doc__.splitlines()[0])
+    ap = OneLineParser(prog='rigidrot_bench', description=__doc__.splitlines()[0])
     ap.add_argument('--out', default='bench_out', help='directory for charts and data')
     ap.add_argument('--quick', action='store_true', help='a smoke run, under a minute')
-    ap.add_argument('--only', choices=['wp', 'horizon', 'stability', 'envelope', 'ratios'],
-                    action='append')
+    ap.add_argument('--only', choices=list(_NEEDS), action='append',
+                    help='run only this part (repeatable; default: wp, horizon, stability); '
+                         'results merge into an existing OUT/results.json')
+    ap.add_argument('--soak-minutes', type=float, default=10.0, metavar='MIN',
+                    help='length of the soak part (--only soak), minutes (default 10)')
+    ap.add_argument('--charts-from', metavar='RESULTS_JSON',
+                    help='only redraw the charts from a results.json into --out '
+                         '(needs matplotlib, runs nothing)')
     opts = ap.parse_args(argv)
-    os.makedirs(opts.out, exist_ok=True)
-    repeats = 1 if opts.quick else 3
-    budget = 1.0 if opts.quick else 60.0
-    foot = footer()
-    parts = opts.only or ['wp', 'horizon', 'stability']
     t0 = time.monotonic()
 
     def log(line):
         print(f'[{time.monotonic() - t0:7.1f} s] {line}', flush=True)
 
+    if not (opts.soak_minutes > 0 and math.isfinite(opts.soak_minutes)):
+        ap.error(f'argument --soak-minutes: must be a positive number, got {opts.soak_minutes}')
+    if opts.charts_from is not None:
+        missing = _missing(['matplotlib'])
+        if missing:
+            print(f'rigidrot_bench: {_install_hint(missing)}', file=sys.stderr)
+            return 2
+        return charts_only(opts.charts_from, opts.out, log)
+    parts = opts.only or ['wp', 'horizon', 'stability']
+    missing = _missing(sorted({m for p in parts for m in _NEEDS[p]} | {'matplotlib'}))
+    if missing:
+        print(f'rigidrot_bench: {_install_hint(missing)}', file=sys.stderr)
+        return 2
+    try:
+        os.makedirs(opts.out, exist_ok=True)
+    except OSError as exc:
+        print(f'rigidrot_bench: --out {opts.out}: {exc.strerror or exc}', file=sys.stderr)
+        return 2
+    repeats = 1 if opts.quick else 3
+    budget = 1.0 if opts.quick else 60.0
+    foot = footer()
+
     results = {}
     merged = os.path.join(opts.out, 'results.json')
     if os.path.exists(merged):            # a partial run (--only) adds to an earlier one
-        with open(merged, encoding='utf-8') as fh:
-            results = json.load(fh)
-    results['footer'] = foot
+        try:
+            with open(merged, encoding='utf-8') as fh:
+                results = json.load(fh)
+        except ValueError as exc:
+            print(f'rigidrot_bench: {merged} is not JSON ({exc}); move it away or choose '
+                  'another --out', file=sys.stderr)
+            return 2
+    if parts == ['crosscheck'] and 'footer' in results:
+        results['footer_crosscheck_run'] = foot     # the charts keep the map's own footer
+    else:
+        results['footer'] = foot
     if 'wp' in parts:
         results['work_precision'] = work_precision(opts.quick, repeats, budget, log)
         _write_csv(os.path.join(opts.out, 'work_precision.csv'), results['work_precision'],
@@ -544,6 +637,16 @@ def main(argv=None):
     if 'stability' in parts:
         results['stability'] = stability_map(opts.quick, 20.0 if not opts.quick else 1.0, log)
         _write_csv(os.path.join(opts.out, 'stability.csv'), results['stability'], foot)
+    if 'crosscheck' in parts:
+        if not results.get('stability'):
+            print(f'rigidrot_bench: --only crosscheck needs the stability map in {merged} '
+                  '(run --only stability first)', file=sys.stderr)
+            return 2
+        from rigidrot_ros.bench import crosscheck
+        results['stability_crosscheck'] = crosscheck.stability_crosscheck(
+            results['stability'], log)
+        _write_csv(os.path.join(opts.out, 'stability_crosscheck.csv'),
+                   results['stability_crosscheck'], foot)
     if 'ratios' in parts:
         results['ratios'] = ratios(opts.quick, log)
         _write_csv(os.path.join(opts.out, 'ratios.csv'), results['ratios'], foot)
@@ -552,6 +655,11 @@ def main(argv=None):
     if 'envelope' in parts:
         results['envelope'] = envelope(opts.quick, log)
         _write_csv(os.path.join(opts.out, 'envelope.csv'), results['envelope'], foot)
+    if 'soak' in parts:
+        from rigidrot_ros.bench import soak
+        results['soak'] = soak.soak(opts.soak_minutes, log)
+        _write_csv(os.path.join(opts.out, 'soak.csv'),
+                   [{'t_s': t, 'rss_mb': m} for t, m in results['soak']['samples']], foot)
     with open(os.path.join(opts.out, 'results.json'), 'w', encoding='utf-8') as fh:
         json.dump(results, fh, indent=1, default=float)
     from rigidrot_ros.bench import charts
@@ -560,8 +668,12 @@ def main(argv=None):
     violated = [r for r in results.get('work_precision', []) if r['status'] == 'claim violated']
     for r in violated:
         log(f'CLAIM VIOLATED: {r}')
+    soak_failed = 'soak' in parts and results['soak']['exit_code'] != 0
+    if soak_failed:
+        log(f'SOAK: attitude_node exited with status {results["soak"]["exit_code"]}: '
+            f'{results["soak"]["stderr_tail"][-500:]}')
     print(json.dumps(foot))
-    return 1 if violated else 0
+    return 1 if violated or soak_failed else 0
 
 
 if __name__ == '__main__':
