@@ -63,6 +63,7 @@ _R = _H / 2                     # largest |z| inside a cell
 _DEG = 17                       # degree of the stored polynomials
 _TWO27 = 134217729.0            # Veltkamp splitter 2^27 + 1
 _T_MAX = 1e250                  # beyond, t * 2^27 could overflow: refuse
+_K_MAX = 60.0                   # largest quarter period tabulated (1 - m >~ 1e-51)
 
 
 # ---------------------------------------------------------------------------------------
@@ -268,7 +269,19 @@ class TriaxialSolution:
         rows, on_separatrix = _frame(inertia, scene.omega0)
         self._rows = rows                                        # R_B'B
         q_b1b = quat.from_matrix(rows)
+        # 1 - m, free of cancellation, sets the working precision (m itself must not round
+        # to 1); K ~ log(4 / sqrt(1 - m)) sets the size of the table
         with mp.workprec(128):
+            one_m = self._one_minus_m(rows)
+        extra = 0 if one_m == 0 else max(0, int(-mpmath.log(one_m, 2)) + 8)
+        if one_m != 0 and extra > 2 * _K_MAX * 1.45:
+            raise PrecisionError(
+                f'omega0 = {scene.omega0} lies within 1 - m = {mpmath.nstr(one_m, 2)} of the '
+                f'separatrix without being on it: the quarter period K = '
+                f'{float(mpmath.log(4 / mpmath.sqrt(one_m))):.0f} exceeds {_K_MAX} and its '
+                f'table would take minutes. Put omega0 on the separatrix or move it off by '
+                f'more than 1e-50 relative')
+        with mp.workprec(128 + extra):
             self._setup(rows, on_separatrix, q_b1b, max_prec)
         if self._static_bound > tol:
             raise PrecisionError(
@@ -277,6 +290,15 @@ class TriaxialSolution:
                 f'{2 * self._static_bound:.1e}')
 
     # -- set-up ----------------------------------------------------------------------
+    def _one_minus_m(self, rows):
+        wb = [mpmath.mpf(v) for v in self.scene.omega0]
+        ib = [mpmath.mpf(v) for v in self.scene.inertia]
+        w = [sum(rows[i][j] * wb[j] for j in range(3)) for i in range(3)]
+        i1, i2, i3 = (sum(rows[i][j] ** 2 * ib[j] for j in range(3)) for i in range(3))
+        e1 = i2 * (i2 - i1) * w[1] ** 2 + i3 * (i3 - i1) * w[2] ** 2
+        e2 = i1 * (i1 - i2) * w[0] ** 2 + i3 * (i3 - i2) * w[2] ** 2       # h^2 - 2T I2
+        return abs((i3 - i1) * e2 / ((i3 - i2) * e1))
+
     def _setup(self, rows, on_separatrix, q_b1b, max_prec):
         inertia = self.scene.inertia
         wb = [mpmath.mpf(v) for v in self.scene.omega0]
@@ -300,7 +322,8 @@ class TriaxialSolution:
             amp1, amp2 = s1 * a1, sigma * s1 * a2
             u0 = mpmath.atanh(w[1] / amp2)
         else:
-            m = (i2 - i1) * e3 / ((i3 - i2) * e1)
+            e2 = i1 * (i1 - i2) * w[0] ** 2 + i3 * (i3 - i2) * w[2] ** 2   # h^2 - 2T I2
+            m = 1 - (i3 - i1) * e2 / ((i3 - i2) * e1)
             amp1, amp2 = a1, sigma * a2
             phi0 = mpmath.atan2(w[1] / amp2, w[0] / amp1)
             u0 = mpmath.ellipf(phi0, m)
