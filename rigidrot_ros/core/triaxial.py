@@ -145,7 +145,7 @@ def _pieces(x, count=8, bits=26):
 
 
 def _split_offset(x):
-    """An mpf number of turns as a double-double (hi, lo) reduced to [-1/2, 1/2]."""
+    """Reduce an mpf number of turns to [-1/2, 1/2] as a double-double (hi, lo)."""
     x = x - mpmath.nint(x)
     hi = float(x)
     return hi, float(x - hi)
@@ -468,7 +468,7 @@ class TriaxialSolution:
         return sgn * (val - self._gbar_mp * y)
 
     def _bound_constant(self):
-        """The t-independent part of the per-sample bound (phase reduction at t = 0)."""
+        """Return the t-independent part of the per-sample bound (the phase at t = 0)."""
         n = self._ncell
         e0 = np.full(n, 2 * _U)
         return float(np.max(self._bound(e0, e0, np.arange(n), None)))
