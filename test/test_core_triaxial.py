@@ -1,7 +1,8 @@
 """The torque-free triaxial body (Euler-Poinsot) against references that share no formula.
 
-- a 40-digit Taylor-series integrator of Euler's equations and the quaternion kinematics
-  written here (time domain, fixed-point integers; no elliptic function), to t = 1e3 s:
+- a 42-digit Taylor-series integrator of Euler's equations and the quaternion kinematics
+  (:func:`rigidrot_ros.bench.triaxial.taylor_reference`: time domain, fixed-point
+  integers, no elliptic function), to t = 1e3 s:
   the attitude within the solution's own error bound, which is within tol;
 - scipy DOP853 at short t; the flip period of the tennis-racket motion (DOP853 events)
   against 4K(m)/lambda computed here from mpmath;
@@ -20,79 +21,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from conftest import integrate
+from rigidrot_ros.bench.triaxial import taylor_reference as reference
 from rigidrot_ros.core import PrecisionError, Scene, solve
 from rigidrot_ros.core import quaternion as quat
-
-PREC = 140                      # bits of the reference (42 digits)
-
-
-def _fx(x):
-    return int(mpmath.nint(mpmath.ldexp(mpmath.mpf(x), PREC)))
-
-
-def reference(scene, times, deg=30):
-    """Integrate I w' = -w x I w, q' = q ⊗ (w, 0)/2 by Taylor series at 42 digits.
-
-    Fixed-point integers scaled by 2^PREC. The step keeps h |w|max <= 1/5, so the
-    series (degree ``deg``) is truncated far below 1e-25 per step. Returns (omega, q) at
-    ``times`` (ascending, >= 0), each sample reached by a final partial step.
-    """
-    one = 1 << PREC
-    inertia = scene.inertia
-    # (I_j - I_k) / I_i for the Euler equations w_i' = c_i w_j w_k
-    cc = [_fx((mpmath.mpf(inertia[(i + 1) % 3]) - inertia[(i + 2) % 3]) / inertia[i])
-          for i in range(3)]
-    w = [_fx(v) for v in scene.omega0]
-    q = [_fx(v) for v in scene.attitude0]
-    wmax = math.sqrt(sum(i * v * v for i, v in zip(inertia, scene.omega0)) / min(inertia))
-    hstep = 0.25 / max(wmax, 1e-9)
-
-    def series(w0, q0):
-        ws = [[v] for v in w0]
-        qs = [[v] for v in q0]
-        for k in range(deg):
-            # w_i' = c_i w_j w_k, (i, j, k) cyclic, c_i = (I_j - I_k) / I_i
-            new = []
-            for i in range(3):
-                a, b = ws[(i + 1) % 3], ws[(i + 2) % 3]
-                conv = sum(a[j] * b[k - j] for j in range(k + 1)) >> PREC
-                new.append(((cc[i] * conv) >> PREC) // (k + 1))
-            # q' = q ⊗ (w, 0) / 2
-            x, y, z, s = qs
-            wx, wy, wz = ws
-
-            def cv(u, v):
-                return sum(u[j] * v[k - j] for j in range(k + 1))
-            dq = [cv(s, wx) + cv(y, wz) - cv(z, wy), cv(s, wy) - cv(x, wz) + cv(z, wx),
-                  cv(s, wz) + cv(x, wy) - cv(y, wx), -cv(x, wx) - cv(y, wy) - cv(z, wz)]
-            for i in range(3):
-                ws[i].append(new[i])
-            for i in range(4):
-                qs[i].append((dq[i] >> (PREC + 1)) // (k + 1))
-        return ws, qs
-
-    def advance(ser, hf):
-        out = []
-        for comp in ser:
-            acc = 0
-            for a in reversed(comp):
-                acc = ((acc * hf) >> PREC) + a
-            out.append(acc)
-        return out
-
-    t = 0                                  # fixed point, exact: steps add up to the target
-    hmax = _fx(hstep)
-    omegas, quats = [], []
-    for target in times:
-        tf = _fx(target)
-        while tf > t:
-            h = min(hmax, tf - t)
-            ws, qs = series(w, q)
-            w, q = advance(ws, h), advance(qs, h)
-            t += h
-        omegas.append([v / one for v in w])
-        quats.append([v / one for v in q])
-    return np.array(omegas), np.array(quats)
 
 
 def _body(rng):

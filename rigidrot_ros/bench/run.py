@@ -397,8 +397,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog='rigidrot_bench', description=__doc__.splitlines()[0])
     ap.add_argument('--out', default='bench_out', help='directory for charts and data')
     ap.add_argument('--quick', action='store_true', help='a smoke run, under a minute')
-    ap.add_argument('--only', choices=['wp', 'horizon', 'stability', 'envelope', 'ratios'],
-                    action='append')
+    ap.add_argument('--only', choices=['wp', 'horizon', 'stability', 'envelope', 'ratios',
+                                       'triaxial'], action='append')
     opts = ap.parse_args(argv)
     os.makedirs(opts.out, exist_ok=True)
     repeats = 1 if opts.quick else 3
@@ -432,6 +432,9 @@ def main(argv=None):
     if 'envelope' in parts:
         results['envelope'] = envelope(opts.quick, log)
         _write_csv(os.path.join(opts.out, 'envelope.csv'), results['envelope'], foot)
+    if 'triaxial' in parts:                     # torque-free triaxial rows: bench/triaxial.py
+        from rigidrot_ros.bench import triaxial
+        results['triaxial'] = triaxial.run(opts.out, opts.quick, foot, log)
     with open(os.path.join(opts.out, 'results.json'), 'w', encoding='utf-8') as fh:
         json.dump(results, fh, indent=1, default=float)
     from rigidrot_ros.bench import charts
