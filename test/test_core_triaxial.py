@@ -126,6 +126,21 @@ def test_invariants_to_1e5_seconds(seed):
     assert np.all(s.error_bound <= 1e-12)
 
 
+def test_invariants_on_the_separatrix_to_1e5_seconds():
+    """On the separatrix no fixed-precision integration follows the motion for long."""
+    scene = Scene(inertia=(3.0, 4.0, 6.0), omega0=(0.1, 1.0, 0.05),
+                  attitude0=(0.1, 0.2, 0.3, 0.9))
+    sol = solve(scene)
+    assert sol.method == 'separatrix-closed-form'
+    t = np.concatenate([[0.0], np.geomspace(1e-3, 1e5, 400)])
+    s = sol.at(t)
+    h_n, energy = _energy_momentum(scene, s)
+    assert np.abs(h_n - h_n[0]).max() <= 3e-15 * np.linalg.norm(h_n[0])
+    assert np.abs(energy - energy[0]).max() <= 3e-15 * energy[0]
+    # it settles on the intermediate axis: omega -> (0, |h| / I2, 0)
+    assert_allclose(s.omega[-1], [0.0, np.linalg.norm(h_n[0]) / 4.0, 0.0], atol=1e-15)
+
+
 def test_initial_state_continuity_and_scalar_path(rng):
     scene = _body(rng)
     sol = solve(scene)

@@ -233,8 +233,21 @@ def stability_map(quick, budget, log):
         c = time.process_time()
         refs = taylor_reference(scene, ts)[1]
         log(f'separatrix delta={delta:g}: reference in {time.process_time() - c:.1f} s')
+        # on the separatrix itself a perturbation grows like e^(lam_h t), lam_h the saddle's
+        # rate: no fixed-precision integration follows the motion once that exceeds
+        # 1e16 (its truncation is ~1e-30 a step); past that the cell has no reference
+        i1, i2, i3 = scene.inertia
+        lam_h = abs(scene.omega0[1]) * math.sqrt((i2 - i1) * (i3 - i2) / (i1 * i3))
+        t_trust = math.inf if delta != 0 else math.log(1e16) / lam_h
         timed_out = set()
         for T, ref in zip(ts, refs):
+            if T > t_trust:
+                for name in methods:
+                    cells.append({'delta': delta, 'T_s': T, 'method': name,
+                                  'status': 'no reference', 'error_rad': math.nan,
+                                  'cpu_s': math.nan})
+                log(f'delta={delta:<8g} T={T:<8g} no reference (e^(lam t) > 1e16)')
+                continue
             for name, fn in methods.items():
                 if name.startswith('RKMK4') and T > 100.0:
                     continue                      # 1e5 Python steps: not run (blank)
