@@ -37,8 +37,9 @@ series ``1/(1 - u)`` bounds every Taylor coefficient of sn, cn, dn at a real poi
 and ``1/(1 - 2u)`` those of ``g |h|``, so the table's truncation (< 1e-17) is bounded
 exactly; Horner rounding is bounded per cell from the stored coefficients; phase
 reduction, folding and the quaternion formulas add bounded rounding. The per-scene
-constants are computed by mpmath (not Arb balls) at >= 128 bits and checked at u = K to
-1e-25, far below the bound; ``method`` says so.
+constants are computed by mpmath at >= 128 bits; on the flint backend K(m) and u0 are
+confirmed against Arb balls, and the table is checked at u = K to 1e-25, far below the
+bound. They are checked, not carried as balls: ``method`` does not say 'flint'.
 """
 
 from fractions import Fraction
@@ -151,6 +152,37 @@ def _split_offset(x):
     return hi, float(x - hi)
 
 
+def _arb_exact(flint, x):
+    """Return the mpf x as an exact arb (mantissa times a power of two)."""
+    sign, man, exp, _ = x._mpf_
+    v = flint.arb(int(man)) * flint.arb(2) ** int(exp)
+    return -v if sign else v
+
+
+def _check_with_arb(m, phi0, u0):
+    """Confirm mpmath's K(m) and F(phi0 | m) with Arb balls (python-flint), else raise."""
+    try:
+        import flint
+    except ImportError:
+        return
+    digits = int(mp.prec * 0.30103) + 10
+    old = flint.ctx.prec
+    flint.ctx.prec = mp.prec + 64
+    try:
+        m_b, phi_b = _arb_exact(flint, m), _arb_exact(flint, phi0)
+        pairs = ((flint.acb(m_b).elliptic_k(), mpmath.ellipk(m), 'K(m)'),
+                 (flint.acb.elliptic_f(phi_b, m_b), u0, 'F(phi0 | m)'))
+        for ball, val, name in pairs:
+            mid = mpmath.mpf(ball.real.mid().str(digits, radius=False))
+            rad = mpmath.mpf(ball.real.rad().str(5, radius=False))
+            if not abs(mid - val) <= rad + max(1, abs(val)) * mpmath.mpf(10) ** -30 or \
+                    rad > mpmath.mpf(10) ** -30:
+                raise PrecisionError(f'{name} by mpmath ({mpmath.nstr(val, 20)}) is not '
+                                     f'confirmed by Arb ({ball})')
+    finally:
+        flint.ctx.prec = old
+
+
 def _q_mp_mul(a, b):
     ax, ay, az, aw = a
     bx, by, bz, bw = b
@@ -247,9 +279,11 @@ class TriaxialSolution:
     method : str
         ``'jacobi-elliptic-table'`` (m < 1) or ``'separatrix-closed-form'`` (m = 1, the
         tennis-racket separatrix): float64 with an a-priori error bound; the per-scene
-        constants come from mpmath (checked, not Arb-certified) for either backend.
+        constants come from mpmath (K and u0 confirmed by Arb balls on the flint
+        backend; not carried as balls).
     backend : str
-        The backend asked for ('flint' or 'mpmath'); both use the same evaluation.
+        The backend asked for ('flint' or 'mpmath'); both use the same evaluation, the
+        flint backend also confirms K(m) and u0 with Arb.
     tol : float
         Attitude accuracy asked, rad. :func:`solve` raises PrecisionError when the
         float64 bound of this scene cannot meet it.
@@ -326,7 +360,10 @@ class TriaxialSolution:
             m = 1 - (i3 - i1) * e2 / ((i3 - i2) * e1)
             amp1, amp2 = a1, sigma * a2
             phi0 = mpmath.atan2(w[1] / amp2, w[0] / amp1)
-            u0 = mpmath.ellipf(phi0, m)
+            with mp.workprec(2 * mp.prec):      # ellipf loses bits as m -> 1, phi -> pi/2
+                u0 = +mpmath.ellipf(phi0, m)
+            if self.backend == 'flint':
+                _check_with_arb(m, phi0, u0)
         self.m = m
         self._amp = np.array([float(amp1), float(amp2), float(a3)])
         self._ut = np.array([float(i1 * amp1 / hn), float(i2 * amp2 / hn), float(beta)])
@@ -521,6 +558,40 @@ class TriaxialSolution:
         f_err = u_err * slope + 8 * _U
         return sech, tanh, fint, f_err
 
+    def _separatrix_scalar(self, t, txi, exi):
+        """:meth:`at` on the separatrix for one time, in plain floats (as :meth:`at`)."""
+        from .models import Samples
+        u = self._lam * t + self._u0
+        au = abs(u)
+        e = math.exp(-au)
+        sech = 2 * e / (1 + e * e)
+        sg = -1.0 if u < 0 else 1.0
+        tanh = sg * (1 - e * e) / (1 + e * e)
+        th2 = sg * (1 - e) / (1 + e)
+        c0, rb = self._sep_c
+        fint = c0 * math.atan(rb * th2)
+        u_err = 2 * _U * (abs(self._lam * t) + abs(self._u0)) + self._u0_err
+        f_err = u_err * min(1.0, 2.0 * math.exp(-(au - u_err))) + 8 * _U
+        ut = self._ut
+        ux, uy, uz = ut[0] * sech, ut[1] * tanh, ut[2] * sech
+        pw = 1.0 + uz
+        pn = math.sqrt(uy * uy + ux * ux + pw * pw)
+        px, py, pw = uy / pn, -ux / pn, pw / pn
+        xi = 4 * math.pi * txi + self._xi_c - self._cq * fint
+        hs, hc = math.sin(0.5 * xi), math.cos(0.5 * xi)
+        mid = (hc * px - hs * py, hc * py + hs * px, hs * pw, hc * pw)
+        mul = quat.multiply_floats
+        qq = mul(mul(self._left_t, mid), self._right_t)
+        amp = self._amp
+        omega = np.array([amp[0] * sech, amp[1] * tanh, amp[2] * sech]) @ self._rows
+        du = [abs(ut[f]) * (f_err + 2 * _U) for f in range(3)]
+        bound = (4.1 * math.sqrt(du[0] ** 2 + du[1] ** 2 + du[2] ** 2) + 10 * _U +
+                 4 * math.pi * exi + abs(self._cq) * c0 * f_err + 40 * _U + self._floor)
+        if bound > self.tol:
+            raise PrecisionError(f'the triaxial bound at t = {t!r} s is {bound:.2e} rad, '
+                                 f'above tol = {self.tol!r}')
+        return Samples(np.asarray(t), np.array(qq), omega, np.float64(bound))
+
     def omega_at(self, t):
         """Angular velocity of B relative to N, in B, rad/s, at t (float or 1-D array)."""
         tt = np.asarray(t, dtype=float)
@@ -611,9 +682,9 @@ class TriaxialSolution:
             raise ValueError('t must be finite')
         if abs(t) > _T_MAX:
             self._check_t(np.array([t]))
-        if self._sep:
-            return _scalar_samples(self.at(np.array([t])))
         txi, exi = self._xi_turns.reduce1(t)
+        if self._sep:
+            return self._separatrix_scalar(t, txi, exi)
         tau, eu = self._u_turns.reduce1(t)
         a = abs(4.0 * tau)
         j = a >= 1.0
@@ -658,8 +729,3 @@ class TriaxialSolution:
             raise PrecisionError(f'the triaxial bound at t = {t!r} s is {bound:.2e} rad, '
                                  f'above tol = {self.tol!r}')
         return Samples(np.asarray(t), np.array(qq), omega, np.float64(bound))
-
-
-def _scalar_samples(s):
-    from .models import Samples
-    return Samples(np.asarray(s.t[0]), s.quaternion[0], s.omega[0], s.error_bound[0])
