@@ -292,7 +292,12 @@ class TriaxialSolution:
     """
 
     model = MODEL
-    reference = REFERENCE
+
+    @property
+    def reference(self):
+        """Return what the model evaluates (its entry in ``models.MODELS``)."""
+        from .models import MODELS
+        return MODELS.get(MODEL, REFERENCE)
 
     def __init__(self, scene, tol, backend, max_prec, floor):
         self.scene = scene
