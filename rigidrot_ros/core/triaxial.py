@@ -401,6 +401,9 @@ class TriaxialSolution:
             self._xi_c = float(cq * f0)
             omega = two_t / hn
             self._xi_turns = _Turns(omega / (4 * mp.pi), 0)
+            # rounding of xi = 4 pi tau + xi_c - c F (|F| <= c0 pi / 2), then sin, cos
+            self._xi_round = 4 * _U * (2 * math.pi + abs(self._xi_c) +
+                                       abs(self._cq) * self._sep_c[0] * math.pi / 2) + 4 * _U
             self._static_bound = self._floor + 40 * _U * (1 + abs(self._u0))
             return
         self._sep = False
@@ -424,6 +427,11 @@ class TriaxialSolution:
             q_u0 = self._q_mp(u0, kk)
             self._xi_c = float(cq * q_u0)
         self._K = float(kk)
+        # rounding of xi = 4 pi tau + xi_c - c Q (|Q| <= its cells' bound), then sin, cos
+        q_max = float(np.max(np.sum(np.abs(self._coef[:, :, 3]) *
+                                    (_R ** np.arange(_DEG + 1))[:, None], axis=0)))
+        self._xi_round = 4 * _U * (2 * math.pi + abs(self._xi_c) + abs(self._cq) * q_max) \
+            + 4 * _U
         self._static_bound = self._bound_constant()
 
     def _build_table(self, m, beta, kk, n):
@@ -523,7 +531,7 @@ class TriaxialSolution:
         err = self._cell_err[idx] + dy[:, None]                  # (n, 4)
         du = np.abs(self._ut) * (err[:, :3] + 2 * _U)
         d_lb = 4.1 * np.sqrt(np.sum(du * du, axis=1)) + 10 * _U
-        d_xi = 4 * np.pi * e_xi + abs(self._cq) * err[:, 3] + 40 * _U
+        d_xi = 4 * np.pi * e_xi + abs(self._cq) * err[:, 3] + self._xi_round
         return d_lb + d_xi + self._floor
 
     def _table(self, tau):
@@ -557,7 +565,7 @@ class TriaxialSolution:
         th2 = sg * (1 - e) / (1 + e)
         c0, rb = self._sep_c
         fint = c0 * np.arctan(rb * th2)
-        u_err = 2 * _U * (np.abs(self._lam * t) + abs(self._u0)) + self._u0_err
+        u_err = 3 * _U * (np.abs(self._lam * t) + abs(self._u0)) + self._u0_err
         # |d sech/du|, |d tanh/du|, |d F/du| <= 2 exp(-(|u| - err)) (and <= 1, c0 / 2)
         slope = np.minimum(1.0, 2.0 * np.exp(-(au - u_err)))
         f_err = u_err * slope + 8 * _U
@@ -575,7 +583,7 @@ class TriaxialSolution:
         th2 = sg * (1 - e) / (1 + e)
         c0, rb = self._sep_c
         fint = c0 * math.atan(rb * th2)
-        u_err = 2 * _U * (abs(self._lam * t) + abs(self._u0)) + self._u0_err
+        u_err = 3 * _U * (abs(self._lam * t) + abs(self._u0)) + self._u0_err
         f_err = u_err * min(1.0, 2.0 * math.exp(-(au - u_err))) + 8 * _U
         ut = self._ut
         ux, uy, uz = ut[0] * sech, ut[1] * tanh, ut[2] * sech
@@ -591,7 +599,7 @@ class TriaxialSolution:
         omega = np.array([amp[0] * sech, amp[1] * tanh, amp[2] * sech]) @ self._rows
         du = [abs(ut[f]) * (f_err + 2 * _U) for f in range(3)]
         bound = (4.1 * math.sqrt(du[0] ** 2 + du[1] ** 2 + du[2] ** 2) + 10 * _U +
-                 4 * math.pi * exi + abs(self._cq) * c0 * f_err + 40 * _U + self._floor)
+                 4 * math.pi * exi + abs(self._cq) * c0 * f_err + self._xi_round + self._floor)
         if bound > self.tol:
             raise PrecisionError(f'the triaxial bound at t = {t!r} s is {bound:.2e} rad, '
                                  f'above tol = {self.tol!r}')
@@ -656,7 +664,7 @@ class TriaxialSolution:
             ferr = np.stack([f_err] * 4, -1)
             du = np.abs(self._ut) * (ferr[:, :3] + 2 * _U)
             bound = (4.1 * np.sqrt(np.sum(du * du, axis=1)) + 10 * _U + 4 * np.pi * exi +
-                     abs(self._cq) * self._sep_c[0] * f_err + 40 * _U + self._floor)
+                     abs(self._cq) * self._sep_c[0] * f_err + self._xi_round + self._floor)
             cn, sn, dn = sech, tanh, sech
         else:
             tau, eu = self._u_turns.reduce(tt)
@@ -728,7 +736,7 @@ class TriaxialSolution:
         ce = self._cell_err[i]
         du = [abs(ut[f]) * (ce[f] + dy + 2 * _U) for f in range(3)]
         d_lb = 4.1 * math.sqrt(du[0] ** 2 + du[1] ** 2 + du[2] ** 2) + 10 * _U
-        d_xi = 4 * math.pi * exi + abs(self._cq) * (ce[3] + dy) + 40 * _U
+        d_xi = 4 * math.pi * exi + abs(self._cq) * (ce[3] + dy) + self._xi_round
         bound = d_lb + d_xi + self._floor
         if bound > self.tol:
             raise PrecisionError(f'the triaxial bound at t = {t!r} s is {bound:.2e} rad, '
