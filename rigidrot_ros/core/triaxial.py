@@ -474,17 +474,15 @@ class TriaxialSolution:
         self._cells_fx = [ser[3] for ser in cells]
         self._integ_fx = integ
         self._fx = (fx, mpf, prec)
-        cells = [[[mpf(v) for v in x[:_DEG + 1]] for x in ser] for ser in cells]
-        integ = [mpf(v) for v in integ]
-        h = mpmath.mpf(_H)
+        # to float straight from the fixed point (int / int rounds correctly)
+        gbar_fx = fx(gbar)
         coef = np.zeros((_DEG + 1, ncell, 4))
         for i, (ss, cc, dd, gg) in enumerate(cells):
-            centre = (i + mpmath.mpf(0.5)) * h
-            qc = integ[i] - gbar * centre
-            qser = [qc, gg[0] - gbar] + [gg[k] / (k + 1) for k in range(1, _DEG)]
+            centre_fx = (2 * i + 1) << (prec - 4)                 # (i + 1/2) / 8
+            qser = [integ[i] - ((gbar_fx * centre_fx) >> prec), gg[0] - gbar_fx] + \
+                [gg[k] // (k + 1) for k in range(1, _DEG)]
             for f, ser in enumerate((ss, cc, dd, qser)):
-                for k in range(_DEG + 1):
-                    coef[k, i, f] = float(ser[k])
+                coef[:, i, f] = [v / one for v in ser[:_DEG + 1]]
         self._coef = coef
         self._centres = (np.arange(ncell) + 0.5) * _H
         self._ncell = ncell
