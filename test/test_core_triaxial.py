@@ -3,8 +3,8 @@
 - a 42-digit Taylor-series integrator of Euler's equations and the quaternion kinematics
   (:func:`rigidrot_ros.bench.triaxial.taylor_reference`: time domain, fixed-point
   integers, no elliptic function), to t = 1e3 s: the attitude within the solution's own
-  error bound (which is within tol) and within 2e-14 rad (the t = 1e3 s cases are marked
-  ``slow``, some 30 s: ``-m "not slow"`` skips them);
+  error bound (which is within tol) and within 2e-14 rad (the t = 1e3 s cases and the
+  quick benchmark are marked ``slow``, some 35 s: ``-m "not slow"`` skips them);
 - scipy DOP853 at short t; the flip period of the tennis-racket motion (DOP853 events)
   against 4K(m)/lambda computed here from mpmath;
 - invariants to t = 1e5 s (h in N, kinetic energy); continuity across every limit (two
@@ -318,3 +318,21 @@ def test_refusals_name_the_problem():
     from rigidrot_ros.core import NoExactSolution
     with pytest.raises(NoExactSolution, match='three different moments'):
         solve(Scene(inertia=(1.0, 2.0, 3.0), omega0=(0.3, -0.2, 0.5), torque=(0, 0, 0.1)))
+
+
+@pytest.mark.slow
+def test_quick_benchmark_part_runs_and_checks_values(tmp_path):
+    """``rigidrot_bench --quick --only triaxial``, in-process: files, and the exact rows."""
+    from rigidrot_ros.bench import triaxial
+    from rigidrot_ros.bench.run import footer
+    res = triaxial.run(str(tmp_path), True, footer(), lambda line: None)
+    for name in ('cost', 'work_precision', 'horizon', 'stability'):
+        assert (tmp_path / f'triaxial_{name}.csv').is_file()
+    assert (tmp_path / 'triaxial_work_precision.png').is_file()
+    assert (tmp_path / 'triaxial_stability.png').is_file()
+    exact = [r for r in res['work_precision'] if r['method'].startswith('exact')]
+    assert exact and all(r['status'] == 'ok' and r['error_rad'] <= 1e-13 for r in exact)
+    cells = [c for c in res['stability'] if c['method'].startswith('exact')]
+    assert cells and all(c['status'] == 'meets 1e-12' for c in cells)
+    assert {r['model'] for r in res['cost']} == {'torque-free-triaxial',
+                                                 'torque-free-axisymmetric'}
