@@ -159,6 +159,18 @@ def _arb_exact(flint, x):
     return -v if sign else v
 
 
+def _sep_err(au, u_err):
+    """Error of sech, tanh and the angle integral at |u| = au known to u_err.
+
+    Their slopes are at most 1 and at most ``2 exp(-(|u| - u_err))``; where u_err is a
+    quarter of |u| or more (or infinite) only their range (2) bounds them.
+    """
+    with np.errstate(over='ignore', invalid='ignore'):
+        near = u_err <= 0.25 * au
+        tail = u_err * np.minimum(1.0, 2.0 * np.exp(-0.75 * np.where(near, au, 0.0)))
+        return np.where(near, tail, np.minimum(u_err, 2.0)) + 8 * _U
+
+
 def _check_with_arb(m, phi0, u0):
     """Confirm mpmath's K(m) and F(phi0 | m) with Arb balls (python-flint), else raise."""
     try:
@@ -219,7 +231,8 @@ class _Turns:
         for p in self.pieces[:k]:
             for part in (th, tl):
                 x = p * part
-                f = x - np.rint(x)
+                # a product beyond float range is an exact integer: fraction 0
+                f = np.where(np.isfinite(x), x - np.rint(x), 0.0)
                 s = hi + f
                 bb = s - hi
                 lo += (hi - (s - bb)) + (f - bb)
@@ -238,7 +251,7 @@ class _Turns:
         for p in self.pieces[:k]:
             for part in (th, tl):
                 x = p * part
-                f = x - round(x)
+                f = x - round(x) if math.isfinite(x) else 0.0
                 s = hi + f
                 bb = s - hi
                 lo += (hi - (s - bb)) + (f - bb)
@@ -565,8 +578,7 @@ class TriaxialSolution:
         fint = c0 * np.arctan(rb * th2)
         u_err = 3 * _U * (np.abs(self._lam * t) + abs(self._u0)) + self._u0_err
         # |d sech/du|, |d tanh/du|, |d F/du| <= 2 exp(-(|u| - err)) (and <= 1, c0 / 2)
-        slope = np.minimum(1.0, 2.0 * np.exp(-(au - u_err)))
-        f_err = u_err * slope + 8 * _U
+        f_err = _sep_err(au, u_err)
         return sech, tanh, fint, f_err
 
     def _separatrix_scalar(self, t, txi, exi):
@@ -582,7 +594,7 @@ class TriaxialSolution:
         c0, rb = self._sep_c
         fint = c0 * math.atan(rb * th2)
         u_err = 3 * _U * (abs(self._lam * t) + abs(self._u0)) + self._u0_err
-        f_err = u_err * min(1.0, 2.0 * math.exp(-(au - u_err))) + 8 * _U
+        f_err = float(_sep_err(np.float64(au), np.float64(u_err)))
         ut = self._ut
         ux, uy, uz = ut[0] * sech, ut[1] * tanh, ut[2] * sech
         pw = 1.0 + uz
