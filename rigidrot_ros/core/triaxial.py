@@ -584,17 +584,8 @@ class TriaxialSolution:
     def _separatrix_scalar(self, t, txi, exi):
         """:meth:`at` on the separatrix for one time, in plain floats (as :meth:`at`)."""
         from .models import Samples
-        u = self._lam * t + self._u0
-        au = abs(u)
-        e = math.exp(-au)
-        sech = 2 * e / (1 + e * e)
-        sg = -1.0 if u < 0 else 1.0
-        tanh = sg * (1 - e * e) / (1 + e * e)
-        th2 = sg * (1 - e) / (1 + e)
-        c0, rb = self._sep_c
-        fint = c0 * math.atan(rb * th2)
-        u_err = 3 * _U * (abs(self._lam * t) + abs(self._u0)) + self._u0_err
-        f_err = float(_sep_err(np.float64(au), np.float64(u_err)))
+        sech, tanh, fint, f_err = self._sep1(t)
+        c0 = self._sep_c[0]
         ut = self._ut
         ux, uy, uz = ut[0] * sech, ut[1] * tanh, ut[2] * sech
         pw = 1.0 + uz
@@ -620,6 +611,15 @@ class TriaxialSolution:
         tt = np.asarray(t, dtype=float)
         flat = np.atleast_1d(tt)
         self._check_t(flat)
+        if tt.ndim == 0:            # the scalar path of at(), bit for bit
+            tf = float(tt)
+            if self._sep:
+                sech, tanh, _, _ = self._sep1(tf)
+                f = (sech, tanh, sech)
+            else:
+                sn, cn, dn, _, _, _ = self._table1(tf)
+                f = (cn, sn, dn)
+            return np.array([self._amp[i] * f[i] for i in range(3)]) @ self._rows
         if self._sep:
             sech, tanh, _, _ = self._separatrix(flat)
             w = np.stack([self._amp[0] * sech, self._amp[1] * tanh, self._amp[2] * sech], -1)
@@ -635,9 +635,9 @@ class TriaxialSolution:
         if not np.all(np.isfinite(tt)):
             raise ValueError('t must be finite')
         if tt.size and float(np.max(np.abs(tt))) > _T_MAX:
-            raise PrecisionError(f'|t| = {float(np.max(np.abs(tt))):.3g} s is beyond '
-                                 f'{_T_MAX:g} s, where the phase of the triaxial model '
-                                 f'can be reduced exactly')
+            bad = float(tt.flat[np.argmax(np.abs(tt))])
+            raise PrecisionError(f't = {bad:.3g} s is beyond |t| = {_T_MAX:g} s, where the '
+                                 f'phase of the triaxial model can be reduced exactly')
 
     def at(self, t):
         """Evaluate the exact motion at time(s) t.
@@ -698,22 +698,13 @@ class TriaxialSolution:
                                  f'{float(np.max(bound)):.2e} rad, above tol = {self.tol!r}')
         return Samples(tt, q, omega, bound)
 
-    def _at_scalar(self, t):
-        """:meth:`at` for one time, in plain floats."""
-        from .models import Samples
-        if not math.isfinite(t):
-            raise ValueError('t must be finite')
-        if abs(t) > _T_MAX:
-            self._check_t(np.array([t]))
-        txi, exi = self._xi_turns.reduce1(t)
-        if self._sep:
-            return self._separatrix_scalar(t, txi, exi)
+    def _table1(self, t):
+        """Scalar :meth:`_table` at time t: sn, cn, dn, Q, cell, phase error (turns)."""
         tau, eu = self._u_turns.reduce1(t)
         a = abs(4.0 * tau)
         j = a >= 1.0
         rho = a - 1.0 if j else a
-        k = self._K
-        y = k * (1.0 - rho if j else rho)
+        y = self._K * (1.0 - rho if j else rho)
         i = min(max(int(y * (1.0 / _H)), 0), self._ncell - 1)
         z = y - (i + 0.5) * _H
         rows = self._coef[:, i, :].tolist()
@@ -726,9 +717,33 @@ class TriaxialSolution:
             q = q * z + r[3]
         st = -1.0 if tau < 0 else 1.0
         sj = -1.0 if j else 1.0
-        s *= st
-        c *= sj
-        q *= st * sj
+        return s * st, c * sj, d, q * st * sj, i, eu
+
+    def _sep1(self, t):
+        """Scalar :meth:`_separatrix` at time t: sech, tanh, the integral, their error."""
+        u = self._lam * t + self._u0
+        au = abs(u)
+        e = math.exp(-au)
+        sech = 2 * e / (1 + e * e)
+        sg = -1.0 if u < 0 else 1.0
+        tanh = sg * (1 - e * e) / (1 + e * e)
+        th2 = sg * (1 - e) / (1 + e)
+        fint = self._sep_c[0] * math.atan(self._sep_c[1] * th2)
+        u_err = 3 * _U * (abs(self._lam * t) + abs(self._u0)) + self._u0_err
+        return sech, tanh, fint, float(_sep_err(np.float64(au), np.float64(u_err)))
+
+    def _at_scalar(self, t):
+        """:meth:`at` for one time, in plain floats."""
+        from .models import Samples
+        if not math.isfinite(t):
+            raise ValueError('t must be finite')
+        if abs(t) > _T_MAX:
+            self._check_t(np.array([t]))
+        txi, exi = self._xi_turns.reduce1(t)
+        if self._sep:
+            return self._separatrix_scalar(t, txi, exi)
+        s, c, d, q, i, eu = self._table1(t)
+        k = self._K
         ut = self._ut
         ux, uy, uz = ut[0] * c, ut[1] * s, ut[2] * d
         pw = 1.0 + uz
