@@ -207,17 +207,21 @@ class _Turns:
 
     ``rho`` is split into 26-bit pieces, t into two 26-bit halves (Veltkamp), so every
     partial product is exact and its fractional part too; the fractions are summed in
-    double-double. Error, in turns: ``2 u + |t| * residual(k pieces)``.
+    double-double. Error, in turns: ``2 u + |t| (residual(k pieces) + |rho| 2^(8 - prec))``,
+    the last term for rho itself, computed from the exact inputs in some tens of
+    operations at ``prec`` bits (the current mpmath precision).
     """
 
     def __init__(self, rho, offset):
         self.pieces, self.resid = _pieces(rho)
         self.off = _split_offset(offset)
+        rel = float(abs(rho)) * 2.0 ** (8 - mp.prec)
+        self.resid = [r + rel for r in self.resid]
 
     def _count(self, tmax):
         for k, r in enumerate(self.resid):
-            if r * tmax <= 2.0 ** -62:
-                return k + 1
+            if r * tmax <= 2.0 ** -62 or (k and r >= 0.5 * self.resid[k - 1]):
+                return k + 1                      # enough, or no better with more pieces
         return len(self.pieces)
 
     def reduce(self, t):
