@@ -427,7 +427,7 @@ class TriaxialSolution:
         self.method = 'jacobi-elliptic-table'
         kk = mpmath.ellipk(m)
         # precision and series degree for stepping over [0, K] (errors grow like e^u there)
-        prec = 128 + int(1.5 * float(kk))
+        prec = max(mp.prec, 128 + int(1.5 * float(kk)))
         if prec > max(max_prec, 256) + 256:
             raise PrecisionError(f'the quarter period K = {float(kk):.3g} needs {prec} bits '
                                  f'(> max_prec = {max_prec}); raise max_prec')
