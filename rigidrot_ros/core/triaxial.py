@@ -24,7 +24,7 @@ Fassò, Säfström, Zanna, SIAM J. Sci. Comput. 30 (2008), where the same integr
 as an elliptic integral of the third kind). On the separatrix (m = 1) sn = tanh,
 cn = dn = sech and ``∫ g = 2 / sqrt(1 - beta^2) atan(sqrt((1 - beta)/(1 + beta)) tanh(u/2))``.
 
-Evaluation: per scene, in ``SETUP_PREC``-class precision (mpmath), K(m), u0 = F(am u0 | m)
+Evaluation: per scene, at >= 128 bits (mpmath), K(m), u0 = F(am u0 | m)
 and a table of Taylor expansions of sn, cn, dn and the periodic part Q of ``∫ g`` on cells
 of width 1/8 covering the quarter period [0, K], built by stepping the Taylor series of
 the Jacobi system ``s' = c d, c' = -s d, d' = -m s c`` from u = 0 and checked against the
@@ -34,9 +34,11 @@ partial product exact), one Horner pass per function, three quaternion products.
 
 The error bound is an a-priori float64 analysis, proved, not an estimate: the majorant
 series ``1/(1 - u)`` bounds every Taylor coefficient of sn, cn, dn at a real point by 1
-and ``1/(1 - 2u)`` those of ``g |h|``, so the table's truncation (< 1e-17) is bounded
-exactly; Horner rounding is bounded per cell from the stored coefficients; phase
-reduction, folding and the quaternion formulas add bounded rounding. The per-scene
+and ``1/(1 - 2u)`` those of g, so the table's truncation (< 1e-17) is bounded exactly;
+Horner rounding is bounded per cell from the stored coefficients; phase reduction,
+folding and the quaternion formulas add bounded rounding (a few ulp allowed for libm's
+sin, cos, exp, atan and sqrt). Within 1 - m < ~1e-50 of the separatrix (K > 60) the
+table would be too long and :func:`solve` refuses. The per-scene
 constants are computed by mpmath at >= 128 bits; on the flint backend K(m) and u0 are
 confirmed against Arb balls, and the table is checked at u = K to 1e-25, far below the
 bound. They are checked, not carried as balls: ``method`` does not say 'flint'.
@@ -536,10 +538,10 @@ class TriaxialSolution:
         """Return the t-independent part of the per-sample bound (the phase at t = 0)."""
         n = self._ncell
         e0 = np.full(n, 2 * _U)
-        return float(np.max(self._bound(e0, e0, np.arange(n), None)))
+        return float(np.max(self._bound(e0, e0, np.arange(n))))
 
     # -- evaluation ------------------------------------------------------------------
-    def _bound(self, e_u, e_xi, idx, sig):
+    def _bound(self, e_u, e_xi, idx):
         """Attitude bound (rad) from the phase errors (turns) and the cells used."""
         k = self._K
         dy = 4 * k * e_u + 3 * _U * k + _U * _R
@@ -683,7 +685,7 @@ class TriaxialSolution:
         else:
             tau, eu = self._u_turns.reduce(tt)
             sn, cn, dn, q_val, idx = self._table(tau)
-            bound = self._bound(eu, exi, idx, None)
+            bound = self._bound(eu, exi, idx)
             fn = (cn, sn, dn)
         ux, uy, uz = (self._ut[i] * fn[i] for i in range(3))
         w = np.stack([self._amp[0] * fn[0], self._amp[1] * fn[1], self._amp[2] * fn[2]], -1)
