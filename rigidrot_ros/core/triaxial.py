@@ -389,6 +389,7 @@ class TriaxialSolution:
             if self.backend == 'flint':
                 _check_with_arb(m, phi0, u0)
         self.m = m
+        self._beta_mp = beta
         self._amp = np.array([float(amp1), float(amp2), float(a3)])
         self._ut = np.array([float(i1 * amp1 / hn), float(i2 * amp2 / hn), float(beta)])
         cq = (i1 * amp1) * (i2 * amp2) / hn ** 2
@@ -446,6 +447,7 @@ class TriaxialSolution:
             q_u0 = self._q_mp(u0, kk)
             self._xi_c = float(cq * q_u0)
         self._K = float(kk)
+        self._kk_mp = kk
         # rounding of xi = 4 pi tau + xi_c - c Q (|Q| <= its cells' bound), then sin, cos
         q_max = float(np.max(np.sum(np.abs(self._coef[:, :, 3]) *
                                     (_R ** np.arange(_DEG + 1))[:, None], axis=0)))
