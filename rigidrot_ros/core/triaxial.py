@@ -549,7 +549,7 @@ class TriaxialSolution:
         dy = 4 * k * e_u + 3 * _U * k + _U * _R
         err = self._cell_err[idx] + dy[:, None]                  # (n, 4)
         du = np.abs(self._ut) * (err[:, :3] + 2 * _U)
-        d_lb = 4.1 * np.sqrt(np.sum(du * du, axis=1)) + 10 * _U
+        d_lb = 4.1 * np.hypot(np.hypot(du[:, 0], du[:, 1]), du[:, 2]) + 10 * _U
         d_xi = 4 * np.pi * e_xi + abs(self._cq) * err[:, 3] + self._xi_round
         return d_lb + d_xi + self._floor
 
@@ -607,7 +607,7 @@ class TriaxialSolution:
         amp = self._amp
         omega = np.array([amp[0] * sech, amp[1] * tanh, amp[2] * sech]) @ self._rows
         du = [abs(ut[f]) * (f_err + 2 * _U) for f in range(3)]
-        bound = (4.1 * math.sqrt(du[0] ** 2 + du[1] ** 2 + du[2] ** 2) + 10 * _U +
+        bound = (4.1 * math.hypot(*(float(v) for v in du)) + 10 * _U +
                  4 * math.pi * exi + abs(self._cq) * c0 * f_err + self._xi_round + self._floor)
         if bound > self.tol:
             raise PrecisionError(f'the triaxial bound at t = {t!r} s is {bound:.2e} rad, '
@@ -681,8 +681,9 @@ class TriaxialSolution:
             q_val = fint
             ferr = np.stack([f_err] * 4, -1)
             du = np.abs(self._ut) * (ferr[:, :3] + 2 * _U)
-            bound = (4.1 * np.sqrt(np.sum(du * du, axis=1)) + 10 * _U + 4 * np.pi * exi +
-                     abs(self._cq) * self._sep_c[0] * f_err + self._xi_round + self._floor)
+            bound = (4.1 * np.hypot(np.hypot(du[:, 0], du[:, 1]), du[:, 2]) + 10 * _U +
+                     4 * np.pi * exi + abs(self._cq) * self._sep_c[0] * f_err +
+                     self._xi_round + self._floor)
             cn, sn, dn = sech, tanh, sech
         else:
             tau, eu = self._u_turns.reduce(tt)
@@ -768,7 +769,7 @@ class TriaxialSolution:
         dy = 4 * k * eu + 3 * _U * k + _U * _R
         ce = self._cell_err[i]
         du = [abs(ut[f]) * (ce[f] + dy + 2 * _U) for f in range(3)]
-        d_lb = 4.1 * math.sqrt(du[0] ** 2 + du[1] ** 2 + du[2] ** 2) + 10 * _U
+        d_lb = 4.1 * math.hypot(*(float(v) for v in du)) + 10 * _U
         d_xi = 4 * math.pi * exi + abs(self._cq) * (ce[3] + dy) + self._xi_round
         bound = d_lb + d_xi + self._floor
         if bound > self.tol:
