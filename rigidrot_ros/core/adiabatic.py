@@ -102,7 +102,7 @@ class AdiabaticKernel:
         """
         d, u = self._df, self._uf
         xf = float(x)
-        if 1e-60 < d < 1e60 and 1e-100 < u < 1e100 and abs(xf) < 1e60:
+        if 1e-40 < d < 1e40 and 1e-40 < u < 1e40 and abs(xf) < 1e40:   # no over/underflow
             r = math.hypot(xf, d)
             theta = math.atan2(d, xf)
             th_dot = -d * u / (r * r)

@@ -69,6 +69,9 @@ class Window:
             term = max(m[-1] * tau ** n, m[-2] * tau ** (n - 1))
             if qn <= 0.25 and term <= 1e-18:
                 break
+            if not term < math.inf or n > 200:   # float range left (see models.DENSE_RATES)
+                term = math.inf
+                break
         big_m = math.exp(0.5 * rmax * tau + 0.25 * u * tau * tau) * (1.0 + err_a)
         self.bound = err_a + 4.0 * term + 10 * (n + 1) * _EPS * big_m * math.sqrt(2.0)
         self.ok = self.bound <= kernel.tol

@@ -346,13 +346,16 @@ class HyperKernel:
     fallback : bool
         With flint, continue a sample by Taylor series when 1F1 would need more than
         ``FALLBACK_BITS``; when false, try up to ``max_prec`` and raise PrecisionError.
+    setup_prec : int
+        Bits for the derived constants (sqrt U, ...): at least those of the inputs.
     """
 
     #: With flint, a sample whose 1F1 would need more bits than this is continued by
     #: certified Taylor series instead (see :mod:`rigidrot_ros.core.taylor`).
     FALLBACK_BITS = 1024
 
-    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=True):
+    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=True,
+                 setup_prec=SETUP_PREC):
         self.backend = make_backend(backend)
         self.fallback = bool(fallback)
         self.method = f'hypergeometric-{self.backend.name}'
@@ -360,7 +363,10 @@ class HyperKernel:
         self.max_prec = int(max_prec)
         self._fallback = None
         self._inputs = (p, q, r0, U)
-        with mp.workprec(SETUP_PREC):
+        # sqrt(U), s0 and conj(Delta)/sqrt(U) are rounded here: at least as finely as the
+        # inputs, whose rounding the caller accounts for (the phase s^2 / 4 can be 1e100 rad)
+        self.setup_prec = max(SETUP_PREC, int(setup_prec))
+        with mp.workprec(self.setup_prec):
             p, q, r0, U = (mpmath.mpf(v) for v in (p, q, r0, U))
             self.sqrtU = mpmath.sqrt(U)
             self.delta = (p * p + q * q) / (4 * U)
@@ -374,6 +380,13 @@ class HyperKernel:
         # Start where the magnitudes of the even/odd solutions (about e^{pi delta/4}
         # each) would leave the tolerance's bits plus guard bits.
         need = -math.log2(self.tol) + 2 * math.log2(math.e) * math.pi * float(self.delta) / 4
+        # ... plus the bits of the phase s0^2 / 4, formed at the working precision, and
+        # (mpmath's estimate) of |s0| and of the v2 gain (2 + |s0|) / |conj(Delta) / sqrt U|
+        ms0 = max(0, _mag(self.s0))
+        need += 2 * ms0
+        if not self.backend.certified:
+            dbar = mpmath.hypot(self.dbar_re, self.dbar_im)
+            need += ms0 + max(0, max(ms0, 2) - _mag(dbar))
         self.predicted = int(max(64, 24 + min(need, 1e9)))
         self.prec = min(self.predicted, self.max_prec)
         if not self.backend.certified and self.predicted > self.max_prec:
@@ -446,11 +459,14 @@ class HyperKernel:
             if b.certified:
                 err = math.hypot(r1, r2)
             else:
-                # running-error estimate: eps * ||Y(s)|| * ||Y(s0)^-1|| * |u0| * v2 gain
+                # running-error estimate: eps * ||Y(s)|| * ||Y(s0)^-1|| * |u0| * v2 gain,
+                # times the phases s^2 / 4 and s0^2 / 4 (rounding s moves them by eps s^2 / 2)
                 ns = max(b.abs(ye), b.abs(yep), b.abs(yo), b.abs(yop))
                 su = b.abs(s)
+                s0 = abs(float(self.s0))
                 gain = 1.0 + (2.0 + su) / b.abs(c['dbar'])
-                err = 64.0 * 2.0 ** -prec * ns * c['cond0'] * (1.0 + abs(float(self.s0))) * gain
+                phase = 1.0 + 0.5 * (su * su + s0 * s0)
+                err = 64.0 * 2.0 ** -prec * ns * c['cond0'] * (1.0 + s0) * gain * phase
         if not np.all(np.isfinite(q)):
             err = math.inf
         # float64 rounding of the four components
@@ -488,7 +504,8 @@ class HyperKernel:
             if self._fallback is None:
                 from .taylor import TaylorKernel
                 self._fallback = TaylorKernel(*self._inputs, tol=self.tol,
-                                              max_prec=self.max_prec)
+                                              max_prec=self.max_prec,
+                                              setup_prec=self.setup_prec)
                 self.method = 'hypergeometric-flint+taylor-series-flint'
             return self._fallback.evaluate(t)
         pr = self.params

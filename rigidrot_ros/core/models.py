@@ -190,23 +190,24 @@ def _classify(scene):
 
 
 #: Dense output runs its Taylor recurrence in float64: it is used only where the kernel's
-#: rates stay within [DENSE_RATES[0], DENSE_RATES[1]] rad/s (no overflow or underflow of
-#: the coefficients, whose scale is rate^n); elsewhere samples are evaluated one by one.
-DENSE_RATES = (1e-12, 1e12)
+#: rates (and sqrt U) stay within [DENSE_RATES[0], DENSE_RATES[1]] rad/s, so that its
+#: coefficients and majorants (about rate^n / n!, n up to ~40) neither overflow nor
+#: underflow; elsewhere samples are evaluated one by one.
+DENSE_RATES = (1e-6, 1e7)
 
 
-def _dense_safe(kernel):
-    """Float (p, q, r0, U) of a spinor kernel whose rates suit dense output, else None."""
+def _dense_tmax(kernel):
+    """Largest |t| to which dense output suits the kernel's rates (-1: never)."""
     if not isinstance(kernel, _SPINOR_KERNELS):
-        return None
+        return -1.0
     p, q, r0, u = (kernel.params[k] for k in ('p', 'q', 'r0', 'U'))
     if not all(math.isfinite(v) for v in (p, q, r0, u)):
-        return None
-    d = math.hypot(p, q)
-    if max(d, math.sqrt(u)) < DENSE_RATES[0] or \
-            max(math.hypot(r0, d), math.sqrt(u)) > DENSE_RATES[1]:
-        return None
-    return d, r0, u
+        return -1.0
+    d, top = math.hypot(p, q), DENSE_RATES[1]
+    if max(d, math.sqrt(u)) < DENSE_RATES[0] or max(math.hypot(r0, d), math.sqrt(u)) > top:
+        return -1.0
+    # |r0| + U t <= sqrt(top^2 - d^2): the rate at t stays below the top
+    return (math.sqrt(top * top - d * d) - abs(r0)) / u * (1 - 1e-12) if u > 0 else math.inf
 
 
 def _transverse_sq(w0, m, i_t, i_3):
@@ -364,23 +365,26 @@ class Solution:
                         kernel = AdiabaticKernel(wk[0], wk[1], wk[2], U, tol=ktol,
                                                  inputs=inputs)
                     else:
-                        # inputs rounded at SETUP_PREC: relative error < 2^-(SETUP_PREC - 8)
-                        # of the rate, so the attitude drifts by at most that times
+                        # inputs (and the kernels' derived constants) rounded at prec_in
+                        # bits: relative error < 2^-(prec_in - 8) of the rate, so the
+                        # attitude drifts by at most that times the turn
                         # int |omega_K| dt <= |omega_K(0)| |t| + U t^2 / 2
                         kin = 2.0 ** -(prec_in - 8)
                         self._kin_rates = (float(wnorm), float(U))
                         if (backend == 'flint' and delta > DELTA_SWITCH) or mp_hopeless:
                             kernel = TaylorKernel(wk[0], wk[1], wk[2], U, tol=ktol,
-                                                  max_prec=max_prec)
+                                                  max_prec=max_prec, setup_prec=prec_in)
                         else:
                             kernel = HyperKernel(wk[0], wk[1], wk[2], U, backend, tol=ktol,
-                                                 max_prec=max_prec)
+                                                 max_prec=max_prec, setup_prec=prec_in)
             self._kin = kin
             q_sk = np.array([float(v) for v in q_sk])
             self._w_s0 = np.array([float(v) for v in w_s])
             self._m_over_I = np.array([float(v / mI) for v in ms])
             self._rdot = float(ms[2] / mI3)                    # d r / dt = m3 / I3
-        self._dense_ok = _dense_safe(kernel)
+        self._dense_tmax = _dense_tmax(kernel)
+        # spinor kernels return |k| = 1 only to within their error: normalise them
+        self._unit_fix = isinstance(kernel, _SPINOR_KERNELS)
         self._kernel = kernel
         self._window = None
         self._left = quat.multiply(
@@ -395,13 +399,10 @@ class Solution:
 
     def _dense_at(self, tmax):
         """Whether dense output is safe up to |t| = tmax (see DENSE_RATES)."""
-        if self._dense_ok is None:
-            return False
-        d, r0, u = self._dense_ok
-        return math.hypot(abs(r0) + u * tmax, d) <= DENSE_RATES[1]
+        return tmax <= self._dense_tmax
 
     def _input_error(self, t):
-        """Kernel component error from rounding its inputs at SETUP_PREC, at |t| (array).
+        """Kernel component error from rounding its inputs (prec_in bits), at |t| (array).
 
         The rate is off by at most ``kin`` of itself, so the attitude by at most
         ``kin * int |omega_K| dt``; a quaternion moves by half the attitude angle.
@@ -429,10 +430,12 @@ class Solution:
     def _why_bound(self):
         if isinstance(self._kernel, AxisKernel) and self._kernel.dropped:
             return (f'a transverse rate of {self._kernel.dropped:.3g} rad/s, below 2^-200 of '
-                    f'the rate, is neglected: the bound grows by that times |t|')
+                    f'the rate, is neglected: the bound grows by that times |t|, to the limit '
+                    f'tol at |t| = {self.tol / self._kernel.dropped:.3g} s')
         if self._kin:
-            return (f'its inputs carry {SETUP_PREC} bits, so the bound grows with the turn '
-                    f'|omega_K| |t| + U t^2 / 2 (limit about 1e55 rad)')
+            return (f'its inputs carry {round(8 - math.log2(self._kin))} bits, so the bound '
+                    f'grows with the turn |omega_K| |t| + U t^2 / 2, whose limit at this tol '
+                    f'is about {self.tol / self._kin:.2g} rad')
         return 'the kernel bound'
 
     def _omega_overflow(self, tt, omega):
@@ -512,6 +515,14 @@ class Solution:
             for i, ti in enumerate(tt):
                 k[i], kerr[i] = self._kernel.evaluate(float(ti))
         kerr = kerr + kin
+        if self._unit_fix:
+            # return unit quaternions at any tol: |k/|k| - k*| <= |k - k*| + ||k| - 1|
+            norm = np.linalg.norm(k, axis=-1)
+            bad = ~(norm > 0) | ~np.isfinite(norm)               # only at a meaningless tol
+            norm[bad] = 1.0
+            k[bad] = (0.0, 0.0, 0.0, 1.0)
+            k = k / norm[:, None]
+            kerr = kerr + np.abs(norm - 1.0) + np.where(bad, np.inf, 0.0)
         f = np.array([self._f.angle(float(ti)) for ti in tt])
         q = quat.multiply(quat.multiply(self._left, k),
                           quat.multiply(quat.multiply(self._mid, quat.about_z(f)), self._right))
@@ -559,6 +570,16 @@ class Solution:
                 self._check(np.asarray(t), np.float64(2.0 * kin + FLOAT_FLOOR), np.zeros(3))
         k, kerr = self._kernel_scalar(t)
         kerr = kerr + kin
+        if self._unit_fix:
+            x, y, z, w = k
+            n2 = x * x + y * y + z * z + w * w
+            if not abs(n2 - 1.0) <= 1e-15:                     # off unit (coarse tol)
+                norm = math.sqrt(n2)
+                if 0.0 < norm < math.inf:
+                    k = (x / norm, y / norm, z / norm, w / norm)
+                    kerr += abs(norm - 1.0)
+                else:                                          # only at a meaningless tol
+                    k, kerr = (0.0, 0.0, 0.0, 1.0), math.inf
         f = self._f.angle(t)
         c, s = math.cos(f), math.sin(f)
         mul = quat.multiply_floats

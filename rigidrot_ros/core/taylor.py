@@ -54,16 +54,19 @@ class TaylorKernel:
         Bound asked on the kernel quaternion's component error (2-norm).
     max_prec : int
         Ceiling on the working precision, bits.
+    setup_prec : int
+        Bits of the inputs, passed on to the 1F1 seeds' derived constants.
     """
 
     method = 'taylor-series-flint'
 
-    def __init__(self, p, q, r0, U, tol, max_prec=4096):
+    def __init__(self, p, q, r0, U, tol, max_prec=4096, setup_prec=256):
         import flint
         self.flint = flint
         self.tol = float(tol)
         self.max_prec = int(max_prec)
         self._inputs = (p, q, r0, U)
+        self.setup_prec = setup_prec                    # for the 1F1 seeds' constants
         self.params = {'p': float(p), 'q': float(q), 'r0': float(r0), 'U': float(U)}
         self._u = float(U)
         self._dabs = math.hypot(float(p), float(q))
@@ -157,7 +160,8 @@ class TaylorKernel:
         try:
             if self._hyper is None or self._hyper.max_prec < bits:
                 self._hyper = HyperKernel(*self._inputs, backend='flint', tol=0.5 * self.tol,
-                                          max_prec=bits, fallback=False)
+                                          max_prec=bits, fallback=False,
+                                          setup_prec=self.setup_prec)
             (x, y, z, w), err = self._hyper.evaluate(t)
         except PrecisionError:
             self._hyper = None                       # not affordable at this budget: step
@@ -188,12 +192,14 @@ class TaylorKernel:
         if not turn <= MAX_STEP_TURN:
             from .kernel import PrecisionError
             p = self.params
+            seed = (f'no 1F1 evaluation within {HYBRID_BITS[-1][1]} bits could seed it '
+                    f'there' if turn <= MAX_SEED_TURN else
+                    f'a 1F1 seed is not tried past {MAX_SEED_TURN:.3g} rad')
             raise PrecisionError(
                 f't = {t!r} s is out of reach: the certified Taylor continuation would '
                 f'step across {turn:.3g} rad from its nearest checkpoint (t = {tk!r} s), '
                 f'beyond its limit of {MAX_STEP_TURN:.3g} rad (about a minute of CPU), and '
-                f'no 1F1 evaluation within {HYBRID_BITS[-1][1]} bits could seed it there '
-                f'(kernel p, q, r0 = {p["p"]:.4g}, {p["q"]:.4g}, {p["r0"]:.4g} rad/s, '
+                f'{seed} (kernel p, q, r0 = {p["p"]:.4g}, {p["q"]:.4g}, {p["r0"]:.4g} rad/s, '
                 f'U = {p["U"]:.4g} rad/s^2). Use a shorter horizon (a larger torque / '
                 f'inertia or a smaller spin turns less per second).')
         with self.flint.ctx.workprec(self.prec):
