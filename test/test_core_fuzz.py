@@ -208,6 +208,13 @@ def _rate_laws(sol, scene, t, omega):
         # a virtual torque on a sphere is body-fixed too (S = B)
         np.testing.assert_allclose(omega, w0 + m / inertia * t, rtol=0, atol=tol)
         return
+    if sol.model == 'torque-free-triaxial':
+        # Euler-Poinsot: 2T = sum I w^2 and |h|^2 = sum (I w)^2 stay constant (scaled)
+        a, b, c = inertia / np.max(inertia), omega / scale, w0 / scale
+        for p in (1, 2):
+            now, then = np.sum(a ** p * b * b), np.sum(a ** p * c * c)
+            assert abs(now - then) <= 1e-11 * then, (p, now, then)
+        return
     k = [i for i in range(3) if inertia[(i + 1) % 3] == inertia[(i + 2) % 3]][0]
     tr = [(k + 1) % 3, (k + 2) % 3]
     # axial rate grows linearly; the transverse rate's length follows the torque in S

@@ -522,7 +522,8 @@ def _write_csv(path, rows, foot):
 
 
 _NEEDS = {'wp': ('scipy',), 'horizon': ('scipy',), 'stability': ('scipy',),
-          'crosscheck': (), 'envelope': (), 'ratios': ('scipy',), 'soak': ()}
+          'crosscheck': (), 'envelope': (), 'ratios': ('scipy',), 'soak': (),
+          'triaxial': ('scipy',)}
 
 
 def _missing(modules):
@@ -660,6 +661,9 @@ def main(argv=None):
         results['soak'] = soak.soak(opts.soak_minutes, log)
         _write_csv(os.path.join(opts.out, 'soak.csv'),
                    [{'t_s': t, 'rss_mb': m} for t, m in results['soak']['samples']], foot)
+    if 'triaxial' in parts:                     # torque-free triaxial rows: bench/triaxial.py
+        from rigidrot_ros.bench import triaxial
+        results['triaxial'] = triaxial.run(opts.out, opts.quick, foot, log)
     with open(os.path.join(opts.out, 'results.json'), 'w', encoding='utf-8') as fh:
         json.dump(results, fh, indent=1, default=float)
     from rigidrot_ros.bench import charts

@@ -70,6 +70,9 @@ MODELS = {
     'transverse-body': 'axisymmetric body, body-fixed transverse torque, r0 = 0 (Theorem 4)',
     'oblique-virtual': 'axisymmetric body, oblique torque fixed in the virtual sphere '
                        '(Theorems 2 and 3 combined by the reduction theorem, Eq. 22-25)',
+    # torque-free triaxial body: rigidrot_ros/core/triaxial.py
+    'torque-free-triaxial': 'three different moments, no torque (Euler-Poinsot): Jacobi '
+                            'elliptic functions, angle about h by their integral',
 }
 
 
@@ -154,13 +157,14 @@ def _classify(scene):
     if len(set(inertia)) == 1:
         return ('torque-free-sphere' if not any(m) else 'sphere'), 2
     sym = [k for k in range(3) if inertia[(k + 1) % 3] == inertia[(k + 2) % 3]]
+    if not sym and not any(m):
+        return 'torque-free-triaxial', None            # evaluated by core/triaxial.py
     if not sym:
-        what = 'with a torque' if any(m) else 'without torque'
         raise NoExactSolution(
-            f'inertia {inertia} has three different moments; {what} such a body has no exact '
-            f'solution here (Romano treats spherical and axisymmetric bodies; torque-free '
-            f'triaxial motion needs Jacobi elliptic functions). Make two moments equal, '
-            f'or put omega0 and the torque along one principal axis.')
+            f'inertia {inertia} has three different moments; with a torque such a body has '
+            f'no exact solution here (Romano treats spherical and axisymmetric bodies; the '
+            f'torque-free triaxial body is exact). Make two moments equal, remove the '
+            f'torque, or put omega0 and the torque along one principal axis.')
     k = sym[0]
     names = 'xyz'
     m_ax = m[k]
@@ -668,4 +672,7 @@ def solve(scene, tol=1e-12, backend=None, max_prec=4096):
             not 64 <= max_prec <= MAX_PREC:
         raise ValueError(f'max_prec must be an integer from 64 to {MAX_PREC} bits (a higher '
                          f'ceiling could run for hours), got {max_prec!r}')
+    if _classify(scene)[0] == 'torque-free-triaxial':       # core/triaxial.py
+        from .triaxial import TriaxialSolution
+        return TriaxialSolution(scene, tol_f, backend, max_prec, FLOAT_FLOOR)
     return Solution(scene, tol_f, backend, max_prec)
