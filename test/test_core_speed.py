@@ -104,7 +104,8 @@ def _reference(scene, t, monkeypatch):
     return ref
 
 
-@pytest.mark.parametrize('name', sorted(PRESETS))
+# the triaxial model has no windows and its own 42-digit reference (test_core_triaxial.py)
+@pytest.mark.parametrize('name', sorted(n for n in PRESETS if n != 'torque_free_triaxial'))
 def test_stream_windows_against_single_evaluations(name, monkeypatch):
     """A 100 Hz stream over 60 s: every sample within its bound of a certified reference."""
     scene = PRESETS[name]
