@@ -6,13 +6,16 @@ Topics (relative names, so namespaces and remapping apply):
 - ``angular_velocity`` (geometry_msgs/Vector3Stamped): omega of B relative to N, in B,
   rad/s, header.frame_id = ``body_frame_id``.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
+- ``~/run`` (std_msgs/String, transient-local, depth 1): the run description as JSON
+  (scene, model, method, tol, backend, ``start_ns``, ``time_scale``, version, topics),
+  published with the first tick of each run, so a bag of any recorder can be scored.
 Service ``~/reset`` (std_srvs/Trigger): restart at t = 0 from the current parameters.
 
 Both messages of a tick carry the same stamp: the clock time that the scene time
 ``t = (now - t_start) * time_scale`` was computed for (``use_sim_time`` works).
 """
 
-import importlib
+import json
 import math
 import sys
 import time
@@ -27,13 +30,14 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rclpy.serialization import serialize_message
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from rigidrot_ros import __version__
 from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
-from rigidrot_ros.io.bag import BagWriter, qos_yaml
+from rigidrot_ros.io.bag import BagWriter
+from rigidrot_ros.io.recorder import Recorder, type_name_of
 from rigidrot_ros.node.spin import spin_until_shutdown
 from rigidrot_ros.settings import load_defaults, scene_from_params, SCENE_KEYS, solver_options
 
@@ -170,11 +174,15 @@ class AttitudeNode(Node):
         self._pub_rate = self.create_publisher(Vector3Stamped, 'angular_velocity', qos)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._srv = self.create_service(Trigger, '~/reset', self._on_reset)
-        self._bag = None
+        # the run description: JSON on ~/run, kept for late joiners (see _record_tick)
+        self._pub_run = self.create_publisher(
+            String, '~/run', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self._run_index = 0
-        self._extra = {}
+        self._run_pending = True
+        self._recorder = None
         if self.get_parameter('record').value:
-            self._start_recording(qos.depth)
+            self._start_recording()
         self._timer = None
         self._make_timer(self.get_parameter('publish_rate').value)
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
@@ -256,8 +264,8 @@ class AttitudeNode(Node):
             return                  # shut down (SIGINT/SIGTERM) while this tick ran
         st.published += 1
         self._last_sample = (t, s)
-        if self._bag is not None:
-            self._record_tick(now, att, rate, now == self._t_start)
+        self._record_tick(now.nanoseconds, [(self._pub_att.topic_name, att),
+                                            (self._pub_rate.topic_name, rate)])
 
     def _publish_diagnostics(self):
         st = self._stats
@@ -290,88 +298,58 @@ class AttitudeNode(Node):
         arr.status = [status]
         self._pub_diag.publish(arr)
 
-    # -- recording --------------------------------------------------------------------------
-    def _start_recording(self, depth):
+    # -- recording and the run description -------------------------------------------------
+    def _start_recording(self):
         path = self.get_parameter('record_path').value or 'runs'
+        topics = [t for t in (self.get_parameter('record_topics').value or []) if t]
         try:
-            self._bag = BagWriter(path, self.get_name())
-            for pub, type_name in ((self._pub_att, 'geometry_msgs/msg/QuaternionStamped'),
-                                   (self._pub_rate, 'geometry_msgs/msg/Vector3Stamped')):
-                self._bag.add_topic(pub.topic_name, type_name, qos_yaml(depth=depth))
+            writer = BagWriter(path, self.get_name(), flush_period=0.4)
         except OSError as exc:
             raise SceneError(f'cannot record to {path!r}: {exc}') from None
-        self.get_logger().info(f'recording to {self._bag.path}')
-        topics = [t for t in (self.get_parameter('record_topics').value or []) if t]
-        if topics:
-            self._extra = {self.resolve_topic_name(t): None for t in topics}
-            self._discover_timer = self.create_timer(0.5, self._discover_topics)
+        self._recorder = Recorder(self, writer, topics=topics, exclude_own=True)
+        self.get_logger().info(f'recording to {writer.path}')
 
-    def _discover_topics(self):
-        """Subscribe (raw) to each record_topics entry once its type is known."""
-        types = dict(self.get_topic_names_and_types())
-        for topic, sub in self._extra.items():
-            if sub is not None or topic not in types:
-                continue
-            type_name = types[topic][0]
-            pkg, _, name = type_name.split('/')
-            try:
-                cls = getattr(importlib.import_module(f'{pkg}.msg'), name)
-                self._bag.add_topic(topic, type_name, qos_yaml(depth=100))
-            except (ImportError, AttributeError, OSError) as exc:
-                self.get_logger().error(f'cannot record {topic} ({type_name}): {exc}')
-                self._extra[topic] = False
-                continue
-            self._extra[topic] = self.create_subscription(
-                cls, topic, lambda data, tp=topic: self._record_raw(tp, data), 100, raw=True)
-            self.get_logger().info(f'recording {topic} ({type_name})')
+    def _run_description(self, start_ns):
+        sol = self._solution
+        return {
+            'rigidrot_run': 1, 'run': self._run_index, 'start_ns': int(start_ns),
+            'time_scale': self._time_scale, 'scene': sol.scene.as_dict(), 'tol': sol.tol,
+            'backend': sol.backend, 'model': sol.model, 'method': sol.method,
+            'package': f'rigidrot_ros {__version__}', 'node': self.get_fully_qualified_name(),
+            'topics': {p.topic_name: type_name_of(p.msg_type) for p in self.publishers},
+        }
 
-    def _record_raw(self, topic, data):
-        if self._bag is not None:
-            self._guard(lambda: self._bag.write(topic, data,
-                                                self.get_clock().now().nanoseconds))
+    def _record_tick(self, now_ns, published):
+        """After each publication: announce a new run on ``~/run``, record what was published.
 
-    def _record_tick(self, now, att, rate, first):
-        ns = now.nanoseconds
-
-        def write():
-            if first:
-                self._run_index += 1
-                sol = self._solution
-                self._bag.add_run({
-                    'run': self._run_index, 'start_ns': ns, 'time_scale': self._time_scale,
-                    'scene': sol.scene.as_dict(), 'tol': sol.tol, 'backend': sol.backend,
-                    'model': sol.model, 'method': sol.method,
-                    'package': f'rigidrot_ros {__version__}',
-                    'node': self.get_fully_qualified_name(),
-                    'topics': {'attitude': self._pub_att.topic_name,
-                               'angular_velocity': self._pub_rate.topic_name},
-                })
-            self._bag.write(self._pub_att.topic_name, serialize_message(att), ns)
-            self._bag.write(self._pub_rate.topic_name, serialize_message(rate), ns)
-        self._guard(write)
-
-    def _guard(self, fn):
-        try:
-            fn()
-        except OSError as exc:   # disk full, removed directory: stop recording, keep running
-            self.get_logger().error(f'recording stopped: {exc}')
-            try:
-                self._bag.close()
-            except (OSError, ValueError):
-                pass
-            self._bag = None
+        ``published`` lists ``(resolved_topic_name, msg)`` for every message of this call.
+        The first call after start-up or a ``~/reset`` publishes the run description (JSON
+        in std_msgs/String, transient-local, depth 1), so any recorder keeps it.
+        """
+        if self._run_pending:
+            self._run_pending = False
+            self._run_index += 1
+            start = self._t_start.nanoseconds if self._t_start is not None else now_ns
+            info = self._run_description(start)
+            msg = String(data=json.dumps(info))
+            self._pub_run.publish(msg)
+            published = list(published) + [(self._pub_run.topic_name, msg)]
+            if self._recorder is not None:
+                self._recorder.add_run(info)
+        if self._recorder is not None:
+            self._recorder.record_published(now_ns, published)
 
     def destroy_node(self):
         """Finish the bag (summary, index, metadata.yaml), then destroy the node."""
-        if self._bag is not None:
+        if self._recorder is not None:
             try:
-                self._bag.close()
+                path, counts = self._recorder.close()
                 # the context may be shut down already: no rosout logging here
-                print(f'attitude_node: bag finished: {self._bag.path} {self._bag.counts}, '
+                print(f'attitude_node: bag finished: {path} {counts}, '
                       f'published {self._stats.published} ticks', file=sys.stderr)
-            except OSError as exc:
+            except (OSError, ValueError) as exc:
                 print(f'attitude_node: could not finish the bag: {exc}', file=sys.stderr)
-            self._bag = None
+            self._recorder = None
         return super().destroy_node()
 
     # -- reset ------------------------------------------------------------------------------
@@ -386,6 +364,7 @@ class AttitudeNode(Node):
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
         self._last_sample = None
+        self._run_pending = True            # the next tick announces the new run on ~/run
         response.success = True
         response.message = f'running model {solution.model} ({solution.method})'
         self.get_logger().info(f'reset: {response.message}')
