@@ -1,53 +1,230 @@
-"""rigidrot_demo_estimator: a deliberately simple attitude estimator to score.
+"""rigidrot_demo_estimator: a gyro-only attitude estimator from the ahrs library, to score.
 
-Dead reckoning: it integrates the node's ``angular_velocity`` with one first-order step
-per message, ``q <- normalise(q ⊗ exp(omega dt / 2))`` with omega held from the previous
-message, starting from the first ``attitude`` it hears, and publishes
-``estimator/attitude`` (QuaternionStamped, same stamps). Its error grows with time: a
-template for plugging a real filter into the record -> compare loop.
+It subscribes to the node's ``imu`` (sensor_msgs/Imu) and integrates each gyro sample
+with ``ahrs.filters.AngularRate`` (closed-form quaternion exponential; ahrs orders its
+quaternions (w, x, y, z), converted here to ROS's (x, y, z, w)). It starts from the
+``attitude`` message that carries the same stamp as its first imu sample (a perfect
+initial fix), and propagates a 6-state error covariance (attitude error e in B, with
+q_est = q_true * exp(e/2), and gyro bias):
+
+    Phi = [[exp(-[omega dt]x), -dt I], [0, I]],
+    Q = [[C dt^2, 0], [0, sigma_u^2 dt I]],  P <- Phi P Phi^T + Q,
+
+with C the imu's angular_velocity_covariance (the per-sample white-noise variance) and
+sigma_u the assumed bias random walk; the bias block starts at bias_sigma^2. It publishes,
+with the imu sample's stamp, ``estimator/odom`` (nav_msgs/Odometry: orientation, its
+covariance in the rotation block, twist.angular = the gyro rate),
+``estimator/pose`` (PoseWithCovarianceStamped) and ``estimator/attitude``
+(QuaternionStamped), all reliable and transient-local (depth 1000), so a recorder that
+joins late still gets the start-up transient. Without a bias model it is over-confident
+as soon as the gyro has a bias: that is what NEES shows.
 """
 
+import argparse
 import sys
 
-from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
 import numpy as np
-import rclpy
 
-from rigidrot_ros.core import quaternion as quat
-from rigidrot_ros.node.spin import spin_until_shutdown
+__all__ = ['main', 'GyroIntegrator']
+
+_INSTALL = ("rigidrot_demo_estimator: needs the ahrs package: pip install ahrs "
+            "(or pip install 'rigidrot_ros[estimator]')")
 
 
-def main(args=None):
-    """Entry point of ``rigidrot_demo_estimator``."""
-    rclpy.init(args=args)
+def _skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _rot(v):
+    """Rotation matrix exp([v]x) (Rodrigues)."""
+    a = float(np.linalg.norm(v))
+    k = _skew(v)
+    if a < 1e-8:
+        return np.eye(3) + k + 0.5 * k @ k
+    return np.eye(3) + np.sin(a) / a * k + (1 - np.cos(a)) / a ** 2 * k @ k
+
+
+class GyroIntegrator:
+    """Attitude from gyro samples by ahrs' AngularRate, with an error covariance.
+
+    Parameters
+    ----------
+    q0_xyzw : array_like
+        Initial attitude q_NB, (x, y, z, w).
+    initial_sigma : float
+        Initial attitude standard deviation per axis, rad.
+    bias_sigma : float
+        Standard deviation of an unknown constant gyro bias per axis, rad/s.
+    bias_random_walk : float
+        Assumed gyro rate random walk, rad/s^2/sqrt(Hz).
+    """
+
+    def __init__(self, q0_xyzw, initial_sigma=1e-6, bias_sigma=0.0, bias_random_walk=0.0):
+        from ahrs.filters import AngularRate
+        self._ahrs = AngularRate()
+        x, y, z, w = (float(v) for v in q0_xyzw)
+        self.q_wxyz = np.array([w, x, y, z])
+        self.P = np.diag([initial_sigma ** 2] * 3 + [bias_sigma ** 2] * 3)
+        self._sigma_u2 = bias_random_walk ** 2
+
+    @property
+    def q_xyzw(self):
+        """Current attitude q_NB, (x, y, z, w)."""
+        w, x, y, z = self.q_wxyz
+        return np.array([x, y, z, w])
+
+    def update(self, omega_b, cov_omega, dt):
+        """Integrate one gyro sample ``omega_b`` (rad/s, in B) held over ``dt`` seconds."""
+        omega_b = np.asarray(omega_b, dtype=float)
+        self.q_wxyz = np.asarray(self._ahrs.update(self.q_wxyz, omega_b, method='closed',
+                                                   dt=dt), dtype=float)
+        phi = np.eye(6)
+        phi[:3, :3] = _rot(-omega_b * dt)
+        phi[:3, 3:] = -dt * np.eye(3)
+        q = np.zeros((6, 6))
+        q[:3, :3] = np.asarray(cov_omega, dtype=float).reshape(3, 3) * dt * dt
+        q[3:, 3:] = self._sigma_u2 * dt * np.eye(3)
+        self.P = phi @ self.P @ phi.T + q
+        self.P = 0.5 * (self.P + self.P.T)
+
+
+def _parser():
+    ap = argparse.ArgumentParser(prog='rigidrot_demo_estimator',
+                                 description=__doc__.splitlines()[0],
+                                 epilog='ROS arguments go after --ros-args (e.g. -r __ns:=/sat1).')
+    ap.add_argument('--initial-sigma', type=float, default=1e-6,
+                    help='initial attitude standard deviation per axis, rad (default 1e-6)')
+    ap.add_argument('--bias-sigma', type=float, default=0.0,
+                    help='assumed standard deviation of a constant gyro bias, rad/s '
+                         '(default 0: the filter believes the gyro unbiased)')
+    ap.add_argument('--bias-random-walk', type=float, default=0.0,
+                    help='assumed gyro rate random walk, rad/s^2/sqrt(Hz) (default 0)')
+    return ap
+
+
+def _check(opts):
+    for name in ('initial_sigma', 'bias_sigma', 'bias_random_walk'):
+        v = getattr(opts, name)
+        if not (np.isfinite(v) and 0 <= v <= 1e3):
+            return f'--{name.replace("_", "-")} must be a finite number in [0, 1e3], got {v!r}'
+    if opts.initial_sigma <= 0:
+        return '--initial-sigma must be positive (the covariance must stay invertible)'
+    return None
+
+
+def main(argv=None):
+    """Entry point of ``rigidrot_demo_estimator``; returns the exit status."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    ros_args = []
+    if '--ros-args' in argv:
+        i = argv.index('--ros-args')
+        argv, ros_args = argv[:i], argv[i:]
+    opts = _parser().parse_args(argv)
+    problem = _check(opts)
+    if problem:
+        print(f'rigidrot_demo_estimator: {problem}', file=sys.stderr)
+        return 2
+    try:
+        import ahrs  # noqa: F401
+    except ImportError:
+        print(_INSTALL, file=sys.stderr)
+        return 2
+    return _run(opts, ros_args)
+
+
+def _run(opts, ros_args):
+    from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped
+    from nav_msgs.msg import Odometry
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Imu
+
+    from rigidrot_ros.node.spin import spin_until_shutdown
+
+    rclpy.init(args=['rigidrot_demo_estimator'] + ros_args)
     node = rclpy.create_node('demo_estimator')
-    pub = node.create_publisher(QuaternionStamped, 'estimator/attitude', 100)
-    state = {'q': None, 'w': None, 'stamp': None}
+    out_qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    pub_odom = node.create_publisher(Odometry, 'estimator/odom', out_qos)
+    pub_pose = node.create_publisher(PoseWithCovarianceStamped, 'estimator/pose', out_qos)
+    pub_att = node.create_publisher(QuaternionStamped, 'estimator/attitude', out_qos)
+    st = {'f': None, 'stamp': None, 'frame': 'inertial', 'att': {}, 'imu': {}}
+
+    def stamp_of(msg):
+        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+    def publish(imu):
+        f = st['f']
+        x, y, z, w = (float(v) for v in f.q_xyzw)
+        cov6 = np.zeros((6, 6))
+        cov6[3:, 3:] = f.P[:3, :3]               # position is not a state: exactly zero
+        odom = Odometry()
+        odom.header.stamp = imu.header.stamp
+        odom.header.frame_id = st['frame']
+        odom.child_frame_id = imu.header.frame_id
+        o = odom.pose.pose.orientation
+        o.x, o.y, o.z, o.w = x, y, z, w
+        odom.pose.covariance = [float(v) for v in cov6.ravel()]
+        odom.twist.twist.angular = imu.angular_velocity
+        tw = np.zeros((6, 6))
+        tw[3:, 3:] = (np.asarray(imu.angular_velocity_covariance).reshape(3, 3)
+                      + f.P[3:, 3:])
+        odom.twist.covariance = [float(v) for v in tw.ravel()]
+        pose = PoseWithCovarianceStamped()
+        pose.header = odom.header
+        pose.pose = odom.pose
+        att = QuaternionStamped()
+        att.header = odom.header
+        att.quaternion = odom.pose.pose.orientation
+        pub_odom.publish(odom)
+        pub_pose.publish(pose)
+        pub_att.publish(att)
+
+    def start(imu, att):
+        q = att.quaternion
+        st['f'] = GyroIntegrator((q.x, q.y, q.z, q.w), opts.initial_sigma, opts.bias_sigma,
+                                 opts.bias_random_walk)
+        st['frame'] = att.header.frame_id or 'inertial'
+        st['stamp'] = stamp_of(imu)
+        later = [st['imu'][s] for s in sorted(st['imu']) if s > st['stamp']]
+        st['att'].clear()
+        st['imu'].clear()
+        node.get_logger().info(f'initialised from the attitude at stamp {st["stamp"]} ns')
+        publish(imu)
+        for m in later:                             # samples that came before the attitude
+            on_imu(m)
+
+    def on_imu(msg):
+        stamp = stamp_of(msg)
+        if st['f'] is None:
+            if stamp in st['att']:
+                start(msg, st['att'][stamp])
+            else:
+                st['imu'][stamp] = msg
+                for old in sorted(st['imu'])[:-200]:
+                    del st['imu'][old]
+            return
+        dt = (stamp - st['stamp']) * 1e-9
+        if dt <= 0:
+            return                                  # a repeated or out-of-order sample
+        v = msg.angular_velocity
+        st['f'].update((v.x, v.y, v.z), msg.angular_velocity_covariance, dt)
+        st['stamp'] = stamp
+        publish(msg)
 
     def on_attitude(msg):
-        if state['q'] is None:
-            q = msg.quaternion
-            state['q'] = np.array([q.x, q.y, q.z, q.w])
-
-    def on_rate(msg):
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        w = np.array([msg.vector.x, msg.vector.y, msg.vector.z])
-        if state['q'] is None:
+        if st['f'] is not None:
             return
-        if state['stamp'] is not None and state['w'] is not None:
-            dt = (stamp - state['stamp']) * 1e-9
-            q = quat.multiply(state['q'], quat.from_rotvec(state['w'] * dt))
-            state['q'] = q / np.linalg.norm(q)
-        state['w'], state['stamp'] = w, stamp
-        out = QuaternionStamped()
-        out.header = msg.header
-        out.header.frame_id = 'inertial'
-        out.quaternion.x, out.quaternion.y, out.quaternion.z, out.quaternion.w = (
-            float(v) for v in state['q'])
-        pub.publish(out)
+        stamp = stamp_of(msg)
+        if stamp in st['imu']:
+            start(st['imu'][stamp], msg)
+        else:
+            st['att'][stamp] = msg
+            for old in sorted(st['att'])[:-200]:
+                del st['att'][old]
 
-    node.create_subscription(QuaternionStamped, 'attitude', on_attitude, 100)
-    node.create_subscription(Vector3Stamped, 'angular_velocity', on_rate, 100)
+    node.create_subscription(Imu, 'imu', on_imu, 1000)
+    node.create_subscription(QuaternionStamped, 'attitude', on_attitude, 1000)
     spin_until_shutdown(node)
     return 0
 
