@@ -351,6 +351,9 @@ def _read_indexed(fpath, out):
             summary = reader.get_summary()
             if summary is None:
                 return False
+            for channel in summary.channels.values():
+                if channel.schema_id in summary.schemas:
+                    _note(part, summary.schemas[channel.schema_id], channel)
             for rec in reader.iter_metadata():
                 part.metadata.append((rec.name, dict(rec.metadata)))
             for schema, channel, msg in reader.iter_messages(log_time_order=True):
@@ -375,6 +378,8 @@ def _read_stream(fpath, out):
                     schemas[rec.id] = rec
                 elif isinstance(rec, Channel):
                     channels[rec.id] = rec
+                    if rec.schema_id in schemas:
+                        _note(part, schemas[rec.schema_id], rec)
                 elif isinstance(rec, Message):
                     ch = channels.get(rec.channel_id)
                     sc = schemas.get(ch.schema_id) if ch else None
