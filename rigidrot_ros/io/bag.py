@@ -266,7 +266,7 @@ def _file_index(name):
 
 
 def bag_files(path):
-    """The .mcap files of a bag directory (in rosbag2 order) or ``[path]`` for a file.
+    """Return the .mcap files of a bag directory (in rosbag2 order), or ``[path]``.
 
     A directory's ``metadata.yaml``, where present, must be a rosbag2 metadata file; its
     ``relative_file_paths`` give the files and their order (a split bag). Without one, every

@@ -20,11 +20,17 @@ Discovery and what it guarantees:
   joins: DDS hands a late-joining transient-local subscription the publisher's kept
   history (its ``depth`` last messages). The node's ``~/run`` description is published
   that way, and so is the demo estimator's output.
-- A volatile publisher is recorded from the moment the subscription matches it, about one
-  poll period plus DDS endpoint matching after the publisher appears in the graph;
-  whatever it published before that cannot be had by any recorder (volatile samples are
-  not kept). An estimator that answers the node's messages starts publishing only after
-  it has matched the node, which is when the node discovers it too.
+- A topic given with its type, ``NAME:pkg/msg/Type``, is subscribed at once (reliable,
+  volatile), before any publisher exists. A publisher that starts later then discovers
+  the subscription together with everything else of this node, so a reliable volatile
+  publisher that answers this node's messages (an estimator fed by the node) is recorded
+  from its first message. If the publisher turns out to be best-effort, the subscription
+  is remade best-effort when the graph shows it.
+- A topic given by name only is subscribed when a publisher of it appears in the graph
+  (its type is needed first). A volatile publisher is then recorded from the moment the
+  subscription matches, about one poll period plus DDS endpoint matching (tens of ms
+  here) after the publisher appears; whatever it published before that cannot be had by
+  any recorder (volatile samples are not kept).
 - The bag is flushed at least every ``flush_period`` (0.4 s; a timer flushes even when no
   message arrives), so a SIGKILL loses at most about 0.5 s; :meth:`Recorder.close`
   finishes the file (summary, index, metadata.yaml).
@@ -38,6 +44,7 @@ from rclpy.serialization import serialize_message
 import yaml
 
 from rigidrot_ros.io.bag import qos_yaml, STRING_TYPE
+from rigidrot_ros.io.msgdefs import schema_text
 
 __all__ = ['Recorder', 'type_name_of', 'qos_to_yaml']
 
@@ -67,9 +74,22 @@ def qos_to_yaml(profiles):
     return yaml.safe_dump([_profile(q) for q in profiles], sort_keys=False)
 
 
+def _normal_type(type_name):
+    """``pkg/msg/Type`` from ``pkg/msg/Type`` or ``pkg/Type``; ValueError otherwise."""
+    parts = type_name.split('/')
+    if len(parts) == 2:
+        parts = [parts[0], 'msg', parts[1]]
+    if len(parts) != 3 or parts[1] != 'msg' or not all(parts):
+        raise ValueError(f'not a message type: {type_name!r} (expected pkg/msg/Type)')
+    return '/'.join(parts)
+
+
 def _msg_class(type_name):
     pkg, _, name = type_name.split('/')
-    return getattr(importlib.import_module(f'{pkg}.msg'), name)
+    try:
+        return getattr(importlib.import_module(f'{pkg}.msg'), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f'message type {type_name} is not installed here') from None
 
 
 class Recorder:
@@ -82,7 +102,8 @@ class Recorder:
     writer : rigidrot_ros.io.bag.BagWriter
         The open bag.
     topics : iterable of str
-        Topic names to record as they appear (resolved against the node's namespace).
+        Topic names to record as they appear (resolved against the node's namespace),
+        each optionally with its type, ``NAME:pkg/msg/Type`` (subscribed at once).
     all_topics : bool
         Also record every other topic that appears, except the excluded ones.
     runs : bool
@@ -102,7 +123,17 @@ class Recorder:
                  exclude_own=False, poll_period=0.05, flush_timer=0.1, on_event=None):
         self._node = node
         self._writer = writer
-        self._wanted = [node.resolve_topic_name(t) for t in topics if t]
+        self._wanted = []
+        self._typed = {}          # topic -> type given by the user (subscribed at once)
+        self._verified = set()    # typed topics whose publishers' QoS has been checked
+        for entry in topics:
+            if not entry:
+                continue
+            name, _, type_name = entry.partition(':')
+            name = node.resolve_topic_name(name)
+            self._wanted.append(name)
+            if type_name:
+                self._typed[name] = _normal_type(type_name)
         self._all = bool(all_topics)
         self._runs = bool(runs)
         self._exclude_own = bool(exclude_own)
@@ -114,6 +145,8 @@ class Recorder:
         self._warned_waiting = False
         self._poll_timer = node.create_timer(poll_period, self._poll)
         self._flush_timer = node.create_timer(flush_timer, self._flush)
+        for topic, type_name in self._typed.items():
+            self._subscribe(topic, [], type_name)
         self._poll()
 
     # -- state -------------------------------------------------------------------------------
@@ -175,6 +208,9 @@ class Recorder:
         if not self.active:
             return
         try:
+            if not self._writer.has_topic(topic):       # a typed topic's first message
+                self._add_channel(topic, self._typed[topic],
+                                  self._node.get_publishers_info_by_topic(topic))
             self._writer.write(topic, data, self._node.get_clock().now().nanoseconds)
         except OSError as exc:
             self._fail(exc)
@@ -218,23 +254,34 @@ class Recorder:
             if not infos:
                 continue
             self._subscribe(topic, infos)
+        for topic in [t for t in self._typed if t not in self._verified]:
+            infos = self._node.get_publishers_info_by_topic(topic)
+            if infos:
+                self._verified.add(topic)
+                if any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+                       for i in infos) and self._subs.get(topic) is not None:
+                    self._node.destroy_subscription(self._subs.pop(topic))
+                    self._subscribe(topic, infos, self._typed[topic])
         if self.pending and not self._warned_waiting and time.monotonic() - self._started > 5:
             self._warned_waiting = True
             self._on_event('warn', f'still waiting for a publisher of {self.pending}')
-        if not self.pending and not self._all and not self._runs:
+        if (not self.pending and not self._all and not self._runs
+                and len(self._verified) == len(self._typed)):
             self._poll_timer.cancel()
 
-    def _subscribe(self, topic, infos):
-        types = sorted({i.topic_type for i in infos})
+    def _subscribe(self, topic, infos, type_name=None):
+        """Subscribe raw to ``topic``; QoS adapted to ``infos`` (the publishers) if any."""
+        types = sorted({i.topic_type for i in infos} | ({type_name} if type_name else set()))
         if len(types) > 1:
             self._subs[topic] = None
-            self._on_event('error', f'cannot record {topic}: its publishers disagree on the '
-                                    f'type {types}')
+            self._on_event('error', f'cannot record {topic}: its publishers (and the type '
+                                    f'given) disagree on the type {types}')
             return
         type_name = types[0]
         offered = [i.qos_profile for i in infos]
         best_effort = any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in offered)
-        transient = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+        transient = bool(offered) and all(
+            q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
         depth = max([1000] + [int(q.depth) for q in offered])
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=depth,
@@ -244,7 +291,10 @@ class Recorder:
                         else DurabilityPolicy.VOLATILE))
         try:
             cls = _msg_class(type_name)
-            self._writer.add_topic(topic, type_name, qos_to_yaml(offered))
+            if infos:
+                self._add_channel(topic, type_name, infos)
+            else:
+                schema_text(type_name)           # fail now if its definition is missing
         except (ImportError, AttributeError, ValueError, OSError) as exc:
             self._subs[topic] = None
             self._on_event('error', f'cannot record {topic} ({type_name}): {exc}')
@@ -252,8 +302,15 @@ class Recorder:
         self._subs[topic] = self._node.create_subscription(
             cls, topic, lambda data, tp=topic: self._on_raw(tp, data), qos, raw=True)
         kind = 'transient-local' if transient else 'volatile'
+        when = '' if infos else ', subscribed before any publisher'
         self._on_event('info', f'recording {topic} ({type_name}, {kind}'
-                               f'{", best-effort" if best_effort else ""})')
+                               f'{", best-effort" if best_effort else ""}{when})')
+
+    def _add_channel(self, topic, type_name, infos):
+        if not self._writer.has_topic(topic):
+            offered = [i.qos_profile for i in infos if i.topic_type == type_name]
+            self._writer.add_topic(topic, type_name,
+                                   qos_to_yaml(offered) if offered else qos_yaml(depth=1000))
 
     # -- end ---------------------------------------------------------------------------------
     def close(self):

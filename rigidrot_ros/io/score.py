@@ -104,7 +104,7 @@ def _runs(bag):
     runs = sorted(bag.runs, key=lambda r: int(r['start_ns']))
     if not runs:
         raise ScoreError(f'{bag.path}: the log has no rigidrot_run metadata and no run '
-                         f'description (the node\'s ~/run topic), so the truth cannot be '
+                         f'description (the ~/run topic of the node), so the truth cannot be '
                          f'recomputed; record ~/run with the other topics, or compare '
                          f'against another log with --truth')
     return runs
@@ -219,7 +219,9 @@ def score_against_stream(bag, streams, truth_bag, truth_streams):
         if not ref:
             raise ScoreError(f'{truth_bag.path}: no {s.field} stream to compare {s.label} '
                              f'with')
-        ref = ref[0]
+        # the same topic if the truth log has it, else the node's own, else the first
+        own = {t for r in truth_bag.runs for t in (r.get('topics') or {})}
+        ref = sorted(ref, key=lambda r: (r.topic != s.topic, r.topic not in own))[0]
         _, t, _ = scene_times(bag, s.stamps)
         _, tr, _ = scene_times(truth_bag, ref.stamps)
         keep = np.isfinite(tr) & np.all(np.isfinite(ref.values), axis=1)

@@ -74,7 +74,8 @@ _DESCRIPTIONS = {
     'record_path': ('directory under which each run gets a new bag directory (read only)',
                     ParameterType.PARAMETER_STRING),
     'record_topics': ('further topics to record raw as they arrive, e.g. an estimator '
-                      'output (read only)', ParameterType.PARAMETER_STRING_ARRAY),
+                      'output; NAME:pkg/msg/Type subscribes at once, so the first message '
+                      'is kept (read only)', ParameterType.PARAMETER_STRING_ARRAY),
 }
 _READ_ONLY = ('qos_depth', 'record', 'record_path', 'record_topics')
 _RANGES = {
@@ -306,7 +307,11 @@ class AttitudeNode(Node):
             writer = BagWriter(path, self.get_name(), flush_period=0.4)
         except OSError as exc:
             raise SceneError(f'cannot record to {path!r}: {exc}') from None
-        self._recorder = Recorder(self, writer, topics=topics, exclude_own=True)
+        try:
+            self._recorder = Recorder(self, writer, topics=topics, exclude_own=True)
+        except Exception as exc:  # noqa: B902 - ValueError, or rclpy's invalid-name errors
+            writer.close()
+            raise SceneError(f'parameter record_topics: {exc}') from None
         self.get_logger().info(f'recording to {writer.path}')
 
     def _run_description(self, start_ns):

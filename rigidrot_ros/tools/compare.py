@@ -64,8 +64,8 @@ def _import_pyplot():
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
     except ImportError:
-        raise ScoreError("--plot needs matplotlib: pip install matplotlib (or pip install "
-                         "'rigidrot_ros[plot]')") from None
+        raise ScoreError('--plot needs matplotlib: pip install matplotlib (or pip install '
+                         '"rigidrot_ros[plot]")') from None
     return plt
 
 

@@ -27,8 +27,8 @@ import numpy as np
 
 __all__ = ['main', 'GyroIntegrator']
 
-_INSTALL = ("rigidrot_demo_estimator: needs the ahrs package: pip install ahrs "
-            "(or pip install 'rigidrot_ros[estimator]')")
+_INSTALL = ('rigidrot_demo_estimator: needs the ahrs package: pip install ahrs '
+            '(or pip install "rigidrot_ros[estimator]")')
 
 
 def _skew(v):

@@ -24,7 +24,10 @@ def _parser():
                'rigidrot_record -o runs/est /imu /estimator/odom --duration 20')
     ap.add_argument('-o', '--output', required=True,
                     help='bag directory to create (must not exist, or be empty)')
-    ap.add_argument('topics', nargs='*', help='topics to record')
+    ap.add_argument('topics', nargs='*',
+                    help='topics to record; NAME:pkg/msg/Type subscribes at once (before any '
+                         'publisher exists), so a reliable publisher is kept from its first '
+                         'message')
     ap.add_argument('--all', action='store_true', help='record every topic that appears')
     ap.add_argument('--no-runs', action='store_true',
                     help='do not add the run descriptions (.../run) of rigidrot nodes')
@@ -76,7 +79,7 @@ def main(argv=None):
         print(f'rigidrot_record: {text}', file=sys.stderr, flush=True)
     try:
         for t in opts.topics:
-            node.resolve_topic_name(t)
+            node.resolve_topic_name(t.partition(':')[0])
     except Exception as exc:  # noqa: B902 - rclpy raises its own types for bad names
         node.destroy_node()
         rclpy.try_shutdown()
@@ -84,8 +87,15 @@ def main(argv=None):
         print(f'rigidrot_record: invalid topic name: {str(exc).splitlines()[0]}',
               file=sys.stderr)
         return 2
-    rec = Recorder(node, writer, topics=opts.topics, all_topics=opts.all,
-                   runs=not opts.no_runs, on_event=event)
+    try:
+        rec = Recorder(node, writer, topics=opts.topics, all_topics=opts.all,
+                       runs=not opts.no_runs, on_event=event)
+    except ValueError as exc:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        writer.close()
+        print(f'rigidrot_record: {exc}', file=sys.stderr)
+        return 2
     print(f'rigidrot_record: recording to {writer.path}', file=sys.stderr, flush=True)
     end = time.monotonic() + opts.duration if opts.duration else None
 

@@ -45,6 +45,21 @@ def _msg_class(type_name):
         raise BagError(f'message type {type_name} is not installed here') from None
 
 
+def _wait_for_matching(node, pubs, limit):
+    """Wait until a subscriber has matched and every one in the graph has, ``limit`` at most.
+
+    Discovery on a loaded machine takes up to seconds (1.4 s measured here); a subscriber
+    not yet matched to a publisher would miss the first messages.
+    """
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < limit:
+        rclpy.spin_once(node, timeout_sec=0.05)
+        matched = [p.get_subscription_count() for p in pubs]
+        if any(matched) and all(m >= node.count_subscribers(p.topic_name)
+                                for m, p in zip(matched, pubs)):
+            return
+
+
 def main(argv=None):
     """Entry point of ``rigidrot_replay``; returns the exit status."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -61,9 +76,15 @@ def main(argv=None):
     ap.add_argument('--duration', type=float, help='replay this many seconds')
     ap.add_argument('--clock', action='store_true', help='publish /clock from the log time')
     ap.add_argument('--quiet', action='store_true', help='no progress line')
+    ap.add_argument('--wait', type=float, default=5.0,
+                    help='wait at most this many seconds for subscribers to match before '
+                         'playing (default 5; playing starts as soon as one has)')
     opts = ap.parse_args(argv)
-    if not opts.rate > 0:
-        print('rigidrot_replay: --rate must be positive', file=sys.stderr)
+    if not (opts.rate > 0 and opts.rate < float('inf')):
+        print('rigidrot_replay: --rate must be a positive finite number', file=sys.stderr)
+        return 2
+    if not 0 <= opts.wait < 3600:
+        print('rigidrot_replay: --wait must lie in [0, 3600) s', file=sys.stderr)
         return 2
     try:
         bag = read_bag(opts.bag)
@@ -88,7 +109,8 @@ def main(argv=None):
     node = rclpy.create_node('rigidrot_replay')
     pubs = {t: node.create_publisher(classes[t], t, _qos(bag.topics[t][1])) for t in classes}
     clock_pub = node.create_publisher(Clock, '/clock', 10) if opts.clock else None
-    time.sleep(0.5)                                  # let subscribers match the publishers
+    _wait_for_matching(node, list(pubs.values()) + ([clock_pub] if clock_pub else []),
+                       opts.wait)
     total = (msgs[-1][2] - msgs[0][2]) * 1e-9 if msgs else 0.0
 
     def play(_node):
