@@ -11,13 +11,24 @@ import sys
 import yaml
 
 from rigidrot_ros.core import MIN_TOL, Scene
+from rigidrot_ros.sensors import AttitudeNoise, GyroNoise
 
-__all__ = ['PACKAGE', 'SCENE_KEYS', 'BACKENDS', 'find_config', 'load_defaults',
-           'scene_from_params', 'solver_options']
+__all__ = ['PACKAGE', 'SCENE_KEYS', 'SENSOR_KEYS', 'OUTPUT_KEYS', 'BACKENDS', 'find_config',
+           'load_defaults', 'scene_from_params', 'solver_options', 'sensor_settings',
+           'SensorSettings']
 
 PACKAGE = 'rigidrot_ros'
 SCENE_KEYS = ('inertia', 'torque', 'torque_frame', 'omega0', 'attitude0')
 BACKENDS = ('auto', 'flint', 'mpmath')
+#: Sensor parameters (applied at the next ~/reset) and output switches (read only).
+SENSOR_KEYS = ('imu.rate', 'imu.gyro_noise_density', 'imu.gyro_random_walk',
+               'imu.gyro_bias', 'imu.seed', 'star_tracker.rate',
+               'star_tracker.cross_boresight_arcsec', 'star_tracker.about_boresight_arcsec',
+               'star_tracker.boresight', 'star_tracker.seed')
+OUTPUT_KEYS = ('imu.enable', 'star_tracker.enable', 'odom.enable', 'transform.enable',
+               'markers.enable')
+#: Highest sensor rate, Hz (the node's publish_rate has the same ceiling).
+MAX_RATE = 1e4
 
 
 def _share_dirs():
@@ -50,8 +61,20 @@ def load_defaults(path=None):
         raise ValueError(f'{path}: not a ROS 2 params file')
     for entry in doc.values():
         if isinstance(entry, dict) and isinstance(entry.get('ros__parameters'), dict):
-            return dict(entry['ros__parameters'])
+            return _flatten(entry['ros__parameters'])
     raise ValueError(f'{path}: no ros__parameters section')
+
+
+def _flatten(tree, prefix=''):
+    """Nested YAML mappings -> dotted parameter names, as ROS 2 reads a params file."""
+    out = {}
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            out.update(_flatten(value, name + '.'))
+        else:
+            out[name] = value
+    return out
 
 
 def _floats(name, value, size):
@@ -94,3 +117,70 @@ def solver_options(params):
     if backend not in BACKENDS:
         raise ValueError(f'parameter backend must be one of {BACKENDS}, got {backend!r}')
     return float(tol), (None if backend == 'auto' else backend)
+
+
+class SensorSettings:
+    """Validated sensor and output settings of the node.
+
+    Attributes
+    ----------
+    imu, star_tracker, odom, transform, markers : bool
+        Which outputs are on.
+    imu_rate, star_tracker_rate : float
+        Sample rates, Hz of clock time (0 in the parameter means ``publish_rate``).
+    gyro : GyroNoise
+        The gyro's error model (a new, freshly seeded instance).
+    attitude_noise : AttitudeNoise
+        The star tracker's error model (a new, freshly seeded instance).
+    """
+
+    def __init__(self, params):
+        p = params
+        for name in OUTPUT_KEYS:
+            if not isinstance(p.get(name), bool):
+                raise ValueError(f'parameter {name} must be true or false, '
+                                 f'got {p.get(name)!r}')
+        self.imu, self.star_tracker = p['imu.enable'], p['star_tracker.enable']
+        self.odom, self.transform = p['odom.enable'], p['transform.enable']
+        self.markers = p['markers.enable']
+        publish_rate = p.get('publish_rate', 100.0)
+        self.imu_rate = _rate('imu.rate', p['imu.rate'], publish_rate)
+        self.star_tracker_rate = _rate('star_tracker.rate', p['star_tracker.rate'],
+                                       publish_rate)
+        try:
+            self.gyro = GyroNoise(p['imu.gyro_noise_density'], p['imu.gyro_random_walk'],
+                                  p['imu.gyro_bias'], p['imu.seed'])
+        except ValueError as exc:
+            raise ValueError(f'parameter imu.{exc}') from None
+        try:
+            self.attitude_noise = AttitudeNoise(
+                p['star_tracker.cross_boresight_arcsec'],
+                p['star_tracker.about_boresight_arcsec'], p['star_tracker.boresight'],
+                p['star_tracker.seed'])
+        except ValueError as exc:
+            raise ValueError(f'parameter star_tracker.{exc}') from None
+        if self.imu and p.get('time_scale', 1.0) == 0.0:
+            raise ValueError('parameter time_scale = 0 freezes the scene: the imu needs '
+                             'scene time to pass (set time_scale > 0 or imu.enable false)')
+
+
+def _rate(name, value, publish_rate):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not math.isfinite(value) or not (value == 0 or 1e-3 <= value <= MAX_RATE):
+        raise ValueError(f'parameter {name} must be 0 (= publish_rate) or a rate in '
+                         f'[0.001, {MAX_RATE:g}] Hz, got {value!r}')
+    return float(value) if value else float(publish_rate)
+
+
+def sensor_settings(params):
+    """Validate the sensor and output parameters: a :class:`SensorSettings`.
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter and the rule it breaks.
+    """
+    try:
+        return SensorSettings(params)
+    except KeyError as exc:
+        raise ValueError(f'parameter {exc.args[0]} is missing') from None

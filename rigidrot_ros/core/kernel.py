@@ -40,7 +40,7 @@ import numpy as np
 
 __all__ = [
     'PrecisionError', 'SETUP_PREC', 'available_backends', 'ConstantKernel', 'AxisKernel',
-    'HyperKernel', 'PolyAngle',
+    'HyperKernel', 'PolyAngle', 'angle_prec', 'reduce_angle',
 ]
 
 #: Bits used for per-scene constants (exact float inputs carried far beyond float64).
@@ -60,32 +60,101 @@ def _four_pi():
 
 
 def reduce_angle(x):
-    """Reduce an mpf angle modulo 4 pi (the period of the half-angle) to a float."""
+    """Reduce an mpf angle modulo 4 pi (the period of the half-angle) to a float.
+
+    Exact to the current mp precision: the caller must carry ``log2 |x| + 70`` bits (see
+    :func:`angle_prec`) for the result to be good to float64.
+    """
     four_pi = _four_pi()
     return float(x - four_pi * mpmath.nint(x / four_pi))
+
+
+#: Bits carried beyond ``log2 |angle|`` so that an angle reduced modulo 4 pi keeps about
+#: 2^-70 rad absolute accuracy (constants and 4 pi have relative error ~2^-prec).
+ANGLE_GUARD_BITS = 80
+
+
+def angle_prec(mag):
+    """Working precision (bits) for an angle with ``|angle| <= 2^mag``: SETUP_PREC or more.
+
+    Rounded up to a multiple of 64 so that precisions (and their cached constants) repeat.
+    """
+    need = int(mag) + ANGLE_GUARD_BITS
+    if need <= SETUP_PREC:
+        return SETUP_PREC
+    return -(-need // 64) * 64
+
+
+def _t_mag(t):
+    """Return an integer e with ``|t| < 2^e`` (t a finite float; 0 gives a large negative e)."""
+    return math.frexp(t)[1] if t != 0.0 else -2000
+
+
+class _Exact:
+    """Per-scene constants computed from exact float inputs at any precision, cached.
+
+    ``source`` is a number (taken as exact) or a function of no arguments that computes
+    the value (or a list of values) at the current mpmath precision.
+    """
+
+    def __init__(self, source):
+        self._source = source
+        self._cache = {}
+
+    def at(self, prec):
+        """Return the value(s) at ``prec`` bits."""
+        v = self._cache.get(prec)
+        if v is None:
+            with mp.workprec(prec):
+                v = self._source() if callable(self._source) else self._source
+                v = [+mpmath.mpf(x) for x in v] if isinstance(v, (list, tuple)) \
+                    else +mpmath.mpf(v)
+            self._cache[prec] = v
+        return v
+
+
+def _mag(x):
+    """``mpmath.mag`` with -inf for zero replaced by a large negative integer."""
+    return -100000 if x == 0 else int(mpmath.mag(x))
 
 
 class PolyAngle:
     """Angle ``c1 t + c2 t^2`` (rad) evaluated from exact inputs, reduced modulo 4 pi.
 
     Float64 would carry ``|angle| * 1e-16`` rad of error (1e-6 rad at 1e10 rad); this
-    evaluates in ``SETUP_PREC`` bits and reduces before rounding to float.
+    evaluates in ``SETUP_PREC`` bits, or ``log2 |angle| + ANGLE_GUARD_BITS`` where the
+    angle is larger (a phase of 1e300 rad needs some 1080 bits), recomputing ``c1`` and
+    ``c2`` at that precision, and reduces before rounding to float.
+
+    Parameters
+    ----------
+    c1, c2 : mpf, float, or callable
+        Numbers (taken as exact), or functions of no argument computing the coefficient
+        from the scene's exact inputs at the current mpmath precision.
     """
 
     def __init__(self, c1, c2):
-        with mp.workprec(SETUP_PREC):
-            self.c1 = +mpmath.mpf(c1)
-            self.c2 = +mpmath.mpf(c2)
+        self._c = _Exact(lambda: [c() if callable(c) else c for c in (c1, c2)])
+        self.c1, self.c2 = self._c.at(SETUP_PREC)
         self.zero = (self.c1 == 0 and self.c2 == 0)
         self._c1f, self._c2f = float(self.c1), float(self.c2)
+        # |c1| < 2^e1, |c2| < 2^e2 (+1 for the rounding at SETUP_PREC)
+        self._e1, self._e2 = _mag(self.c1) + 1, _mag(self.c2) + 1
+
+    def prec_at(self, t):
+        """Working precision (bits) that :meth:`angle` uses at t."""
+        et = _t_mag(t)
+        return angle_prec(max(self._e1 + et, self._e2 + 2 * et) + 1)
 
     def angle(self, t):
         """Angle at t (float, reduced to (-2 pi, 2 pi])."""
         if self.zero:
             return 0.0
-        with mp.workprec(SETUP_PREC):
+        prec = self.prec_at(t)
+        c1, c2 = self._c.at(prec)
+        with mp.workprec(prec):
             tt = mpmath.mpf(t)
-            return reduce_angle((self.c1 + self.c2 * tt) * tt)
+            return reduce_angle((c1 + c2 * tt) * tt)
 
     def rate(self, t):
         """Time derivative of the angle at t, rad/s."""
@@ -93,42 +162,59 @@ class PolyAngle:
 
 
 class ConstantKernel:
-    """Constant angular velocity (no torque): ``q(t) = exp(omega t / 2)`` (Eq. 6, 62-64)."""
+    """Constant angular velocity (no torque): ``q(t) = exp(omega t / 2)`` (Eq. 6, 62-64).
+
+    ``omega`` is a list of numbers (exact) or a function computing it at the current
+    mpmath precision; the angle ``|omega| t`` is formed at the precision it needs.
+    """
 
     method = 'closed-form'
 
     def __init__(self, omega):
+        self._omega = _Exact(omega)
+        self._norm = _Exact(lambda: mpmath.sqrt(sum(w * w for w in self._omega.at(mp.prec))))
+        self.omega = self._omega.at(SETUP_PREC)
+        self.norm = self._norm.at(SETUP_PREC)
         with mp.workprec(SETUP_PREC):
-            self.omega = [mpmath.mpf(w) for w in omega]
-            self.norm = mpmath.sqrt(sum(w * w for w in self.omega))
             self.axis = (np.array([float(w / self.norm) for w in self.omega])
                          if self.norm != 0 else np.zeros(3))
+        self._e = _mag(self.norm) + 1
         self.prec = SETUP_PREC
 
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and its error bound (quaternion norm)."""
         if self.norm == 0:
             return np.array([0.0, 0.0, 0.0, 1.0]), 0.0
-        with mp.workprec(SETUP_PREC):
-            phi = reduce_angle(self.norm * mpmath.mpf(t))
+        prec = angle_prec(self._e + _t_mag(t))
+        norm = self._norm.at(prec)
+        with mp.workprec(prec):
+            phi = reduce_angle(norm * mpmath.mpf(t))
         h = 0.5 * phi
         return np.append(math.sin(h) * self.axis, math.cos(h)), 0.0
 
 
 class AxisKernel:
-    """Rotation about K3 only (p = q = 0): angle ``r0 t + U t^2 / 2``."""
+    """Rotation about K3 only (p = q = 0): angle ``r0 t + U t^2 / 2``.
+
+    ``r0`` and ``U`` are numbers (exact) or functions computing them at the current
+    mpmath precision. ``dropped`` (rad/s) is a transverse rate neglected by the caller;
+    it moves the attitude by at most ``dropped * |t|``, which the error bound includes.
+    """
 
     method = 'closed-form'
 
-    def __init__(self, r0, U):
-        with mp.workprec(SETUP_PREC):
-            self.angle = PolyAngle(r0, mpmath.mpf(U) / 2)
+    def __init__(self, r0, U, dropped=0.0):
+        def half_u():
+            return (U() if callable(U) else mpmath.mpf(U)) / 2
+        self.angle = PolyAngle(r0, half_u)
+        self.dropped = float(dropped)
         self.prec = SETUP_PREC
 
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and its error bound (quaternion norm)."""
         h = 0.5 * self.angle.angle(t)
-        return np.array([0.0, 0.0, math.sin(h), math.cos(h)]), 0.0
+        # an attitude error e moves the quaternion by 2 sin(e / 4) <= e / 2
+        return np.array([0.0, 0.0, math.sin(h), math.cos(h)]), 0.5 * self.dropped * abs(t)
 
 
 # ---------------------------------------------------------------------------------------
@@ -288,7 +374,7 @@ class HyperKernel:
         # Start where the magnitudes of the even/odd solutions (about e^{pi delta/4}
         # each) would leave the tolerance's bits plus guard bits.
         need = -math.log2(self.tol) + 2 * math.log2(math.e) * math.pi * float(self.delta) / 4
-        self.predicted = int(max(64, 24 + need))
+        self.predicted = int(max(64, 24 + min(need, 1e9)))
         self.prec = min(self.predicted, self.max_prec)
         if not self.backend.certified and self.predicted > self.max_prec:
             # mpmath would grind through hopeless precisions: say so at once
@@ -395,7 +481,8 @@ class HyperKernel:
             last_err = err
             if prec >= ceiling:
                 break
-            step = 32 if not math.isfinite(err) else max(32, int(math.log2(err / self.tol)) + 16)
+            step = 32 if not math.isfinite(err) else \
+                max(32, int(math.log2(err) - math.log2(self.tol)) + 16)
             prec = min(ceiling, max(prec + step, int(prec * 1.25)))
         if self.backend.certified and self.fallback:
             if self._fallback is None:

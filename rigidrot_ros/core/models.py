@@ -14,7 +14,9 @@ with ``k(t)`` the spherical-body kernel in K (starting at the identity) and
 """
 
 from dataclasses import dataclass
+from fractions import Fraction
 import math
+import reprlib
 
 import mpmath
 from mpmath import mp
@@ -24,12 +26,14 @@ from . import quaternion as quat
 from .adiabatic import ADIABATIC_DELTA, AdiabaticKernel
 from .dense import dense_spinor, Window
 from .kernel import (
-    available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle, SETUP_PREC,
+    angle_prec, available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle,
+    PrecisionError, SETUP_PREC,
 )
 from .scene import Scene
 from .taylor import TaylorKernel
 
-__all__ = ['solve', 'Solution', 'Samples', 'NoExactSolution', 'MODELS', 'FLOAT_FLOOR', 'MIN_TOL']
+__all__ = ['solve', 'Solution', 'Samples', 'NoExactSolution', 'MODELS', 'FLOAT_FLOOR', 'MIN_TOL',
+           'MAX_PREC']
 
 #: Attitude error (rad) of composing float64 quaternions, included in every error bound.
 FLOAT_FLOOR = 1e-14
@@ -43,7 +47,14 @@ DELTA_SWITCH = 80.0
 #: Batches of at least this many times use dense output (:mod:`.dense`): one exact
 #: evaluation per window, the exact solution's Taylor series inside it.
 DENSE_MIN = 8
+#: A transverse kernel rate (rad/s) at most this, and below 2^-200 of the rate scale, is
+#: neglected: the attitude bound then grows by rate * |t|, under 1e-14 rad to 1e16 s.
+DROP_RATE = 1e-30
 _SPINOR_KERNELS = (HyperKernel, TaylorKernel, AdiabaticKernel)
+
+#: The highest precision ceiling ``solve`` accepts, bits: Arb's 1F1 at 65536 bits takes
+#: seconds to minutes a value; beyond that a request would effectively hang.
+MAX_PREC = 65536
 
 #: Model names and the paper's results they evaluate.
 MODELS = {
@@ -174,6 +185,49 @@ def _classify(scene):
     return 'transverse-body', k
 
 
+#: Dense output runs its Taylor recurrence in float64: it is used only where the kernel's
+#: rates stay within [DENSE_RATES[0], DENSE_RATES[1]] rad/s (no overflow or underflow of
+#: the coefficients, whose scale is rate^n); elsewhere samples are evaluated one by one.
+DENSE_RATES = (1e-12, 1e12)
+
+
+def _dense_safe(kernel):
+    """Float (p, q, r0, U) of a spinor kernel whose rates suit dense output, else None."""
+    if not isinstance(kernel, _SPINOR_KERNELS):
+        return None
+    p, q, r0, u = (kernel.params[k] for k in ('p', 'q', 'r0', 'U'))
+    if not all(math.isfinite(v) for v in (p, q, r0, u)):
+        return None
+    d = math.hypot(p, q)
+    if max(d, math.sqrt(u)) < DENSE_RATES[0] or \
+            max(math.hypot(r0, d), math.sqrt(u)) > DENSE_RATES[1]:
+        return None
+    return d, r0, u
+
+
+def _transverse_sq(w0, m, i_t, i_3):
+    """Exact ``|omega_S x m|^2 / |m|^2`` (Fraction): the squared transverse rate in K."""
+    a = [Fraction(i_t) * Fraction(w0[0]), Fraction(i_t) * Fraction(w0[1]),
+         Fraction(i_3) * Fraction(w0[2])]                      # I omega_S
+    b = [Fraction(v) for v in m]
+    c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    return sum(x * x for x in c) / (sum(x * x for x in b) * Fraction(i_t) ** 2)
+
+
+def _mag(x):
+    """Return an integer e with ``|x| <= 2^e`` (a large negative one for zero)."""
+    return -100000 if x == 0 else int(mpmath.mag(x))
+
+
+def _times(t):
+    """``t`` as a float array, or ValueError naming the problem."""
+    try:
+        return np.asarray(t, dtype=float)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ValueError(f't must be a float or a 1-D array of floats (seconds), got '
+                         f'{reprlib.repr(t)}: {exc}') from None
+
+
 def _default_backend():
     return available_backends()[0]
 
@@ -213,51 +267,116 @@ class Solution:
         i_t, i_3 = inertia[(k + 1) % 3], inertia[k]        # transverse and axial moments
         if self.model == 'fixed-axis':
             i_t = i_3
-        with mp.workprec(SETUP_PREC):
+        w0f = tuple(float(v) for v in w0)                 # exact: perm only permutes
+        mf = tuple(float(v) for v in m)
+        cache = {}
+
+        def constants():
+            """Scene constants at the current mp precision, from the exact float inputs."""
+            c = cache.get(mp.prec)
+            if c is not None:
+                return c
             mI, mI3 = mpmath.mpf(i_t), mpmath.mpf(i_3)
-            ratio = mI3 / mI
-            A = (mI - mI3) / mI3
-            r0s = ratio * w0[2]                                # omega_S3(0) = (I3/I) r0
-            w_s = [mpmath.mpf(w0[0]), mpmath.mpf(w0[1]), r0s]
-            ms = [mpmath.mpf(v) for v in m]
-            # f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2); zero for a sphere and fixed axis
-            self._f = PolyAngle(A * r0s, A * ms[2] / mI / 2)
+            r0s = mI3 * w0f[2] / mI                            # omega_S3(0) = (I3/I) r0
+            w_s = [mpmath.mpf(w0f[0]), mpmath.mpf(w0f[1]), r0s]
+            ms = [mpmath.mpf(v) for v in mf]
             mnorm = mpmath.sqrt(sum(v * v for v in ms))
+            c = cache[mp.prec] = {
+                'mI': mI, 'mI3': mI3, 'w_s': w_s, 'ms': ms, 'mnorm': mnorm,
+                # f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2), A = (I - I3) / I3; zero for a
+                # sphere and a fixed axis
+                'c1': (mI - mI3) * w0f[2] / mI,
+                'c2': (mI - mI3) * ms[2] / (2 * mI * mI3),
+                'r0': mpmath.mpf(w0f[2]), 'rdot': ms[2] / mI3,
+            }
+            if mnorm != 0:
+                q_sk = _q_from_e3([v / mnorm for v in ms])
+                c['q_sk'] = q_sk
+                c['wk'] = _rotate_inverse(q_sk, w_s)          # omega_K = R_KS omega_S
+                c['U'] = mnorm / mI
+            return c
+
+        def const(name, i=None):
+            """Return a function giving one constant at the current mp precision."""
+            if i is None:
+                return lambda: constants()[name]
+            return lambda: constants()[name][i]
+
+        with mp.workprec(SETUP_PREC):
+            c = constants()
+            ms = c['ms']
+            mI, mI3 = c['mI'], c['mI3']
+            w_s = c['w_s']
+            accel = max(abs(v) for v in ms) / min(mI, mI3)
+            if accel > np.finfo(float).max:
+                raise ValueError(
+                    f'torque / inertia reaches {mpmath.nstr(accel, 3)} rad/s^2: beyond the '
+                    f'float64 range (1.8e308) of the body rates returned; scale torque '
+                    f'{scene.torque} N m or inertia {scene.inertia} kg m^2 into range')
+            self._f = PolyAngle(const('c1'), const('c2'))
+            kin = 0.0                        # rate of setup-rounding error, see _input_error
             if self.model == 'fixed-axis':
                 q_sk = [mpmath.mpf(0)] * 3 + [mpmath.mpf(1)]
-                kernel = AxisKernel(w0[2], ms[2] / mI3)
-            elif mnorm == 0:
+                kernel = AxisKernel(const('r0'), const('rdot'))
+            elif c['mnorm'] == 0:
                 q_sk = [mpmath.mpf(0)] * 3 + [mpmath.mpf(1)]
-                kernel = ConstantKernel(w_s)
+                kernel = ConstantKernel(const('w_s'))
             else:
-                q_sk = _q_from_e3([v / mnorm for v in ms])
-                wk = _rotate_inverse(q_sk, w_s)                # omega_K = R_KS omega_S
-                U = mnorm / mI
-                tiny = mpmath.mpf(2) ** (-200) * (1 + mpmath.sqrt(sum(v * v for v in wk)))
-                if abs(wk[0]) <= tiny and abs(wk[1]) <= tiny:
-                    kernel = AxisKernel(wk[2], U)
+                q_sk, wk, U = c['q_sk'], c['wk'], c['U']
+                wnorm = mpmath.sqrt(sum(v * v for v in wk))
+                # the transverse rate |omega_S x m| / |m| in K, exactly (rationals): at
+                # SETUP_PREC a tiny one would drown in the rounding of the K frame
+                d2 = _transverse_sq(w0f, mf, i_t, i_3)
+                dk = mpmath.sqrt(mpmath.mpf(d2.numerator) / d2.denominator)
+                prec_in = SETUP_PREC
+                if d2 and dk < wnorm * mpmath.mpf(2) ** (64 - SETUP_PREC):
+                    prec_in = angle_prec(_mag(wnorm) - _mag(dk) + SETUP_PREC - 16)
+                    with mp.workprec(prec_in):
+                        wk, U = constants()['wk'], constants()['U']
+
+                def inputs():
+                    """(p, q, r0, U) in K with at least prec_in bits."""
+                    with mp.workprec(max(mp.prec, prec_in)):
+                        c = constants()
+                        return c['wk'] + [c['U']]
+                # a transverse rate below 2^-200 of the motion's rate scale and below
+                # DROP_RATE is dropped; the kernel's bound grows by dk |t| (AxisKernel's
+                # 'dropped'), checked against tol at every sample
+                tiny = mpmath.mpf(2) ** (-200) * max(wnorm, mpmath.sqrt(U))
+                if d2 == 0 or (dk <= tiny and dk <= DROP_RATE):
+                    kernel = AxisKernel(const('wk', 2), const('U'), dropped=float(dk))
                 else:
                     # the kernel quaternion may take 2/5 of the attitude budget
                     ktol = 0.4 * (tol - FLOAT_FLOOR)
-                    delta = float((wk[0] ** 2 + wk[1] ** 2) / (4 * U))
+                    delta_mp = (wk[0] ** 2 + wk[1] ** 2) / (4 * U)
+                    delta = float(delta_mp)
                     # bits mpmath's 1F1 would need (HyperKernel's own predictor)
                     mp_bits = 24 - math.log2(ktol) + 2 * math.log2(math.e) * math.pi * delta / 4
                     mp_hopeless = backend == 'mpmath' and mp_bits > max_prec and \
                         'flint' in available_backends()
                     # the adiabatic series only where its estimate 10 eps^3 meets the tol
-                    adiabatic_ok = 10.0 / (4.0 * delta) ** 3 + 1e-15 <= ktol
+                    adiabatic_ok = 10 / (4 * delta_mp) ** 3 + mpmath.mpf(1e-15) <= ktol
                     if delta >= ADIABATIC_DELTA and adiabatic_ok:
-                        kernel = AdiabaticKernel(wk[0], wk[1], wk[2], U, tol=ktol)
-                    elif (backend == 'flint' and delta > DELTA_SWITCH) or mp_hopeless:
-                        kernel = TaylorKernel(wk[0], wk[1], wk[2], U, tol=ktol,
-                                              max_prec=max_prec)
+                        kernel = AdiabaticKernel(wk[0], wk[1], wk[2], U, tol=ktol,
+                                                 inputs=inputs)
                     else:
-                        kernel = HyperKernel(wk[0], wk[1], wk[2], U, backend, tol=ktol,
-                                             max_prec=max_prec)
+                        # inputs rounded at SETUP_PREC: relative error < 2^-(SETUP_PREC - 8)
+                        # of the rate, so the attitude drifts by at most that times
+                        # int |omega_K| dt <= |omega_K(0)| |t| + U t^2 / 2
+                        kin = 2.0 ** -(prec_in - 8)
+                        self._kin_rates = (float(wnorm), float(U))
+                        if (backend == 'flint' and delta > DELTA_SWITCH) or mp_hopeless:
+                            kernel = TaylorKernel(wk[0], wk[1], wk[2], U, tol=ktol,
+                                                  max_prec=max_prec)
+                        else:
+                            kernel = HyperKernel(wk[0], wk[1], wk[2], U, backend, tol=ktol,
+                                                 max_prec=max_prec)
+            self._kin = kin
             q_sk = np.array([float(v) for v in q_sk])
             self._w_s0 = np.array([float(v) for v in w_s])
             self._m_over_I = np.array([float(v / mI) for v in ms])
             self._rdot = float(ms[2] / mI3)                    # d r / dt = m3 / I3
+        self._dense_ok = _dense_safe(kernel)
         self._kernel = kernel
         self._window = None
         self._left = quat.multiply(
@@ -266,7 +385,72 @@ class Solution:
         self._right = q_b1b
         self._left_t, self._mid_t, self._right_t = (
             tuple(float(v) for v in x) for x in (self._left, self._mid, self._right))
-        self._r0 = w0[2]
+        self._r0 = float(w0[2])
+        self._floats = (float(self._w_s0[0]), float(self._w_s0[1]), float(self._m_over_I[0]),
+                        float(self._m_over_I[1]))
+
+    def _dense_at(self, tmax):
+        """Whether dense output is safe up to |t| = tmax (see DENSE_RATES)."""
+        if self._dense_ok is None:
+            return False
+        d, r0, u = self._dense_ok
+        return math.hypot(abs(r0) + u * tmax, d) <= DENSE_RATES[1]
+
+    def _input_error(self, t):
+        """Kernel component error from rounding its inputs at SETUP_PREC, at |t| (array).
+
+        The rate is off by at most ``kin`` of itself, so the attitude by at most
+        ``kin * int |omega_K| dt``; a quaternion moves by half the attitude angle.
+        """
+        if not self._kin:
+            return 0.0
+        w, u = self._kin_rates
+        at = np.abs(t)
+        with np.errstate(over='ignore', invalid='ignore'):
+            return 0.5 * self._kin * (w * at + 0.5 * u * at * at)
+
+    def _check(self, tt, err, omega):
+        """Raise where the bound exceeds tol or omega leaves the float range."""
+        bad = ~(err <= self.tol)
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            raise PrecisionError(
+                f'at t = {float(tt.flat[i])!r} s the attitude error bound '
+                f'{float(err.flat[i]):.3g} rad exceeds tol = {self.tol:.3g} rad: {self.model} '
+                f'evaluated by {self.method} ({self._why_bound()}). Use a shorter horizon or '
+                f'a larger tol.')
+        if not np.all(np.isfinite(omega)):
+            raise ValueError(self._omega_overflow(tt, omega))
+
+    def _why_bound(self):
+        if isinstance(self._kernel, AxisKernel) and self._kernel.dropped:
+            return (f'a transverse rate of {self._kernel.dropped:.3g} rad/s, below 2^-200 of '
+                    f'the rate, is neglected: the bound grows by that times |t|')
+        if self._kin:
+            return (f'its inputs carry {SETUP_PREC} bits, so the bound grows with the turn '
+                    f'|omega_K| |t| + U t^2 / 2 (limit about 1e55 rad)')
+        return 'the kernel bound'
+
+    def _omega_overflow(self, tt, omega):
+        bad = ~np.all(np.isfinite(np.reshape(omega, (-1, 3))), axis=-1)
+        i = int(np.argmax(bad))
+        return (f'at t = {float(np.reshape(tt, -1)[i])!r} s the body rate |omega0| + '
+                f'|torque / inertia| |t| exceeds the float64 range (1.8e308 rad/s): '
+                f'omega0 = {self.scene.omega0} rad/s, torque / inertia up to '
+                f'{float(np.max(np.abs(self._m_over_I))):.3g} rad/s^2. Use a shorter horizon.')
+
+    def _omega_b1(self, tt, f):
+        """Omega in B at times tt, f(tt) given (overflow gives inf, without a warning).
+
+        omega_S(t) = omega_S(0) + (m/I) t; omega_B' = (Rz(-f) omega_S_perp, r(t)).
+        """
+        with np.errstate(over='ignore', invalid='ignore'):
+            a = self._w_s0[0] + self._m_over_I[0] * tt
+            b = self._w_s0[1] + self._m_over_I[1] * tt
+            c, s = np.cos(f), np.sin(f)
+            w_b1 = np.stack([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * tt],
+                            axis=-1)
+            return w_b1 @ self._perm_T.T
 
     @property
     def method(self):
@@ -303,7 +487,7 @@ class Solution:
         >>> round(float(sol.at(math.pi).quaternion[2]), 12)
         1.0
         """
-        t_arr = np.asarray(t, dtype=float)
+        t_arr = _times(t)
         if t_arr.ndim == 0:
             return self._at_scalar(float(t_arr))
         if t_arr.ndim > 1:
@@ -312,25 +496,25 @@ class Solution:
         if not np.all(np.isfinite(tt)):
             raise ValueError('t must be finite')
         n = len(tt)
+        kin = self._input_error(tt)
+        if self._kin:                                          # refuse before the work
+            self._check(tt, 2.0 * kin + FLOAT_FLOOR, np.zeros(3))
         k = np.empty((n, 4))
         kerr = np.empty(n)
-        if n >= DENSE_MIN and isinstance(self._kernel, _SPINOR_KERNELS):
+        if n >= DENSE_MIN and self._dense_at(float(np.max(np.abs(tt)))):
             order = np.argsort(tt, kind='stable')
             k[order], kerr[order] = dense_spinor(self._kernel, tt[order])
         else:
             for i, ti in enumerate(tt):
                 k[i], kerr[i] = self._kernel.evaluate(float(ti))
+        kerr = kerr + kin
         f = np.array([self._f.angle(float(ti)) for ti in tt])
         q = quat.multiply(quat.multiply(self._left, k),
                           quat.multiply(quat.multiply(self._mid, quat.about_z(f)), self._right))
-        # omega_S(t) = omega_S(0) + (m/I) t; omega_B' = (Rz(-f) omega_S_perp, r(t))
-        a = self._w_s0[0] + self._m_over_I[0] * tt
-        b = self._w_s0[1] + self._m_over_I[1] * tt
-        c, s = np.cos(f), np.sin(f)
-        w_b1 = np.stack([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * tt], axis=-1)
-        omega = w_b1 @ self._perm_T.T
+        omega = self._omega_b1(tt, f)
         # a component error e of a unit quaternion moves the attitude by <= 2 asin(e)
         err = 2.0 * np.arcsin(np.minimum(kerr, 1.0)) + FLOAT_FLOOR
+        self._check(tt, err, omega)
         return Samples(tt, q, omega, err)
 
     def omega_at(self, t):
@@ -339,17 +523,18 @@ class Solution:
         The dynamics alone, in closed form (Eq. 39, 47, 56, 58): no special function is
         evaluated, so this is cheap.
         """
-        tt = np.asarray(t, dtype=float)
+        tt = _times(t)
+        if not np.all(np.isfinite(tt)):
+            raise ValueError('t must be finite')
         f = np.vectorize(self._f.angle, otypes=[float])(tt)
-        a = self._w_s0[0] + self._m_over_I[0] * tt
-        b = self._w_s0[1] + self._m_over_I[1] * tt
-        c, s = np.cos(f), np.sin(f)
-        w_b1 = np.stack([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * tt], axis=-1)
-        return w_b1 @ self._perm_T.T
+        omega = self._omega_b1(tt, f)
+        if not np.all(np.isfinite(omega)):
+            raise ValueError(self._omega_overflow(tt, omega))
+        return omega
 
     def _kernel_scalar(self, t):
         """Kernel at one time; successive times reuse the current dense-output window."""
-        if not isinstance(self._kernel, _SPINOR_KERNELS):
+        if not self._dense_at(abs(t)):
             return self._kernel.evaluate(t)
         win = self._window
         if win is None or not win.contains(t):
@@ -362,17 +547,28 @@ class Solution:
         """:meth:`at` for one time, in plain floats (the node's per-tick path)."""
         if not math.isfinite(t):
             raise ValueError('t must be finite')
+        kin = 0.0
+        if self._kin:                                          # python floats: fast, no warning
+            w, u = self._kin_rates
+            kin = 0.5 * self._kin * (w * abs(t) + 0.5 * u * t * t)
+            if not 2.0 * kin + FLOAT_FLOOR <= self.tol:       # refuse before the work
+                self._check(np.asarray(t), np.float64(2.0 * kin + FLOAT_FLOOR), np.zeros(3))
         k, kerr = self._kernel_scalar(t)
+        kerr = kerr + kin
         f = self._f.angle(t)
         c, s = math.cos(f), math.sin(f)
         mul = quat.multiply_floats
         q = mul(mul(self._left_t, tuple(k)),
                 mul(mul(self._mid_t, quat.axis_floats(2, f)), self._right_t))
-        a = self._w_s0[0] + self._m_over_I[0] * t
-        b = self._w_s0[1] + self._m_over_I[1] * t
-        w_b1 = np.array([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * t])
+        w0x, w0y, mx, my = self._floats
+        a, b = w0x + mx * t, w0y + my * t                    # python floats: inf, no warning
+        w_b1 = (a * c + b * s, -a * s + b * c, self._r0 + self._rdot * t)
         err = 2.0 * math.asin(min(kerr, 1.0)) + FLOAT_FLOOR
-        return Samples(np.asarray(t), np.array(q), self._perm_T @ w_b1, np.float64(err))
+        if not (err <= self.tol and math.isfinite(w_b1[0] + w_b1[1] + w_b1[2])):
+            with np.errstate(over='ignore', invalid='ignore'):
+                self._check(np.asarray(t), np.float64(err), np.array(w_b1) @ self._perm_T.T)
+        omega = self._perm_T @ np.array(w_b1)
+        return Samples(np.asarray(t), np.array(q), omega, np.float64(err))
 
 
 def solve(scene, tol=1e-12, backend=None, max_prec=4096):
@@ -386,7 +582,8 @@ def solve(scene, tol=1e-12, backend=None, max_prec=4096):
     backend : {None, 'flint', 'mpmath'}
         Special-function backend; None picks the fastest installed (flint, else mpmath).
     max_prec : int
-        Ceiling on the working precision of the special functions, bits.
+        Ceiling on the working precision of the special functions, bits (64 to
+        ``MAX_PREC`` = 65536).
 
     Returns
     -------
@@ -406,8 +603,12 @@ def solve(scene, tol=1e-12, backend=None, max_prec=4096):
     """
     if not isinstance(scene, Scene):
         raise TypeError(f'scene must be a rigidrot_ros.core.Scene, got {type(scene).__name__}')
-    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not math.isfinite(tol):
-        raise ValueError(f'tol must be a finite number of radians, got {tol!r}')
+    try:
+        tol_f = float(tol) if isinstance(tol, (int, float)) else math.nan
+    except OverflowError:                                       # int(10**400)
+        tol_f = math.inf
+    if isinstance(tol, bool) or not math.isfinite(tol_f):
+        raise ValueError(f'tol must be a finite number of radians, got {reprlib.repr(tol)}')
     if tol < MIN_TOL:
         raise ValueError(f'tol = {tol!r} rad is below {MIN_TOL} rad, twice the float64 '
                          f'floor of the returned samples')
@@ -415,6 +616,8 @@ def solve(scene, tol=1e-12, backend=None, max_prec=4096):
         backend = _default_backend()
     if backend not in ('flint', 'mpmath'):
         raise ValueError(f"backend must be None, 'flint' or 'mpmath', got {backend!r}")
-    if not isinstance(max_prec, int) or max_prec < 64:
-        raise ValueError(f'max_prec must be an integer >= 64 bits, got {max_prec!r}')
-    return Solution(scene, float(tol), backend, max_prec)
+    if isinstance(max_prec, bool) or not isinstance(max_prec, int) or \
+            not 64 <= max_prec <= MAX_PREC:
+        raise ValueError(f'max_prec must be an integer from 64 to {MAX_PREC} bits (a higher '
+                         f'ceiling could run for hours), got {max_prec!r}')
+    return Solution(scene, tol_f, backend, max_prec)

@@ -8,6 +8,7 @@ rotates body vectors into N (``v_N = R_NB @ v_B``).
 from dataclasses import dataclass
 import math
 import numbers
+import reprlib
 
 __all__ = ['Scene', 'TORQUE_FRAMES']
 
@@ -17,13 +18,23 @@ TORQUE_FRAMES = ('body', 'virtual')
 def _vector(name, value, size):
     if isinstance(value, (str, bytes)) or not hasattr(value, '__len__'):
         raise ValueError(f'{name} must be a sequence of {size} numbers, got {value!r}')
-    if len(value) != size:
-        raise ValueError(f'{name} must have {size} components, got {len(value)}')
+    try:
+        count = len(value)
+    except TypeError:
+        count = None
+    if count is None or isinstance(value, dict):
+        raise ValueError(f'{name} must be a sequence of {size} numbers, got {value!r}')
+    if count != size:
+        raise ValueError(f'{name} must have {size} components, got {count}')
     out = []
     for i, v in enumerate(value):
         if isinstance(v, bool) or not isinstance(v, numbers.Real):
             raise ValueError(f'{name}[{i}] must be a real number, got {v!r}')
-        v = float(v)
+        try:
+            v = float(v)
+        except (OverflowError, ValueError, TypeError):      # e.g. int(10**400)
+            raise ValueError(f'{name}[{i}] = {reprlib.repr(v)} is beyond the float64 range '
+                             f'(|x| <= 1.8e308)') from None
         if not math.isfinite(v):
             raise ValueError(f'{name}[{i}] must be finite, got {v!r}')
         out.append(v)
@@ -83,7 +94,7 @@ class Scene:
                     f'I{j + 1} + I{k + 1} = {inertia[j] + inertia[k]!r} < I{i + 1} = '
                     f'{inertia[i]!r}; no rigid body has these principal moments')
         torque = _vector('torque', self.torque, 3)
-        if self.torque_frame not in TORQUE_FRAMES:
+        if not isinstance(self.torque_frame, str) or self.torque_frame not in TORQUE_FRAMES:
             raise ValueError(
                 f'torque_frame must be one of {TORQUE_FRAMES}, got {self.torque_frame!r}')
         omega0 = _vector('omega0', self.omega0, 3)

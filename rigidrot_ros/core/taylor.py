@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-__all__ = ['TaylorKernel']
+__all__ = ['TaylorKernel', 'MAX_STEP_TURN', 'MAX_SEED_TURN']
 
 #: A query that would step across more than HYBRID_TURN radians first tries one certified
 #: 1F1 evaluation and, if it succeeds, seeds a checkpoint there. Its bit budget grows with
@@ -35,6 +35,12 @@ __all__ = ['TaylorKernel']
 #: against 16 s, 100 s and 293 s of stepping.
 HYBRID_TURN = 2e4
 HYBRID_BITS = ((2e5, 4096), (2e6, 16384), (math.inf, 32768))
+#: Limits on a far query (rad turned from the nearest checkpoint): stepping across more
+#: than MAX_STEP_TURN rad (about 0.27 ms per 10 rad: a minute or so) is refused with a
+#: PrecisionError naming t, and a 1F1 seed is not even tried past MAX_SEED_TURN rad
+#: (32768-bit evaluations take many seconds; its phase would need more bits).
+MAX_STEP_TURN = 2e6
+MAX_SEED_TURN = 1e9
 
 
 class TaylorKernel:
@@ -95,7 +101,9 @@ class TaylorKernel:
         ah = abs(h)
         a_prev, b_prev = acb(0), acb(0)
         a_n, b_n = state
-        m_prev, m_n = 0.0, 1.0 + 1e-9                   # majorant: |state| <= 1 + error
+        # majorant M_n = m_n |h|^n (scale-free: R |h| <= 40, U h^2 <= 64, no overflow)
+        m_prev, m_n = 0.0, 1.0 + 1e-9                   # |state| <= 1 + error
+        rh, uh2 = r * ah, u * ah * ah
         sum_a, sum_b = a_n, b_n
         hp = arb(h)
         hn = arb(1)
@@ -104,15 +112,15 @@ class TaylorKernel:
         while True:
             a_next = c['i2'] * (xk * a_n + c['Dbar'] * b_n + c['U'] * a_prev) / (n + 1)
             b_next = c['i2'] * (c['D'] * a_n - xk * b_n - c['U'] * b_prev) / (n + 1)
-            m_next = (0.5 * r * m_n + 0.5 * u * m_prev) / (n + 1)
+            m_next = (0.5 * rh * m_n + 0.5 * uh2 * m_prev) / (n + 1)
             a_prev, b_prev, a_n, b_n = a_n, b_n, a_next, b_next
             m_prev, m_n = m_n, m_next
             n += 1
             hn = hn * hp
             sum_a += a_n * hn
             sum_b += b_n * hn
-            qn = (0.5 * r * ah + 0.5 * u * ah * ah) / (n + 1)
-            term = max(m_n * ah ** n, m_prev * ah ** (n - 1))
+            qn = (0.5 * rh + 0.5 * uh2) / (n + 1)
+            term = max(m_n, m_prev)
             if qn <= 0.25 and term * 4 <= eps_bits:
                 break
         tail = 4.0 * term                               # geometric, ratio <= 1/2
@@ -173,10 +181,21 @@ class TaylorKernel:
         i = bisect.bisect_right(key, sign * t) - 1
         tk, st = times[i], states[i]
         turn = max(self._rate(tk), self._rate(t)) * abs(t - tk)
-        if turn > HYBRID_TURN:
+        if turn > HYBRID_TURN and turn <= MAX_SEED_TURN:
             seeded = self._seed_by_1f1(t, sign, turn)
             if seeded is not None:
                 return seeded
+        if not turn <= MAX_STEP_TURN:
+            from .kernel import PrecisionError
+            p = self.params
+            raise PrecisionError(
+                f't = {t!r} s is out of reach: the certified Taylor continuation would '
+                f'step across {turn:.3g} rad from its nearest checkpoint (t = {tk!r} s), '
+                f'beyond its limit of {MAX_STEP_TURN:.3g} rad (about a minute of CPU), and '
+                f'no 1F1 evaluation within {HYBRID_BITS[-1][1]} bits could seed it there '
+                f'(kernel p, q, r0 = {p["p"]:.4g}, {p["q"]:.4g}, {p["r0"]:.4g} rad/s, '
+                f'U = {p["U"]:.4g} rad/s^2). Use a shorter horizon (a larger torque / '
+                f'inertia or a smaller spin turns less per second).')
         with self.flint.ctx.workprec(self.prec):
             while tk != t:
                 h = self._hmax(tk)

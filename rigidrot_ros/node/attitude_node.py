@@ -5,23 +5,38 @@ Topics (relative names, so namespaces and remapping apply):
   = ``frame_id`` (the inertial frame N).
 - ``angular_velocity`` (geometry_msgs/Vector3Stamped): omega of B relative to N, in B,
   rad/s, header.frame_id = ``body_frame_id``.
+- ``transform`` (geometry_msgs/TransformStamped, parent N, child B; ``transform.enable``),
+  ``odom`` (nav_msgs/Odometry; ``odom.enable``), ``markers``
+  (visualization_msgs/MarkerArray; ``markers.enable``): the same truth for evo, odometry
+  consumers and Foxglove/RViz. All off by default: the default output stays two topics.
+- ``imu`` (sensor_msgs/Imu), ``delta_angle`` and ``delta_rotation``
+  (geometry_msgs/Vector3Stamped, rad, in B) with ``imu.enable``: a rate-integrating gyro
+  with seeded noise and bias, and the exact increments over each gyro interval.
+- ``star_tracker`` (geometry_msgs/PoseWithCovarianceStamped) with ``star_tracker.enable``.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
 - ``~/run`` (std_msgs/String, transient-local, depth 1): the run description as JSON
   (scene, model, method, tol, backend, ``start_ns``, ``time_scale``, version, topics),
   published with the first tick of each run, so a bag of any recorder can be scored.
 Service ``~/reset`` (std_srvs/Trigger): restart at t = 0 from the current parameters.
 
-Both messages of a tick carry the same stamp: the clock time that the scene time
-``t = (now - t_start) * time_scale`` was computed for (``use_sim_time`` works).
+All messages of a tick carry the same stamp: the clock time that the scene time
+``t = (now - t_start) * time_scale`` was computed for (``use_sim_time`` works). The
+sensors sample their own fixed grids ``t_start + k / rate`` (so a seed reproduces the
+stream bit for bit); each sample's messages share its grid stamp. Messages are built by
+:mod:`rigidrot_ros.io.messages`.
 """
 
+import difflib
 import json
 import math
 import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
+from geometry_msgs.msg import (
+    PoseWithCovarianceStamped, QuaternionStamped, TransformStamped, Vector3Stamped,
+)
+from nav_msgs.msg import Odometry
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rcl_interfaces.msg import ParameterType, SetParametersResult
@@ -31,15 +46,21 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
 
 from rigidrot_ros import __version__
 from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
+from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter
 from rigidrot_ros.io.recorder import Recorder, type_name_of
 from rigidrot_ros.node.spin import spin_until_shutdown
-from rigidrot_ros.settings import load_defaults, scene_from_params, SCENE_KEYS, solver_options
+from rigidrot_ros.sensors import Gyro, StarTracker
+from rigidrot_ros.settings import (
+    load_defaults, OUTPUT_KEYS, scene_from_params, SCENE_KEYS, sensor_settings, solver_options,
+)
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
 
@@ -76,13 +97,61 @@ _DESCRIPTIONS = {
     'record_topics': ('further topics to record raw as they arrive, e.g. an estimator '
                       'output; NAME:pkg/msg/Type subscribes at once, so the first message '
                       'is kept (read only)', ParameterType.PARAMETER_STRING_ARRAY),
+    'imu.enable': ('publish a gyro as sensor_msgs/Imu on imu, and the exact delta_angle and '
+                   'delta_rotation (Vector3Stamped, rad, in B) over each sample interval '
+                   '(read only)', ParameterType.PARAMETER_BOOL),
+    'imu.rate': ('gyro sample rate, Hz of clock time; 0 = publish_rate; applied at the next '
+                 '~/reset', ParameterType.PARAMETER_DOUBLE),
+    'imu.gyro_noise_density': ('angle random walk sigma_v, rad/s/sqrt(Hz) (Kalibr '
+                               'gyroscope_noise_density; Gazebo <stddev> = sigma_v / '
+                               'sqrt(dt)); applied at the next ~/reset',
+                               ParameterType.PARAMETER_DOUBLE),
+    'imu.gyro_random_walk': ('rate random walk sigma_u of the bias, rad/s^2/sqrt(Hz) (Kalibr '
+                             'gyroscope_random_walk); applied at the next ~/reset',
+                             ParameterType.PARAMETER_DOUBLE),
+    'imu.gyro_bias': ('initial gyro bias [bx, by, bz], rad/s, in B; applied at the next '
+                      '~/reset', _DOUBLE_ARRAY),
+    'imu.seed': ('seed of the gyro noise: the same seed gives the same stream; applied at '
+                 'the next ~/reset', ParameterType.PARAMETER_INTEGER),
+    'star_tracker.enable': ('publish a star tracker as geometry_msgs/PoseWithCovarianceStamped '
+                            'on star_tracker (read only)', ParameterType.PARAMETER_BOOL),
+    'star_tracker.rate': ('star tracker sample rate, Hz of clock time; 0 = publish_rate; '
+                          'applied at the next ~/reset', ParameterType.PARAMETER_DOUBLE),
+    'star_tracker.cross_boresight_arcsec': ('1-sigma error across the boresight, arc seconds; '
+                                            'applied at the next ~/reset',
+                                            ParameterType.PARAMETER_DOUBLE),
+    'star_tracker.about_boresight_arcsec': ('1-sigma error about the boresight (roll), arc '
+                                            'seconds; applied at the next ~/reset',
+                                            ParameterType.PARAMETER_DOUBLE),
+    'star_tracker.boresight': ('boresight axis [x, y, z] in B (normalised); applied at the '
+                               'next ~/reset', _DOUBLE_ARRAY),
+    'star_tracker.seed': ('seed of the star tracker noise; applied at the next ~/reset',
+                          ParameterType.PARAMETER_INTEGER),
+    'odom.enable': ('publish the truth as nav_msgs/Odometry on odom (read only)',
+                    ParameterType.PARAMETER_BOOL),
+    'transform.enable': ('publish the truth as geometry_msgs/TransformStamped on transform '
+                         '(read only)', ParameterType.PARAMETER_BOOL),
+    'markers.enable': ('publish the body as visualization_msgs/MarkerArray on markers (read '
+                       'only)', ParameterType.PARAMETER_BOOL),
 }
-_READ_ONLY = ('qos_depth', 'record', 'record_path', 'record_topics')
+_READ_ONLY = ('qos_depth', 'record', 'record_path', 'record_topics') + OUTPUT_KEYS
 _RANGES = {
     'tol': FloatingPointRange(from_value=2e-14, to_value=1.0),
     'publish_rate': FloatingPointRange(from_value=1e-3, to_value=1e4),
     'time_scale': FloatingPointRange(from_value=0.0, to_value=1e9),
+    'imu.rate': FloatingPointRange(from_value=0.0, to_value=1e4),
+    'imu.gyro_noise_density': FloatingPointRange(from_value=0.0, to_value=1.0),
+    'imu.gyro_random_walk': FloatingPointRange(from_value=0.0, to_value=1.0),
+    'star_tracker.rate': FloatingPointRange(from_value=0.0, to_value=1e4),
+    'star_tracker.cross_boresight_arcsec': FloatingPointRange(from_value=0.0, to_value=3600.0),
+    'star_tracker.about_boresight_arcsec': FloatingPointRange(from_value=0.0, to_value=3600.0),
 }
+_SEEDS = ('imu.seed', 'star_tracker.seed')
+#: Parameters rclpy declares by itself.
+_BUILTIN = ('use_sim_time',)
+_EPS = float(np.finfo(float).eps)
+#: Work one sensor callback may do before it leaves due samples to the next one, s.
+_BUDGET_S = 0.02
 
 
 class SceneError(ValueError):
@@ -127,7 +196,13 @@ class _Stats:
 
     def __init__(self):
         self.times = []
+        self.tick_times = []
         self.published = 0
+        self.imu_samples = 0
+        self.star_samples = 0
+        self.skipped = 0
+        self.skipped_reported = 0
+        self.increment_bound = 0.0
         self.late = 0
         self.missed = 0
         self.last_tick = None
@@ -135,9 +210,13 @@ class _Stats:
         self.last_error = ''
 
     def window(self):
+        """Return evaluation seconds (mean, p99, max) since the last call, then the ticks'."""
         t = np.array(self.times) if self.times else np.zeros(1)
+        w = np.array(self.tick_times) * 1e-9 if self.tick_times else np.zeros(1)
         self.times = []
-        return float(t.mean()), float(np.percentile(t, 99)), float(t.max())
+        self.tick_times = []
+        return (float(t.mean()), float(np.percentile(t, 99)), float(t.max()),
+                float(w.mean()), float(np.percentile(w, 99)), float(w.max()))
 
 
 class AttitudeNode(Node):
@@ -153,6 +232,9 @@ class AttitudeNode(Node):
                 desc.floating_point_range = [_RANGES[name]]
             if name == 'qos_depth':
                 desc.integer_range = [IntegerRange(from_value=1, to_value=10000, step=1)]
+            if name in _SEEDS:
+                desc.integer_range = [IntegerRange(from_value=0, to_value=2 ** 63 - 1,
+                                                   step=1)]
             value = defaults[name]
             if name == 'record_topics' and not value:
                 value = ['']      # an empty list carries no type; empty names are ignored
@@ -160,19 +242,36 @@ class AttitudeNode(Node):
                 self.declare_parameter(name, value, desc)
             except ParameterException as exc:      # an override outside its declared range
                 raise SceneError(f'parameter {name}: {exc}') from None
+        self._warn_unknown_overrides()
         try:
             self._solution = build_solution(self._values())
+            self._sensors = sensor_settings(self._values())
         except ValueError as exc:
             raise SceneError(str(exc)) from None
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
         self._last_sample = None
         self._stats = _Stats()
+        self._make_sensors()
         self.add_on_set_parameters_callback(self._on_set)
         qos = QoSProfile(depth=self.get_parameter('qos_depth').value,
                          reliability=ReliabilityPolicy.RELIABLE)
         self._pub_att = self.create_publisher(QuaternionStamped, 'attitude', qos)
         self._pub_rate = self.create_publisher(Vector3Stamped, 'angular_velocity', qos)
+        cfg = self._sensors
+        self._pub_tf = (self.create_publisher(TransformStamped, 'transform', qos)
+                        if cfg.transform else None)
+        self._pub_odom = self.create_publisher(Odometry, 'odom', qos) if cfg.odom else None
+        self._pub_markers = (self.create_publisher(MarkerArray, 'markers', qos)
+                             if cfg.markers else None)
+        self._pub_imu = self._pub_da = self._pub_dr = self._pub_star = None
+        if cfg.imu:
+            self._pub_imu = self.create_publisher(Imu, 'imu', qos)
+            self._pub_da = self.create_publisher(Vector3Stamped, 'delta_angle', qos)
+            self._pub_dr = self.create_publisher(Vector3Stamped, 'delta_rotation', qos)
+        if cfg.star_tracker:
+            self._pub_star = self.create_publisher(PoseWithCovarianceStamped, 'star_tracker',
+                                                   qos)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._srv = self.create_service(Trigger, '~/reset', self._on_reset)
         # the run description: JSON on ~/run, kept for late joiners (see _record_tick)
@@ -186,10 +285,46 @@ class AttitudeNode(Node):
             self._start_recording()
         self._timer = None
         self._make_timer(self.get_parameter('publish_rate').value)
+        self._imu_timer = self._star_timer = None
+        self._make_sensor_timers()
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f'running model {self._solution.model} ({self._solution.method}) at '
             f'{self._period_hz:g} Hz')
+
+    def _warn_unknown_overrides(self):
+        """Warn about ``-p name:=value`` overrides that name no parameter of this node."""
+        known = set(_DESCRIPTIONS) | set(_BUILTIN)
+        unknown = sorted(n for n in getattr(self, '_parameter_overrides', {})
+                         if n not in known)
+        for name in unknown:
+            close = difflib.get_close_matches(name, sorted(known), n=1)
+            hint = f' (did you mean {close[0]}?)' if close else ''
+            self.get_logger().warning(
+                f'unknown parameter {name!r} ignored{hint}: attitude_node declares no such '
+                f'parameter')
+        self.unknown_overrides = unknown
+
+    def _make_sensors(self):
+        """Sensors of the current run, from the validated settings (fresh noise streams)."""
+        cfg = self._sensors
+        self._gyro = Gyro(self._solution, cfg.gyro) if cfg.imu else None
+        self._star = (StarTracker(self._solution, cfg.attitude_noise)
+                      if cfg.star_tracker else None)
+        self._imu_k = 0             # the last gyro sample published (k = 0 is t = 0)
+        self._star_k = -1           # the last star tracker sample published
+
+    def _make_sensor_timers(self):
+        for timer in (self._imu_timer, self._star_timer):
+            if timer is not None:
+                self.destroy_timer(timer)
+        self._imu_timer = self._star_timer = None
+        cfg = self._sensors
+        if cfg.imu:
+            self._imu_timer = self.create_timer(1.0 / cfg.imu_rate, self._imu_tick)
+        if cfg.star_tracker:
+            self._star_timer = self.create_timer(1.0 / cfg.star_tracker_rate,
+                                                 self._star_tick)
 
     # -- parameters -------------------------------------------------------------------------
     def _values(self, overrides=()):
@@ -210,6 +345,7 @@ class AttitudeNode(Node):
                 build_solution(candidate)          # validate the whole scene, keep running
             else:
                 _check_run_params(candidate)
+            sensor_settings(candidate)             # the sensors, and time_scale against them
         except ValueError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         if 'publish_rate' in names:
@@ -224,7 +360,47 @@ class AttitudeNode(Node):
         self._timer = self.create_timer(self._period, self._tick)
 
     # -- publishing -------------------------------------------------------------------------
+    def _start(self, now):
+        """Start the run's clock at the first callback that needs it."""
+        if self._t_start is None:
+            self._t_start = now
+            self._run_pending = True        # _record_tick announces the run on ~/run
+
+    def _scene_time(self, ns):
+        return (ns - self._t_start.nanoseconds) * 1e-9 * self._time_scale
+
+    def _publish(self, pairs):
+        """Publish ``(publisher, msg)`` pairs; False if the context shut down meanwhile."""
+        try:
+            for pub, msg in pairs:
+                pub.publish(msg)
+        except _rclpy.RCLError:
+            if self.context.ok():
+                raise
+            return False            # shut down (SIGINT/SIGTERM) while this callback ran
+        return True
+
+    def _truth_messages(self, stamp, s):
+        """Build the truth of one sample as ``(publisher, msg)`` pairs, all with one stamp."""
+        frame = self.get_parameter('frame_id').value
+        body = self.get_parameter('body_frame_id').value
+        q, omega = s.quaternion, s.omega
+        out = [(self._pub_att, msgs.attitude(stamp, frame, q)),
+               (self._pub_rate, msgs.vector(stamp, body, omega))]
+        if self._pub_tf is not None:
+            out.append((self._pub_tf, msgs.transform(stamp, frame, body, q)))
+        if self._pub_odom is not None:
+            rate_sd = 32.0 * _EPS * float(np.linalg.norm(omega))
+            out.append((self._pub_odom, msgs.odometry(
+                stamp, frame, body, q, omega, attitude_variance=float(s.error_bound) ** 2,
+                rate_variance=rate_sd ** 2)))
+        if self._pub_markers is not None:
+            out.append((self._pub_markers, msgs.body_markers(
+                stamp, frame, q, self._solution.scene.inertia)))
+        return out
+
     def _tick(self):
+        c_tick = time.perf_counter_ns()
         now = self.get_clock().now()
         st = self._stats
         if st.last_tick is not None:
@@ -233,44 +409,115 @@ class AttitudeNode(Node):
                 st.late += 1
                 st.missed += max(0, int(round(gap / self._period)) - 1)
         st.last_tick = now
-        if self._t_start is None:
-            self._t_start = now
-        t = (now - self._t_start).nanoseconds * 1e-9 * self._time_scale
+        self._start(now)
+        t = self._scene_time(now.nanoseconds)
         c0 = time.perf_counter()
         try:
             s = self._solution.at(t)
         except (PrecisionError, ValueError) as exc:
-            st.errors += 1
-            st.last_error = str(exc)
-            self.get_logger().error(f'evaluation failed at t = {t} s: {exc}',
-                                    throttle_duration_sec=1.0)
+            self._failed(t, exc)
             return
         st.times.append(time.perf_counter() - c0)
-        stamp = now.to_msg()
-        att = QuaternionStamped()
-        att.header.stamp = stamp
-        att.header.frame_id = self.get_parameter('frame_id').value
-        qx, qy, qz, qw = (float(v) for v in s.quaternion)
-        att.quaternion.x, att.quaternion.y, att.quaternion.z, att.quaternion.w = qx, qy, qz, qw
-        rate = Vector3Stamped()
-        rate.header.stamp = stamp
-        rate.header.frame_id = self.get_parameter('body_frame_id').value
-        rate.vector.x, rate.vector.y, rate.vector.z = (float(v) for v in s.omega)
-        try:
-            self._pub_att.publish(att)
-            self._pub_rate.publish(rate)
-        except _rclpy.RCLError:
-            if self.context.ok():
-                raise
-            return                  # shut down (SIGINT/SIGTERM) while this tick ran
+        pairs = self._truth_messages(now.to_msg(), s)
+        if not self._publish(pairs):
+            return
+        st.tick_times.append(time.perf_counter_ns() - c_tick)
         st.published += 1
         self._last_sample = (t, s)
-        self._record_tick(now.nanoseconds, [(self._pub_att.topic_name, att),
-                                            (self._pub_rate.topic_name, rate)])
+        self._record_tick(now.nanoseconds, [(pub.topic_name, m) for pub, m in pairs])
+
+    def _failed(self, t, exc):
+        st = self._stats
+        st.errors += 1
+        st.last_error = str(exc)
+        self.get_logger().error(f'evaluation failed at t = {t} s: {exc}',
+                                throttle_duration_sec=1.0)
+
+    def _grid(self, rate, last, now_ns):
+        """Sample indices due on the grid ``t_start + k / rate`` (clock): (first, last).
+
+        A backlog of more than a second (a clock jump) restarts the grid's chain at the
+        newest sample; the skipped samples are counted in the diagnostics.
+        """
+        start = self._t_start.nanoseconds
+        period_ns = 1e9 / rate
+        k = int((now_ns - start) / period_ns)
+        while start + round((k + 1) * period_ns) <= now_ns:
+            k += 1
+        while k > 0 and start + round(k * period_ns) > now_ns:
+            k -= 1
+        cap = max(10, int(rate))
+        first = last + 1
+        if k - last > cap:
+            self._stats.skipped += k - last - 1
+            first = k
+        return first, k
+
+    def _stamp_ns(self, rate, k):
+        return self._t_start.nanoseconds + round(k * 1e9 / rate)
+
+    def _imu_tick(self):
+        now = self.get_clock().now()
+        self._start(now)
+        rate = self._sensors.imu_rate
+        first, last = self._grid(rate, self._imu_k, now.nanoseconds)
+        if last < first:
+            return
+        body = self.get_parameter('body_frame_id').value
+        pairs = []
+        c0 = time.perf_counter()
+        for k in range(first, last + 1):
+            if time.perf_counter() - c0 > _BUDGET_S:
+                last = k - 1        # the rest stays due: the next callback goes on
+                break
+            ns1 = self._stamp_ns(rate, k)
+            t0, t1 = self._scene_time(self._stamp_ns(rate, k - 1)), self._scene_time(ns1)
+            try:
+                r = self._gyro.read(t0, t1)
+            except (PrecisionError, ValueError) as exc:
+                self._failed(t1, exc)
+                continue
+            stamp = msgs.stamp(ns1)
+            pairs += [(self._pub_imu, msgs.imu(stamp, body, r.omega, r.variance)),
+                      (self._pub_da, msgs.vector(stamp, body, r.delta_angle)),
+                      (self._pub_dr, msgs.vector(stamp, body, r.delta_rotation))]
+            self._stats.increment_bound = max(self._stats.increment_bound,
+                                              r.delta_angle_bound, r.delta_rotation_bound)
+            self._stats.imu_samples += 1
+        self._imu_k = last
+        if pairs and self._publish(pairs):
+            self._record_tick(now.nanoseconds, [(p.topic_name, m) for p, m in pairs])
+
+    def _star_tick(self):
+        now = self.get_clock().now()
+        self._start(now)
+        rate = self._sensors.star_tracker_rate
+        first, last = self._grid(rate, self._star_k, now.nanoseconds)
+        if last < first:
+            return
+        frame = self.get_parameter('frame_id').value
+        pairs = []
+        c0 = time.perf_counter()
+        for k in range(first, last + 1):
+            if time.perf_counter() - c0 > _BUDGET_S:
+                last = k - 1
+                break
+            ns = self._stamp_ns(rate, k)
+            try:
+                r = self._star.read(self._scene_time(ns))
+            except (PrecisionError, ValueError) as exc:
+                self._failed(self._scene_time(ns), exc)
+                continue
+            pairs.append((self._pub_star, msgs.star_tracker(msgs.stamp(ns), frame,
+                                                            r.quaternion, r.covariance)))
+            self._stats.star_samples += 1
+        self._star_k = last
+        if pairs and self._publish(pairs):
+            self._record_tick(now.nanoseconds, [(p.topic_name, m) for p, m in pairs])
 
     def _publish_diagnostics(self):
         st = self._stats
-        mean, p99, mx = st.window()
+        mean, p99, mx, tick_mean, tick_p99, tick_max = st.window()
         sol = self._solution
         bound = float(self._last_sample[1].error_bound) if self._last_sample else 0.0
         level, msg = DiagnosticStatus.OK, f'exact solution: {sol.model}'
@@ -278,6 +525,10 @@ class AttitudeNode(Node):
             level, msg = DiagnosticStatus.WARN, 'evaluation slower than the timer period'
         if bound > sol.tol:
             level, msg = DiagnosticStatus.WARN, 'error bound above tol'
+        if st.skipped > st.skipped_reported:
+            st.skipped_reported = st.skipped
+            level, msg = DiagnosticStatus.WARN, ('sensor samples skipped (a clock jump, or '
+                                                 'sensor rates above what this CPU keeps up)')
         if st.errors:
             level, msg = DiagnosticStatus.ERROR, f'evaluation failed: {st.last_error}'
             st.errors = 0
@@ -287,7 +538,12 @@ class AttitudeNode(Node):
             'error_bound_rad': f'{bound:.3g}',
             'scene_time_s': f'{self._last_sample[0]:.6f}' if self._last_sample else '',
             'eval_mean_us': f'{mean * 1e6:.1f}', 'eval_p99_us': f'{p99 * 1e6:.1f}',
-            'eval_max_us': f'{mx * 1e6:.1f}', 'ticks_published': str(st.published),
+            'eval_max_us': f'{mx * 1e6:.1f}', 'tick_mean_us': f'{tick_mean * 1e6:.1f}',
+            'tick_p99_us': f'{tick_p99 * 1e6:.1f}', 'tick_max_us': f'{tick_max * 1e6:.1f}',
+            'imu_samples': str(st.imu_samples), 'star_tracker_samples': str(st.star_samples),
+            'sensor_samples_skipped': str(st.skipped),
+            'increment_error_bound_rad': f'{st.increment_bound:.3g}',
+            'ticks_published': str(st.published),
             'ticks_late': str(st.late), 'ticks_missed': str(st.missed),
             'publish_rate_hz': f'{self._period_hz:g}',
         }
@@ -361,15 +617,19 @@ class AttitudeNode(Node):
     def _on_reset(self, request, response):
         try:
             solution = build_solution(self._values())
+            sensors = sensor_settings(self._values())
         except ValueError as exc:
             response.success = False
             response.message = f'reset refused, previous scene keeps running: {exc}'
             return response
         self._solution = solution
+        self._sensors = sensors
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
         self._last_sample = None
         self._run_pending = True            # the next tick announces the new run on ~/run
+        self._make_sensors()
+        self._make_sensor_timers()
         response.success = True
         response.message = f'running model {solution.model} ({solution.method})'
         self.get_logger().info(f'reset: {response.message}')

@@ -1,0 +1,163 @@
+"""Sensors that sample the exact motion: a rate-integrating gyro and a star tracker.
+
+Frames: N inertial, B body; quaternions (x, y, z, w), active, ``q_NB``; rates of B
+relative to N, in B, rad/s. Times are scene seconds since t = 0.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .increments import delta_angle, delta_rotation, DELTA_TOL, RateBound
+from .noise import AttitudeNoise, GyroNoise
+
+__all__ = ['Gyro', 'GyroReading', 'StarTracker', 'StarTrackerReading']
+
+
+@dataclass(frozen=True)
+class GyroReading:
+    """One gyro sample over ``[t - dt, t]``.
+
+    Attributes
+    ----------
+    t, dt : float
+        End of the interval and its length, s.
+    omega : ndarray (3,)
+        Measured rate, rad/s, in B: ``omega_avg`` plus bias and white noise.
+    omega_avg : ndarray (3,)
+        True rate averaged over the interval, ``delta_angle / dt``.
+    delta_angle, delta_angle_bound : ndarray (3,), float
+        Exact ``∫ omega_B dt`` (rad, in B) and the bound on its error norm.
+    delta_rotation, delta_rotation_bound : ndarray (3,), float
+        Exact ``Log(q_NB(t - dt)^-1 ⊗ q_NB(t))`` (rad, in B) and its error bound.
+    bias : ndarray (3,)
+        The bias in this sample, ``(beta_k + beta_{k+1}) / 2``, rad/s.
+    variance : float
+        Variance per axis of the white part, (rad/s)^2, plus the square of the exact
+        rate's error bound (so that an ideal gyro still states a nonzero variance).
+    quaternion : ndarray (4,)
+        True ``q_NB`` at t.
+    """
+
+    t: float
+    dt: float
+    omega: np.ndarray
+    omega_avg: np.ndarray
+    delta_angle: np.ndarray
+    delta_angle_bound: float
+    delta_rotation: np.ndarray
+    delta_rotation_bound: float
+    bias: np.ndarray
+    variance: float
+    quaternion: np.ndarray
+
+
+class Gyro:
+    """A rate-integrating gyro on the exact motion.
+
+    Parameters
+    ----------
+    solution : rigidrot_ros.core.Solution
+    noise : GyroNoise, optional
+        Its error model (default: an ideal gyro).
+    tol : float
+        Target of the delta-angle error bound, rad.
+
+    Examples
+    --------
+    >>> from rigidrot_ros.core import Scene, solve
+    >>> gyro = Gyro(solve(Scene(omega0=(0.0, 0.0, 1.0))))
+    >>> r = gyro.read(0.0, 0.01)
+    >>> float(r.delta_angle[2])
+    0.01
+    """
+
+    def __init__(self, solution, noise=None, tol=DELTA_TOL):
+        self.solution = solution
+        self.noise = noise if noise is not None else GyroNoise()
+        self.tol = tol
+        self._bound = RateBound(solution)
+        self._last = None
+
+    def reset(self):
+        """Restart the noise stream and forget the cached attitude."""
+        self.noise.reset()
+        self._last = None
+
+    def _attitude(self, t):
+        if self._last is not None and self._last[0] == t:
+            return self._last[1], self._last[2]
+        s = self.solution.at(t)
+        return np.asarray(s.quaternion, dtype=float), float(s.error_bound)
+
+    def read(self, t0, t1):
+        """Sample the interval ``[t0, t1]`` (s, ``t0 < t1``): a :class:`GyroReading`."""
+        t0, t1 = float(t0), float(t1)
+        if not t1 > t0:
+            raise ValueError(f'a gyro interval needs t0 < t1, got [{t0!r}, {t1!r}]')
+        dt = t1 - t0
+        q0, e0 = self._attitude(t0)
+        s1 = self.solution.at(t1)
+        q1, e1 = np.asarray(s1.quaternion, dtype=float), float(s1.error_bound)
+        self._last = (t1, q1, e1)
+        da, da_bound = delta_angle(self.solution, t0, t1, tol=self.tol, bound=self._bound)
+        dr, dr_bound = delta_rotation(q0, q1, e0, e1)
+        avg = da / dt
+        before = self.noise.bias.copy()
+        meas = self.noise.corrupt(avg, dt)
+        bias = 0.5 * (before + self.noise.bias)
+        var = self.noise.white_variance(dt) + (da_bound / dt) ** 2
+        return GyroReading(t1, dt, meas, avg, da, da_bound, dr, dr_bound, bias, var, q1)
+
+
+@dataclass(frozen=True)
+class StarTrackerReading:
+    """One star tracker sample at t.
+
+    Attributes
+    ----------
+    t : float
+        Scene time, s.
+    quaternion : ndarray (4,)
+        Measured ``q_NB`` (x, y, z, w): ``q_true ⊗ exp(error / 2)``.
+    error : ndarray (3,)
+        The rotation-vector error e in B, rad (``q_true^-1 ⊗ q_meas = exp(e / 2)``).
+    covariance : ndarray (3, 3)
+        Covariance of e in B, rad^2.
+    true_quaternion : ndarray (4,)
+        The exact ``q_NB`` at t.
+    """
+
+    t: float
+    quaternion: np.ndarray
+    error: np.ndarray
+    covariance: np.ndarray
+    true_quaternion: np.ndarray
+
+
+class StarTracker:
+    """A star tracker on the exact motion: the attitude with a small rotation error.
+
+    Parameters
+    ----------
+    solution : rigidrot_ros.core.Solution
+    noise : AttitudeNoise
+        Cross- and about-boresight errors, boresight axis in B, seed.
+    """
+
+    def __init__(self, solution, noise=None):
+        self.solution = solution
+        self.noise = noise if noise is not None else AttitudeNoise()
+
+    def reset(self):
+        """Restart the noise stream."""
+        self.noise.reset()
+
+    def read(self, t):
+        """Sample at scene time t (s): a :class:`StarTrackerReading`."""
+        s = self.solution.at(float(t))
+        q_true = np.asarray(s.quaternion, dtype=float)
+        q_meas, e = self.noise.corrupt(q_true)
+        # the exact attitude's own error adds (in quadrature, at most) to the covariance
+        cov = self.noise.covariance + float(s.error_bound) ** 2 * np.eye(3)
+        return StarTrackerReading(float(t), q_meas, e, cov, q_true)
