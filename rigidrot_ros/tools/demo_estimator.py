@@ -2,18 +2,20 @@
 
 It subscribes to the node's ``imu`` (sensor_msgs/Imu) and integrates each gyro sample
 with ``ahrs.filters.AngularRate`` (closed-form quaternion exponential; ahrs orders its
-quaternions (w, x, y, z), converted here to ROS's (x, y, z, w)). It starts from the
-``attitude`` message that carries the same stamp as its first imu sample (a perfect
-initial fix), and propagates a 6-state error covariance (attitude error e in B, with
-q_est = q_true * exp(e/2), and gyro bias):
+quaternions (w, x, y, z), converted here to ROS's (x, y, z, w)). Its state lives on the
+gyro's time grid; it starts from the first ``attitude`` message it hears (a perfect
+initial fix, the only use of the truth besides its stamps), and propagates a 6-state
+error covariance (attitude error e in B, with q_est = q_true * exp(e/2), and gyro bias):
 
     Phi = [[exp(-[omega dt]x), -dt I], [0, I]],
     Q = [[C dt^2, 0], [0, sigma_u^2 dt I]],  P <- Phi P Phi^T + Q,
 
 with C the imu's angular_velocity_covariance (the per-sample white-noise variance) and
-sigma_u the assumed bias random walk; the bias block starts at bias_sigma^2. It publishes,
-with the imu sample's stamp, ``estimator/odom`` (nav_msgs/Odometry: orientation, its
-covariance in the rotation block, twist.angular = the gyro rate),
+sigma_u the assumed bias random walk; the bias block starts at bias_sigma^2. At the stamp
+of each ``attitude`` tick of the node it predicts from its last gyro sample to that time
+(so its output pairs exactly with the truth's ``odom`` stamps in evo) and publishes
+``estimator/odom`` (nav_msgs/Odometry: orientation, its covariance in the rotation block,
+position block marked unused with -1, twist.angular = the last gyro rate),
 ``estimator/pose`` (PoseWithCovarianceStamped) and ``estimator/attitude``
 (QuaternionStamped), all reliable and transient-local (depth 1000), so a recorder that
 joins late still gets the start-up transient. Without a bias model it is over-confident
@@ -75,17 +77,26 @@ class GyroIntegrator:
 
     def update(self, omega_b, cov_omega, dt):
         """Integrate one gyro sample ``omega_b`` (rad/s, in B) held over ``dt`` seconds."""
+        self.q_wxyz, self.P = self._step(omega_b, cov_omega, dt)
+
+    def predicted(self, omega_b, cov_omega, dt):
+        """``(q_xyzw, P)`` after ``dt`` seconds (may be negative) at ``omega_b``; no update."""
+        q_wxyz, p = self._step(omega_b, cov_omega, dt)
+        w, x, y, z = q_wxyz
+        return np.array([x, y, z, w]), p
+
+    def _step(self, omega_b, cov_omega, dt):
         omega_b = np.asarray(omega_b, dtype=float)
-        self.q_wxyz = np.asarray(self._ahrs.update(self.q_wxyz, omega_b, method='closed',
-                                                   dt=dt), dtype=float)
+        q_new = np.asarray(self._ahrs.update(self.q_wxyz, omega_b, method='closed', dt=dt),
+                           dtype=float)
         phi = np.eye(6)
         phi[:3, :3] = _rot(-omega_b * dt)
         phi[:3, 3:] = -dt * np.eye(3)
         q = np.zeros((6, 6))
         q[:3, :3] = np.asarray(cov_omega, dtype=float).reshape(3, 3) * dt * dt
-        q[3:, 3:] = self._sigma_u2 * dt * np.eye(3)
-        self.P = phi @ self.P @ phi.T + q
-        self.P = 0.5 * (self.P + self.P.T)
+        q[3:, 3:] = self._sigma_u2 * abs(dt) * np.eye(3)
+        p = phi @ self.P @ phi.T + q
+        return q_new, 0.5 * (p + p.T)
 
 
 def _parser():
@@ -148,28 +159,33 @@ def _run(opts, ros_args):
     pub_odom = node.create_publisher(Odometry, 'estimator/odom', out_qos)
     pub_pose = node.create_publisher(PoseWithCovarianceStamped, 'estimator/pose', out_qos)
     pub_att = node.create_publisher(QuaternionStamped, 'estimator/attitude', out_qos)
-    st = {'f': None, 'stamp': None, 'frame': 'inertial', 'att': {}, 'imu': {}}
+    # state on the gyro's time grid: f (filter), t (ns) of its state, last gyro sample
+    st = {'f': None, 't': None, 'frame': 'inertial', 'body': 'body', 'omega': None,
+          'cov': np.zeros(9), 'imu': 0}
 
     def stamp_of(msg):
         return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
-    def publish(imu):
+    def publish(header_stamp, t_ns):
         f = st['f']
-        x, y, z, w = (float(v) for v in f.q_xyzw)
-        cov6 = np.zeros((6, 6))
-        cov6[3:, 3:] = f.P[:3, :3]               # position is not a state: exactly zero
+        if st['omega'] is None:
+            return                 # no gyro sample yet: nothing to say about the rate
+        if t_ns == st['t']:
+            q_xyzw, p = f.q_xyzw, f.P
+        else:                      # predict from the last gyro sample to the output time
+            q_xyzw, p = f.predicted(st['omega'], st['cov'], (t_ns - st['t']) * 1e-9)
+        omega = st['omega']
+        x, y, z, w = (float(v) for v in q_xyzw)
         odom = Odometry()
-        odom.header.stamp = imu.header.stamp
+        odom.header.stamp = header_stamp
         odom.header.frame_id = st['frame']
-        odom.child_frame_id = imu.header.frame_id
+        odom.child_frame_id = st['body']
         o = odom.pose.pose.orientation
         o.x, o.y, o.z, o.w = x, y, z, w
-        odom.pose.covariance = [float(v) for v in cov6.ravel()]
-        odom.twist.twist.angular = imu.angular_velocity
-        tw = np.zeros((6, 6))
-        tw[3:, 3:] = (np.asarray(imu.angular_velocity_covariance).reshape(3, 3)
-                      + f.P[3:, 3:])
-        odom.twist.covariance = [float(v) for v in tw.ravel()]
+        odom.pose.covariance = _cov6(p[:3, :3])
+        odom.twist.twist.angular.x, odom.twist.twist.angular.y, odom.twist.twist.angular.z = (
+            float(v) for v in omega)
+        odom.twist.covariance = _cov6(np.asarray(st['cov']).reshape(3, 3) + p[3:, 3:])
         pose = PoseWithCovarianceStamped()
         pose.header = odom.header
         pose.pose = odom.pose
@@ -180,53 +196,44 @@ def _run(opts, ros_args):
         pub_pose.publish(pose)
         pub_att.publish(att)
 
-    def start(imu, att):
-        q = att.quaternion
-        st['f'] = GyroIntegrator((q.x, q.y, q.z, q.w), opts.initial_sigma, opts.bias_sigma,
-                                 opts.bias_random_walk)
-        st['frame'] = att.header.frame_id or 'inertial'
-        st['stamp'] = stamp_of(imu)
-        later = [st['imu'][s] for s in sorted(st['imu']) if s > st['stamp']]
-        st['att'].clear()
-        st['imu'].clear()
-        node.get_logger().info(f'initialised from the attitude at stamp {st["stamp"]} ns')
-        publish(imu)
-        for m in later:                             # samples that came before the attitude
-            on_imu(m)
-
     def on_imu(msg):
-        stamp = stamp_of(msg)
         if st['f'] is None:
-            if stamp in st['att']:
-                start(msg, st['att'][stamp])
-            else:
-                st['imu'][stamp] = msg
-                for old in sorted(st['imu'])[:-200]:
-                    del st['imu'][old]
-            return
-        dt = (stamp - st['stamp']) * 1e-9
-        if dt <= 0:
-            return                                  # a repeated or out-of-order sample
+            return                                  # not initialised yet (no fix)
+        t_k = stamp_of(msg)
         v = msg.angular_velocity
-        st['f'].update((v.x, v.y, v.z), msg.angular_velocity_covariance, dt)
-        st['stamp'] = stamp
-        publish(msg)
+        omega = np.array([v.x, v.y, v.z])
+        cov = np.asarray(msg.angular_velocity_covariance, dtype=float)
+        st['body'] = msg.header.frame_id or st['body']
+        if t_k > st['t']:
+            # the sample is the mean rate over (t_k-1, t_k]: apply it from the state's time
+            st['f'].update(omega, cov, (t_k - st['t']) * 1e-9)
+            st['t'] = t_k
+            st['omega'], st['cov'] = omega, cov
+            st['imu'] += 1
 
     def on_attitude(msg):
-        if st['f'] is not None:
-            return
-        stamp = stamp_of(msg)
-        if stamp in st['imu']:
-            start(st['imu'][stamp], msg)
-        else:
-            st['att'][stamp] = msg
-            for old in sorted(st['att'])[:-200]:
-                del st['att'][old]
+        t = stamp_of(msg)
+        if st['f'] is None:
+            q = msg.quaternion
+            st['f'] = GyroIntegrator((q.x, q.y, q.z, q.w), opts.initial_sigma,
+                                     opts.bias_sigma, opts.bias_random_walk)
+            st['t'] = t
+            st['frame'] = msg.header.frame_id or 'inertial'
+            node.get_logger().info(f'initialised from the attitude at stamp {t} ns')
+        publish(msg.header.stamp, t)
 
     node.create_subscription(Imu, 'imu', on_imu, 1000)
     node.create_subscription(QuaternionStamped, 'attitude', on_attitude, 1000)
     spin_until_shutdown(node)
     return 0
+
+
+def _cov6(rot_block):
+    """Row-major 6x6 covariance: position block marked unused (-1 diagonal), then rotation."""
+    c = np.zeros((6, 6))
+    c[0, 0] = c[1, 1] = c[2, 2] = -1.0
+    c[3:, 3:] = rot_block
+    return [float(v) for v in c.ravel()]
 
 
 if __name__ == '__main__':
