@@ -11,9 +11,10 @@ error covariance (attitude error e in B, with q_est = q_true * exp(e/2), and gyr
     Q = [[C dt^2, 0], [0, sigma_u^2 dt I]],  P <- Phi P Phi^T + Q,
 
 with C the imu's angular_velocity_covariance (the per-sample white-noise variance) and
-sigma_u the assumed bias random walk; the bias block starts at bias_sigma^2. At the stamp
-of each ``attitude`` tick of the node it predicts from its last gyro sample to that time
-(so its output pairs exactly with the truth's ``odom`` stamps in evo) and publishes
+sigma_u the assumed bias random walk; the bias block starts at bias_sigma^2. It publishes
+at the stamp of each ``attitude`` tick of the node (so its output pairs exactly with the
+truth's ``odom`` stamps in evo), as soon as the gyro sample covering that time has come,
+propagated from its state with that sample:
 ``estimator/odom`` (nav_msgs/Odometry: orientation, its covariance in the rotation block,
 position block marked unused with -1, twist.angular = the last gyro rate),
 ``estimator/pose`` (PoseWithCovarianceStamped) and ``estimator/attitude``
@@ -140,13 +141,17 @@ def main(argv=None):
     except ImportError:
         print(_INSTALL, file=sys.stderr)
         return 2
-    return _run(opts, ros_args)
+    try:
+        return _run(opts, ros_args)
+    except KeyboardInterrupt:      # Ctrl-C while starting, before rclpy's handler is in
+        return 0
 
 
 def _run(opts, ros_args):
     from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped
     from nav_msgs.msg import Odometry
     import rclpy
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu
 
@@ -159,22 +164,18 @@ def _run(opts, ros_args):
     pub_odom = node.create_publisher(Odometry, 'estimator/odom', out_qos)
     pub_pose = node.create_publisher(PoseWithCovarianceStamped, 'estimator/pose', out_qos)
     pub_att = node.create_publisher(QuaternionStamped, 'estimator/attitude', out_qos)
-    # state on the gyro's time grid: f (filter), t (ns) of its state, last gyro sample
+    # state on the gyro's time grid: f (filter), t (ns) of its state, the last gyro
+    # sample, and the output stamps waiting for the gyro sample that covers them
     st = {'f': None, 't': None, 'frame': 'inertial', 'body': 'body', 'omega': None,
-          'cov': np.zeros(9), 'imu': 0}
+          'cov': np.zeros(9), 'pending': []}
 
     def stamp_of(msg):
         return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
     def publish(header_stamp, t_ns):
+        """Publish the estimate at ``t_ns`` from the state and the sample covering it."""
         f = st['f']
-        if st['omega'] is None:
-            return                 # no gyro sample yet: nothing to say about the rate
-        if t_ns == st['t']:
-            q_xyzw, p = f.q_xyzw, f.P
-        else:                      # predict from the last gyro sample to the output time
-            q_xyzw, p = f.predicted(st['omega'], st['cov'], (t_ns - st['t']) * 1e-9)
-        omega = st['omega']
+        q_xyzw, p = f.predicted(st['omega'], st['cov'], (t_ns - st['t']) * 1e-9)
         x, y, z, w = (float(v) for v in q_xyzw)
         odom = Odometry()
         odom.header.stamp = header_stamp
@@ -184,7 +185,7 @@ def _run(opts, ros_args):
         o.x, o.y, o.z, o.w = x, y, z, w
         odom.pose.covariance = _cov6(p[:3, :3])
         odom.twist.twist.angular.x, odom.twist.twist.angular.y, odom.twist.twist.angular.z = (
-            float(v) for v in omega)
+            float(v) for v in st['omega'])
         odom.twist.covariance = _cov6(np.asarray(st['cov']).reshape(3, 3) + p[3:, 3:])
         pose = PoseWithCovarianceStamped()
         pose.header = odom.header
@@ -192,24 +193,32 @@ def _run(opts, ros_args):
         att = QuaternionStamped()
         att.header = odom.header
         att.quaternion = odom.pose.pose.orientation
-        pub_odom.publish(odom)
-        pub_pose.publish(pose)
-        pub_att.publish(att)
+        try:
+            pub_odom.publish(odom)
+            pub_pose.publish(pose)
+            pub_att.publish(att)
+        except _rclpy.RCLError:
+            if rclpy.ok():
+                raise               # a real failure; after a shutdown it is only the race
 
     def on_imu(msg):
         if st['f'] is None:
             return                                  # not initialised yet (no fix)
         t_k = stamp_of(msg)
+        if t_k <= st['t']:
+            return                                  # a repeated or out-of-order sample
         v = msg.angular_velocity
-        omega = np.array([v.x, v.y, v.z])
-        cov = np.asarray(msg.angular_velocity_covariance, dtype=float)
+        # the sample is the mean rate over (t_k-1, t_k]: it carries the state to t_k, and
+        # every output stamp on the way is published from it
+        st['omega'] = np.array([v.x, v.y, v.z])
+        st['cov'] = np.asarray(msg.angular_velocity_covariance, dtype=float)
         st['body'] = msg.header.frame_id or st['body']
-        if t_k > st['t']:
-            # the sample is the mean rate over (t_k-1, t_k]: apply it from the state's time
-            st['f'].update(omega, cov, (t_k - st['t']) * 1e-9)
-            st['t'] = t_k
-            st['omega'], st['cov'] = omega, cov
-            st['imu'] += 1
+        st['pending'].sort(key=lambda item: item[0])
+        while st['pending'] and st['pending'][0][0] <= t_k:
+            t_out, header_stamp = st['pending'].pop(0)
+            publish(header_stamp, t_out)
+        st['f'].update(st['omega'], st['cov'], (t_k - st['t']) * 1e-9)
+        st['t'] = t_k
 
     def on_attitude(msg):
         t = stamp_of(msg)
@@ -220,7 +229,15 @@ def _run(opts, ros_args):
             st['t'] = t
             st['frame'] = msg.header.frame_id or 'inertial'
             node.get_logger().info(f'initialised from the attitude at stamp {t} ns')
-        publish(msg.header.stamp, t)
+        if t < st['t'] and st['omega'] is not None:
+            publish(msg.header.stamp, t)            # late: back from the last sample
+        elif t >= st['t']:
+            st['pending'].append((t, msg.header.stamp))
+            if len(st['pending']) > 1000:
+                del st['pending'][0]
+                node.get_logger().warning(
+                    'no gyro sample on imu yet: start attitude_node with -p imu.enable:=true',
+                    throttle_duration_sec=5.0)
 
     node.create_subscription(Imu, 'imu', on_imu, 1000)
     node.create_subscription(QuaternionStamped, 'attitude', on_attitude, 1000)
