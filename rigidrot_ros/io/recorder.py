@@ -46,7 +46,7 @@ import yaml
 from rigidrot_ros.io.bag import qos_yaml, STRING_TYPE
 from rigidrot_ros.io.msgdefs import schema_text
 
-__all__ = ['Recorder', 'type_name_of', 'qos_to_yaml']
+__all__ = ['Recorder', 'type_name_of', 'qos_to_yaml', 'check_type']
 
 _INFINITE = {'sec': 2147483647, 'nsec': 4294967295}
 
@@ -82,6 +82,17 @@ def _normal_type(type_name):
     if len(parts) != 3 or parts[1] != 'msg' or not all(parts):
         raise ValueError(f'not a message type: {type_name!r} (expected pkg/msg/Type)')
     return '/'.join(parts)
+
+
+def check_type(type_name):
+    """Return ``pkg/msg/Type`` if that type can be recorded here; ValueError saying why not."""
+    type_name = _normal_type(type_name)
+    _msg_class(type_name)
+    try:
+        schema_text(type_name)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f'no message definition of {type_name}: {exc}') from None
+    return type_name
 
 
 def _msg_class(type_name):

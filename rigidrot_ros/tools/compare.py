@@ -9,7 +9,6 @@ difference, rad/s. Where a message carries an orientation covariance: NEES per s
 ANEES with its 95 % chi-square bounds. Topics it cannot score are listed with the reason.
 """
 
-import argparse
 import csv
 import json
 import math
@@ -19,6 +18,7 @@ from rigidrot_ros.io.bag import BagError, read_bag
 from rigidrot_ros.io.score import (
     check_bag, extract_streams, score_against_runs, score_against_stream, ScoreError,
 )
+from rigidrot_ros.tools.cli import OneLineParser
 
 CONVENTION = ('attitude error e: q_true^-1 * q_est = exp(e/2), e in the body frame B '
               '(rad); rate error: omega_est - omega_true in B (rad/s); '
@@ -131,8 +131,8 @@ def _write_csv(results, path):
 
 
 def _parser():
-    ap = argparse.ArgumentParser(prog='rigidrot_compare', description=__doc__.splitlines()[0],
-                                 epilog=CONVENTION)
+    ap = OneLineParser(prog='rigidrot_compare', description=__doc__.splitlines()[0],
+                       epilog=CONVENTION)
     ap.add_argument('bag', help='bag directory or .mcap file')
     ap.add_argument('--topic', action='append', help='topic to score (repeatable)')
     ap.add_argument('--truth', help='compare with this second log instead of the exact truth')

@@ -23,10 +23,11 @@ joins late still gets the start-up transient. Without a bias model it is over-co
 as soon as the gyro has a bias: that is what NEES shows.
 """
 
-import argparse
 import sys
 
 import numpy as np
+
+from rigidrot_ros.tools.cli import OneLineParser
 
 __all__ = ['main', 'GyroIntegrator']
 
@@ -101,9 +102,8 @@ class GyroIntegrator:
 
 
 def _parser():
-    ap = argparse.ArgumentParser(prog='rigidrot_demo_estimator',
-                                 description=__doc__.splitlines()[0],
-                                 epilog='ROS arguments go after --ros-args (e.g. -r __ns:=/sat1).')
+    ap = OneLineParser(prog='rigidrot_demo_estimator', description=__doc__.splitlines()[0],
+                       epilog='ROS arguments go after --ros-args (e.g. -r __ns:=/sat1).')
     ap.add_argument('--initial-sigma', type=float, default=1e-6,
                     help='initial attitude standard deviation per axis, rad (default 1e-6)')
     ap.add_argument('--bias-sigma', type=float, default=0.0,

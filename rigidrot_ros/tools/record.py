@@ -9,16 +9,17 @@ too, so ``rigidrot_compare`` can score the bag against the exact truth. SIGINT/S
 then finishes the file).
 """
 
-import argparse
 import math
 import sys
 import time
+
+from rigidrot_ros.tools.cli import OneLineParser
 
 __all__ = ['main']
 
 
 def _parser():
-    ap = argparse.ArgumentParser(
+    ap = OneLineParser(
         prog='rigidrot_record', description=__doc__.splitlines()[0],
         epilog='ROS arguments go after --ros-args (e.g. -r __ns:=/sat1). Example: '
                'rigidrot_record -o runs/est /imu /estimator/odom --duration 20')
@@ -55,8 +56,20 @@ def main(argv=None):
     from rclpy.executors import ExternalShutdownException
 
     from rigidrot_ros.io.bag import BagWriter
-    from rigidrot_ros.io.recorder import Recorder
+    from rigidrot_ros.io.recorder import check_type, Recorder
     from rigidrot_ros.node.spin import spin_until_shutdown
+
+    for t in opts.topics:
+        name, _, type_name = t.partition(':')
+        if not name:
+            print(f'rigidrot_record: {t!r}: no topic name before the type', file=sys.stderr)
+            return 2
+        if type_name:
+            try:
+                check_type(type_name)
+            except ValueError as exc:
+                print(f'rigidrot_record: {t}: {exc}', file=sys.stderr)
+                return 2
 
     try:
         writer = BagWriter(None, 'rigidrot_record', flush_period=0.4, path=opts.output)

@@ -7,17 +7,17 @@ index and end magic (the original is kept as ``<file>.orig`` unless --no-backup)
 rosbag2 tools read the bag. A finished file is left as it is.
 """
 
-import argparse
 import sys
 
 from rigidrot_ros.io.bag import BagError, reindex
+from rigidrot_ros.tools.cli import OneLineParser
 
 __all__ = ['main']
 
 
 def main(argv=None):
     """Entry point of ``rigidrot_reindex``; returns the exit status."""
-    ap = argparse.ArgumentParser(prog='rigidrot_reindex', description=__doc__.splitlines()[0])
+    ap = OneLineParser(prog='rigidrot_reindex', description=__doc__.splitlines()[0])
     ap.add_argument('bag', help='bag directory (or a single .mcap file)')
     ap.add_argument('--no-backup', action='store_true',
                     help='do not keep the torn originals as <file>.orig')

@@ -5,7 +5,6 @@ channel's recorded QoS (offered_qos_profiles). With --clock, /clock
 (rosgraph_msgs/Clock) follows the log time so that nodes on use_sim_time run with it.
 """
 
-import argparse
 import importlib
 import sys
 import time
@@ -19,6 +18,7 @@ import yaml
 
 from rigidrot_ros.io.bag import BagError, read_bag
 from rigidrot_ros.node.spin import spin_until_shutdown
+from rigidrot_ros.tools.cli import OneLineParser
 
 
 def _qos(text):
@@ -67,7 +67,7 @@ def main(argv=None):
     if '--ros-args' in argv:
         i = argv.index('--ros-args')
         argv, ros_args = argv[:i], argv[i:]
-    ap = argparse.ArgumentParser(prog='rigidrot_replay', description=__doc__.splitlines()[0])
+    ap = OneLineParser(prog='rigidrot_replay', description=__doc__.splitlines()[0])
     ap.add_argument('bag', help='bag directory or .mcap file')
     ap.add_argument('--rate', type=float, default=1.0, help='speed factor (2: twice as fast)')
     ap.add_argument('--loop', action='store_true', help='start again at the end')
@@ -85,6 +85,14 @@ def main(argv=None):
         return 2
     if not 0 <= opts.wait < 3600:
         print('rigidrot_replay: --wait must lie in [0, 3600) s', file=sys.stderr)
+        return 2
+    if not 0 <= opts.start < float('inf'):
+        print('rigidrot_replay: --start must be a finite number of seconds >= 0',
+              file=sys.stderr)
+        return 2
+    if opts.duration is not None and not 0 < opts.duration < float('inf'):
+        print('rigidrot_replay: --duration must be a positive finite number of seconds',
+              file=sys.stderr)
         return 2
     try:
         bag = read_bag(opts.bag)
