@@ -16,11 +16,11 @@ import time
 
 import pytest
 from rosbags.highlevel import AnyReader
+from test_score import _make, _truth, _write_bag
 import yaml
 
 from rigidrot_ros.io.bag import read_bag
 from ros_helpers import next_domain_id, ros_env, script, start, stop, wait_for
-from test_score import _make, _truth, _write_bag
 
 pytestmark = pytest.mark.ros
 
