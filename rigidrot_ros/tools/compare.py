@@ -24,6 +24,7 @@ CONVENTION = ('attitude error e: q_true^-1 * q_est = exp(e/2), e in the body fra
               '(rad); rate error: omega_est - omega_true in B (rad/s); '
               'NEES = e^T P^-1 e with P the orientation covariance')
 _ARRAYS = ('t', 'error', 'nees', 'components', 'sigma')
+_FLOOR = 1e-17
 
 
 def _table(results, skipped):
@@ -79,23 +80,21 @@ def _plot(plt, results, path, title, yscale):
                              squeeze=False)
     for ax, (kind, rs) in zip(axes[:, 0], rows):
         if kind in ('angle', 'rate'):
-            floor = None
-            if yscale == 'log':
-                pos = [e for r in rs for e in r['error'] if e > 0]
-                floor = min(pos) / 10 if pos else 1e-18
+            # a log axis cannot show zeros, and errors below float64 rounding of a unit
+            # quantity (1e-17) say nothing more: those are drawn at 1e-17, and counted
+            floor = _FLOOR if yscale == 'log' else None
             for r in rs:
                 err = r['error']
-                zeros = sum(1 for e in err if e == 0)
+                low = sum(1 for e in err if e < _FLOOR) if floor else 0
                 label = r['label']
-                if floor is not None:
+                if low:
                     err = [max(e, floor) for e in err]
-                    if zeros:
-                        label += f' ({zeros} exact zeros drawn at {floor:.0e})'
+                    label += f' ({low} below {floor:.0e}, drawn at it)'
                 ax.plot(r['t'], err, '.', ms=2, label=label)
             ax.set_yscale(yscale)
             ax.set_ylabel('attitude error |e| [rad]' if kind == 'angle'
                           else 'rate error [rad/s]')
-            ax.legend(loc='upper left', fontsize=7, markerscale=4, framealpha=0.9)
+            ax.legend(loc='best', fontsize=7, markerscale=4, framealpha=0.9)
         else:
             r = rs[0]
             t = r['t']
