@@ -380,3 +380,52 @@ def test_split_bag_is_read_whole_and_bad_metadata_is_refused(tmp_path):
     # without metadata.yaml the files are read in their index order
     os.remove(split / 'metadata.yaml')
     assert len(read_bag(str(split)).messages) == 201
+
+
+def test_writer_memory_is_bounded_and_split_bags_read_whole(tmp_path):
+    """Chunk indexes are kept packed, and a long recording splits into files."""
+    import tracemalloc
+    w = BagWriter(str(tmp_path), 'mem', flush_period=1e9, split_seconds=0)
+    topics = [f'/t{i}' for i in range(10)]
+    for t in topics:
+        w.add_topic(t, 'std_msgs/msg/String')
+    data = serialize_message(String(data='hello'))
+
+    def chunks(n, k0):
+        for k in range(k0, k0 + n):
+            for t in topics:
+                w.write(t, data, START + k)
+            w.flush()
+    chunks(200, 0)
+    tracemalloc.start()
+    before = tracemalloc.take_snapshot()
+    chunks(2000, 200)
+    grown = sum(s.size_diff for s in tracemalloc.take_snapshot().compare_to(before,
+                                                                            'filename'))
+    tracemalloc.stop()
+    assert grown / 2000 < 300, grown / 2000           # bytes per chunk, 10 channels
+    w.close()
+    with AnyReader([Path(w.path)]) as reader:
+        assert sum(c.msgcount for c in reader.connections) == 22000
+    # split: a new file at each flush; rosbags and read_bag read them all, in order
+    w = BagWriter(str(tmp_path), 'split', flush_period=1e9, split_seconds=1e-9)
+    w.add_topic('/a', 'std_msgs/msg/String')
+    w.add_topic('/attitude_node/run', 'std_msgs/msg/String')
+    w.write('/attitude_node/run', serialize_message(_run_msg()), START)
+    for k in range(6):
+        w.write('/a', serialize_message(String(data=f'{k}')), START + k + 1)
+        w.flush()
+    w.close()
+    files = sorted(Path(w.path).glob('*.mcap'))
+    assert len(files) == 6
+    meta = yaml.safe_load((Path(w.path) / 'metadata.yaml').read_text())
+    info = meta['rosbag2_bagfile_information']
+    assert info['message_count'] == 7 and len(info['relative_file_paths']) == 6
+    assert sum(f['message_count'] for f in info['files']) == 7
+    with AnyReader([Path(w.path)]) as reader:
+        got = [reader.deserialize(d, c.msgtype).data for c, _, d in reader.messages()
+               if c.topic == '/a']
+    assert got == [f'{k}' for k in range(6)]
+    c = read_bag(w.path)
+    assert [m[2] for m in c.messages] == sorted(m[2] for m in c.messages)
+    assert len(c.messages) == 7 and len(c.runs) == 1

@@ -21,6 +21,7 @@ import re
 import struct
 import time
 
+from mcap.data_stream import RecordBuilder
 from mcap.exceptions import McapError
 from mcap.reader import make_reader, StreamReader
 from mcap.records import Channel, Message, Metadata, Schema
@@ -74,6 +75,23 @@ def _exact_dir(path):
     return path
 
 
+class _PackedRecords:
+    """Summary records kept as their bytes, in order (no Python object per record)."""
+
+    __slots__ = ('data',)
+
+    def __init__(self):
+        self.data = bytearray()
+
+    def add(self, record):
+        builder = RecordBuilder()
+        record.write(builder)
+        self.data += builder.end()
+
+    def write(self, builder):
+        builder.write(bytes(self.data))
+
+
 class BagWriter:
     """Write a rosbag2-compatible MCAP bag directory.
 
@@ -88,29 +106,64 @@ class BagWriter:
         :meth:`maybe_flush` is also called periodically when no message arrives.
     path : str, optional
         Write to exactly this directory instead (created; it must not exist or be empty).
+    split_seconds : float
+        Start a new file ``<dir>_<n>.mcap`` after this many seconds (a split bag, as
+        rosbag2's ``--max-bag-duration`` writes it; 0 = never).
+
+    Notes
+    -----
+    Memory: an MCAP file's summary indexes every chunk, so a writer must keep one chunk
+    index per flush until the file is finished (the mcap writer keeps each as an object of
+    0.4 kB per channel). They are kept packed as bytes instead (about 225 bytes per chunk
+    with 10 channels, 20x less; ``test_score.py`` holds it under 300), and a file is
+    finished and a new one begun every ``split_seconds`` (default one hour: at most 9000
+    chunks at the recorders' 0.4 s flush, about 2 MB), so a recording of any length runs
+    in bounded memory.
     """
 
-    def __init__(self, root, name, flush_period=0.5, path=None):
+    def __init__(self, root, name, flush_period=0.5, path=None, split_seconds=3600.0):
         if path is not None:
             self.path = _exact_dir(os.path.abspath(path))
         else:
             os.makedirs(root, exist_ok=True)
             self.path = _unique_dir(root, name.strip('/').replace('/', '_') or 'bag')
-        self.file_name = os.path.basename(self.path) + '_0.mcap'
-        self._fh = open(os.path.join(self.path, self.file_name), 'xb')
-        self._writer = Writer(self._fh, chunk_size=1 << 20, compression=CompressionType.ZSTD)
-        self._writer.start(profile='ros2', library='rigidrot_ros')
+        self._base = os.path.basename(self.path)
+        self._files = []                  # file names, in order
+        self._per_file = {}               # file name -> [first_ns, last_ns, count]
         self._schemas = {}
         self._channels = {}
-        self._topics = {}
+        self._topics = {}                 # topic -> (type, qos yaml)
+        self._channel_args = {}           # topic -> (type, schema text, metadata)
         self._counts = {}
         self._first = None
         self._last = None
         self._flush_period = float(flush_period)
+        self._split = float(split_seconds)
         self._last_flush = time.monotonic()
         self._dirty = False
         self._closed = False
+        self._roll_due = False
+        self._open_file()
         self._write_metadata_yaml()
+
+    @property
+    def file_name(self):
+        """Name of the .mcap file being written."""
+        return self._files[-1]
+
+    def _open_file(self):
+        name = f'{self._base}_{len(self._files)}.mcap'
+        self._fh = open(os.path.join(self.path, name), 'xb')
+        self._writer = Writer(self._fh, chunk_size=1 << 20, compression=CompressionType.ZSTD)
+        self._writer.start(profile='ros2', library='rigidrot_ros')
+        self._files.append(name)
+        self._per_file[name] = [None, None, 0]
+        self._file_started = time.monotonic()
+        self._schemas = {}
+        self._channels = {}
+        for topic, (type_name, text, meta) in self._channel_args.items():
+            self._register(topic, type_name, text, meta)
+        self._chunk_list = getattr(self._writer, '_Writer__chunk_indices', None)
 
     def add_topic(self, topic, type_name, qos=None, schema=None, metadata=None):
         """Register ``topic`` of ``pkg/msg/Type``; returns its channel id.
@@ -121,19 +174,26 @@ class BagWriter:
         """
         if topic in self._channels:
             return self._channels[topic]
-        if type_name not in self._schemas:
-            text = schema if schema is not None else schema_text(type_name)
-            self._schemas[type_name] = self._writer.register_schema(
-                name=type_name, encoding='ros2msg', data=text.encode('utf-8'))
+        text = schema if schema is not None else (
+            self._channel_args[topic][1] if topic in self._channel_args
+            else schema_text(type_name))
         meta = dict(metadata) if metadata else {
             'offered_qos_profiles': qos or qos_yaml(), 'topic_type_hash': ''}
         meta.setdefault('offered_qos_profiles', qos or qos_yaml())
+        cid = self._register(topic, type_name, text, meta)
+        self._channel_args[topic] = (type_name, text, meta)
+        self._topics[topic] = (type_name, meta['offered_qos_profiles'])
+        self._counts.setdefault(topic, 0)
+        return cid
+
+    def _register(self, topic, type_name, text, meta):
+        if type_name not in self._schemas:
+            self._schemas[type_name] = self._writer.register_schema(
+                name=type_name, encoding='ros2msg', data=text.encode('utf-8'))
         cid = self._writer.register_channel(
             topic=topic, message_encoding='cdr', schema_id=self._schemas[type_name],
             metadata=meta)
         self._channels[topic] = cid
-        self._topics[topic] = (type_name, meta['offered_qos_profiles'])
-        self._counts[topic] = 0
         return cid
 
     def has_topic(self, topic):
@@ -142,6 +202,8 @@ class BagWriter:
 
     def write(self, topic, data, log_time_ns, publish_time_ns=None):
         """Write one serialized (CDR) message."""
+        if self._roll_due:
+            self._roll()
         cid = self._channels[topic]
         self._writer.add_message(channel_id=cid, log_time=int(log_time_ns), data=bytes(data),
                                  publish_time=int(publish_time_ns or log_time_ns),
@@ -149,6 +211,10 @@ class BagWriter:
         self._counts[topic] += 1
         self._first = log_time_ns if self._first is None else min(self._first, log_time_ns)
         self._last = log_time_ns if self._last is None else max(self._last, log_time_ns)
+        f = self._per_file[self._files[-1]]
+        f[0] = log_time_ns if f[0] is None else min(f[0], log_time_ns)
+        f[1] = log_time_ns if f[1] is None else max(f[1], log_time_ns)
+        f[2] += 1
         self._dirty = True
         self.maybe_flush()
 
@@ -176,6 +242,24 @@ class BagWriter:
         self._fh.flush()
         self._dirty = False
         self._last_flush = time.monotonic()
+        if self._chunk_list is not None:          # pack the new chunk indexes
+            if not self._chunk_list or not isinstance(self._chunk_list[0], _PackedRecords):
+                self._chunk_list.insert(0, _PackedRecords())
+            packed = self._chunk_list[0]
+            for index in self._chunk_list[1:]:
+                packed.add(index)
+            del self._chunk_list[1:]
+        if (self._split > 0 and self._last_flush - self._file_started >= self._split
+                and self._per_file[self._files[-1]][2]):
+            self._roll_due = True           # the next message starts the next file
+
+    def _roll(self):
+        """Finish the current file and continue in the next one of the split bag."""
+        self._roll_due = False
+        self._writer.finish()
+        self._fh.close()
+        self._open_file()
+        self._write_metadata_yaml()
 
     @property
     def counts(self):
@@ -199,8 +283,9 @@ class BagWriter:
         self._write_metadata_yaml()
 
     def _write_metadata_yaml(self):
-        write_metadata_yaml(self.path, [self.file_name], self._topics, self._counts,
-                            self._first, self._last)
+        write_metadata_yaml(self.path, list(self._files), self._topics, self._counts,
+                            self._first, self._last,
+                            {f: tuple(v) for f, v in self._per_file.items()})
 
 
 def write_metadata_yaml(path, files, topics, counts, first, last, per_file=None):
