@@ -1,7 +1,9 @@
 """The node's sensors and further truth outputs: types, frames, stamps, values, parameters."""
 
+import json
 import math
 import signal
+import sys
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import (
@@ -306,3 +308,50 @@ def test_a_clock_jump_restarts_the_sensor_grid_and_is_counted():
     assert node._grid(100.0, 502, 1_000_000_000 + 5_029_999_999) == (503, 502)   # none due
     assert node._grid(100.0, 502, 0)[1] < 503                     # clock before t_start
     node.destroy_node()
+
+
+IMU_SUBSCRIBER = '''
+import json, sys, time
+import rclpy
+from sensor_msgs.msg import Imu
+from geometry_msgs.msg import Vector3Stamped
+rclpy.init()
+node = rclpy.create_node('estimator')
+got = {'imu': [], 'delta_angle': []}
+node.create_subscription(Imu, '/sat/imu', lambda m: got['imu'].append(
+    [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, m.header.frame_id,
+     m.angular_velocity_covariance[0], m.orientation_covariance[0]]), 100)
+node.create_subscription(Vector3Stamped, '/sat/delta_angle', lambda m: got['delta_angle'].append(
+    m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), 100)
+end = time.monotonic() + 30
+while time.monotonic() < end and len(got['imu']) < 60:
+    rclpy.spin_once(node, timeout_sec=0.05)
+print(json.dumps(got))
+'''
+
+
+def test_imu_from_a_nested_params_file_reaches_another_process(tmp_path):
+    params = tmp_path / 'params.yaml'
+    params.write_text(
+        '/sat/attitude_node:\n  ros__parameters:\n    publish_rate: 20.0\n'
+        '    imu:\n      enable: true\n      rate: 50.0\n      gyro_noise_density: 1.0e-3\n'
+        '      gyro_random_walk: 0.0\n      seed: 3\n')
+    env = ros_env(next_domain_id())
+    node = start([script('attitude_node'), '--ros-args', '--params-file', str(params),
+                  '-r', '__ns:=/sat'], env)
+    try:
+        sub = start([sys.executable, '-c', IMU_SUBSCRIBER], env)
+        out, err = sub.communicate(timeout=60)
+        assert sub.returncode == 0, err
+    finally:
+        code, _, node_err = stop(node, signal.SIGINT)
+    assert code == 0 and 'Traceback' not in node_err, node_err
+    got = json.loads(out)
+    imu = got['imu']
+    assert len(imu) >= 60
+    stamps = np.array([m[0] for m in imu])
+    assert np.all(np.diff(stamps) == 20_000_000)         # the 50 Hz grid, no gap, no jitter
+    assert set(got['delta_angle']) >= set(stamps[:-5].tolist())
+    assert all(m[1] == 'body' and m[3] == -1.0 for m in imu)
+    assert all(m[2] == pytest.approx(1e-6 / 0.02, rel=1e-9) for m in imu)   # sigma_v^2 / dt
+    assert 'unknown parameter' not in node_err

@@ -197,6 +197,7 @@ class _Stats:
     def __init__(self):
         self.times = []
         self.tick_times = []
+        self.imu_times = []
         self.published = 0
         self.imu_samples = 0
         self.star_samples = 0
@@ -217,6 +218,19 @@ class _Stats:
         self.tick_times = []
         return (float(t.mean()), float(np.percentile(t, 99)), float(t.max()),
                 float(w.mean()), float(np.percentile(w, 99)), float(w.max()))
+
+    def imu_window(self):
+        """Return the gyro samples' build seconds (mean, max) since the last call."""
+        g = np.array(self.imu_times) if self.imu_times else np.zeros(1)
+        self.imu_times = []
+        return float(g.mean()), float(g.max())
+
+
+def _make_sensors(solution, cfg):
+    """Return ``(gyro, star_tracker)`` of validated settings (None where off)."""
+    gyro = Gyro(solution, cfg.gyro) if cfg.imu else None
+    star = StarTracker(solution, cfg.attitude_noise) if cfg.star_tracker else None
+    return gyro, star
 
 
 class AttitudeNode(Node):
@@ -246,13 +260,13 @@ class AttitudeNode(Node):
         try:
             self._solution = build_solution(self._values())
             self._sensors = sensor_settings(self._values())
+            self._use_sensors(_make_sensors(self._solution, self._sensors))
         except ValueError as exc:
             raise SceneError(str(exc)) from None
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
         self._last_sample = None
         self._stats = _Stats()
-        self._make_sensors()
         self.add_on_set_parameters_callback(self._on_set)
         qos = QoSProfile(depth=self.get_parameter('qos_depth').value,
                          reliability=ReliabilityPolicy.RELIABLE)
@@ -305,12 +319,9 @@ class AttitudeNode(Node):
                 f'parameter')
         self.unknown_overrides = unknown
 
-    def _make_sensors(self):
-        """Sensors of the current run, from the validated settings (fresh noise streams)."""
-        cfg = self._sensors
-        self._gyro = Gyro(self._solution, cfg.gyro) if cfg.imu else None
-        self._star = (StarTracker(self._solution, cfg.attitude_noise)
-                      if cfg.star_tracker else None)
+    def _use_sensors(self, sensors):
+        """Start the sensors of a run (fresh noise streams, grids from k = 0)."""
+        self._gyro, self._star = sensors
         self._imu_k = 0             # the last gyro sample published (k = 0 is t = 0)
         self._star_k = -1           # the last star tracker sample published
 
@@ -467,7 +478,8 @@ class AttitudeNode(Node):
         pairs = []
         c0 = time.perf_counter()
         for k in range(first, last + 1):
-            if time.perf_counter() - c0 > _BUDGET_S:
+            c_sample = time.perf_counter()
+            if c_sample - c0 > _BUDGET_S:
                 last = k - 1        # the rest stays due: the next callback goes on
                 break
             ns1 = self._stamp_ns(rate, k)
@@ -481,6 +493,7 @@ class AttitudeNode(Node):
             pairs += [(self._pub_imu, msgs.imu(stamp, body, r.omega, r.variance)),
                       (self._pub_da, msgs.vector(stamp, body, r.delta_angle)),
                       (self._pub_dr, msgs.vector(stamp, body, r.delta_rotation))]
+            self._stats.imu_times.append(time.perf_counter() - c_sample)
             self._stats.increment_bound = max(self._stats.increment_bound,
                                               r.delta_angle_bound, r.delta_rotation_bound)
             self._stats.imu_samples += 1
@@ -518,6 +531,7 @@ class AttitudeNode(Node):
     def _publish_diagnostics(self):
         st = self._stats
         mean, p99, mx, tick_mean, tick_p99, tick_max = st.window()
+        imu_mean, imu_max = st.imu_window()
         sol = self._solution
         bound = float(self._last_sample[1].error_bound) if self._last_sample else 0.0
         level, msg = DiagnosticStatus.OK, f'exact solution: {sol.model}'
@@ -540,7 +554,9 @@ class AttitudeNode(Node):
             'eval_mean_us': f'{mean * 1e6:.1f}', 'eval_p99_us': f'{p99 * 1e6:.1f}',
             'eval_max_us': f'{mx * 1e6:.1f}', 'tick_mean_us': f'{tick_mean * 1e6:.1f}',
             'tick_p99_us': f'{tick_p99 * 1e6:.1f}', 'tick_max_us': f'{tick_max * 1e6:.1f}',
-            'imu_samples': str(st.imu_samples), 'star_tracker_samples': str(st.star_samples),
+            'imu_samples': str(st.imu_samples), 'imu_sample_mean_us': f'{imu_mean * 1e6:.1f}',
+            'imu_sample_max_us': f'{imu_max * 1e6:.1f}',
+            'star_tracker_samples': str(st.star_samples),
             'sensor_samples_skipped': str(st.skipped),
             'increment_error_bound_rad': f'{st.increment_bound:.3g}',
             'ticks_published': str(st.published),
@@ -618,6 +634,7 @@ class AttitudeNode(Node):
         try:
             solution = build_solution(self._values())
             sensors = sensor_settings(self._values())
+            devices = _make_sensors(solution, sensors)
         except ValueError as exc:
             response.success = False
             response.message = f'reset refused, previous scene keeps running: {exc}'
@@ -628,7 +645,7 @@ class AttitudeNode(Node):
         self._t_start = None
         self._last_sample = None
         self._run_pending = True            # the next tick announces the new run on ~/run
-        self._make_sensors()
+        self._use_sensors(devices)
         self._make_sensor_timers()
         response.success = True
         response.message = f'running model {solution.model} ({solution.method})'

@@ -69,7 +69,7 @@ class GyroNoise:
 
     The exact discretisation of the continuous model ``omega_meas = omega + beta + n_v``,
     ``beta' = n_u`` over a sample interval ``dt`` (Markley & Crassidis, *Fundamentals of
-    Spacecraft Attitude Determination and Control*, 2014, Sec. 4.7.1)::
+    Spacecraft Attitude Determination and Control*, 2014, the rate-integrating gyro)::
 
         beta_{k+1} = beta_k + sigma_u sqrt(dt) N_u
         omega_meas = omega_avg + (beta_k + beta_{k+1}) / 2
