@@ -241,7 +241,11 @@ def _run(opts, ros_args):
 
     node.create_subscription(Imu, 'imu', on_imu, 1000)
     node.create_subscription(QuaternionStamped, 'attitude', on_attitude, 1000)
-    spin_until_shutdown(node)
+    try:
+        spin_until_shutdown(node)
+    except Exception:  # noqa: B902 - a take racing SIGINT's shutdown (rclpy raises several)
+        if rclpy.ok():
+            raise
     return 0
 
 

@@ -117,6 +117,9 @@ def main(argv=None):
             rclpy.spin_once(n, timeout_sec=0.05)
     try:
         spin_until_shutdown(node, loop)
+    except Exception:  # noqa: B902 - a take racing SIGINT's shutdown (rclpy raises several)
+        if rclpy.ok():
+            raise
     finally:
         path, counts = rec.close()
         print(f'rigidrot_record: bag finished: {path} {counts}', file=sys.stderr)
