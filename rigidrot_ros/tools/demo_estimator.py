@@ -241,12 +241,20 @@ def _run(opts, ros_args):
 
     node.create_subscription(Imu, 'imu', on_imu, 1000)
     node.create_subscription(QuaternionStamped, 'attitude', on_attitude, 1000)
-    try:
-        spin_until_shutdown(node)
-    except Exception:  # noqa: B902 - a take racing SIGINT's shutdown (rclpy raises several)
-        if rclpy.ok():
-            raise
+    spin_until_shutdown(node, _spin_quietly_to_shutdown)
     return 0
+
+
+def _spin_quietly_to_shutdown(node):
+    """Spin; an rclpy error raised while SIGINT/SIGTERM shuts the context down ends it."""
+    import rclpy
+    while rclpy.ok():
+        try:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        except Exception:  # noqa: B902 - a take racing the shutdown (rclpy raises several)
+            if rclpy.ok():
+                raise
+            return
 
 
 def _cov6(rot_block):

@@ -114,12 +114,14 @@ def main(argv=None):
 
     def loop(n):
         while rclpy.ok() and (end is None or time.monotonic() < end):
-            rclpy.spin_once(n, timeout_sec=0.05)
+            try:
+                rclpy.spin_once(n, timeout_sec=0.05)
+            except Exception:  # noqa: B902 - a take racing SIGINT's shutdown
+                if rclpy.ok():
+                    raise
+                return
     try:
         spin_until_shutdown(node, loop)
-    except Exception:  # noqa: B902 - a take racing SIGINT's shutdown (rclpy raises several)
-        if rclpy.ok():
-            raise
     finally:
         path, counts = rec.close()
         print(f'rigidrot_record: bag finished: {path} {counts}', file=sys.stderr)
