@@ -64,6 +64,12 @@ CASES = [
     row('rigidrot_record', ['-o', '{tmp}/r3', 'a b'], 2, ['invalid topic name']),
     row('rigidrot_record', ['-o', '{tmp}/r4', '/x:foo_msgs/msg/Nope'], 2, ['not installed']),
     row('rigidrot_record', ['-o', '{tmp}/r5', '/x:Nope'], 2, ['not a message type']),
+    row('rigidrot_record', ['-o', '{tmp}/r6', '/a', '--ros-args', '-p'], 2,
+        ['invalid --ros-args']),
+    row('rigidrot_record', ['-o', '{tmp}/r7', '/a', '--ros-args', '--params-file',
+                            '{tmp}/nope.yaml'], 2, ['invalid --ros-args']),
+    row('rigidrot_replay', ['{tmp}/good', '--ros-args', '-p'], 2, ['invalid --ros-args']),
+    row('rigidrot_demo_estimator', ['--ros-args', '-p'], 2, ['invalid --ros-args']),
     row('rigidrot_reindex', ['--help'], 0, ['usage: rigidrot_reindex', '--no-backup']),
     row('rigidrot_reindex', [], 2, ['required: bag']),
     row('rigidrot_reindex', ['{tmp}/missing'], 2, ['no such file']),
@@ -136,6 +142,7 @@ def test_command_as_typed(files, prog, args, code, words, block):
     else:
         lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and lines[0].startswith(f'{prog}:'), out.stderr
+        assert not any(files.glob('r[0-9]')), 'a refused record left a directory behind'
 
 
 def test_compare_reads_a_log_cut_in_the_middle(files, tmp_path):
@@ -244,3 +251,21 @@ def test_record_sigterm_finishes_and_keeps_transient_local_history(tmp_path):
     assert data == [f'm{i}' for i in range(5)]
     assert qos.durability.name == 'TRANSIENT_LOCAL'
     assert Path(tmp_path / 'b' / 'metadata.yaml').exists()
+
+
+def test_record_all_with_duration(tmp_path):
+    """--all records every topic that appears; --duration ends and finishes the bag."""
+    env = ros_env(next_domain_id())
+    node = start([script('attitude_node')], env)
+    try:
+        out = subprocess.run([script('rigidrot_record'), '-o', str(tmp_path / 'all'), '--all',
+                              '--duration', '4'], env=env, capture_output=True, text=True,
+                             timeout=120)
+    finally:
+        stop(node, signal.SIGINT)
+    assert out.returncode == 0 and 'bag finished' in out.stderr, out.stderr
+    with AnyReader([tmp_path / 'all']) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+    assert topics['/attitude'] == 'geometry_msgs/msg/QuaternionStamped'
+    assert topics['/attitude_node/run'] == 'std_msgs/msg/String'
+    assert {'/angular_velocity', '/diagnostics'} <= set(topics)

@@ -156,8 +156,12 @@ def _run(opts, ros_args):
     from sensor_msgs.msg import Imu
 
     from rigidrot_ros.node.spin import spin_until_shutdown
+    from rigidrot_ros.tools.record import init_ros_quietly
 
-    rclpy.init(args=['rigidrot_demo_estimator'] + ros_args)
+    reason = init_ros_quietly('rigidrot_demo_estimator', ros_args)
+    if reason is not None:
+        print(f'rigidrot_demo_estimator: invalid --ros-args: {reason}', file=sys.stderr)
+        return 2
     node = rclpy.create_node('demo_estimator')
     out_qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)

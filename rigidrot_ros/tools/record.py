@@ -10,12 +10,40 @@ then finishes the file).
 """
 
 import math
+import os
 import sys
 import time
 
 from rigidrot_ros.tools.cli import OneLineParser
 
 __all__ = ['main']
+
+
+def init_ros_quietly(prog, ros_args):
+    """``rclpy.init`` with ``ros_args``; None, or the reason it failed as one line.
+
+    rcl prints its own ``[ERROR] ... Failed to parse global arguments`` before it raises;
+    that output is held back and dropped on failure, shown on success.
+    """
+    import tempfile
+
+    import rclpy
+    sys.stderr.flush()
+    saved = os.dup(2)
+    reason = None
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            rclpy.init(args=[prog] + list(ros_args))
+        except Exception as exc:  # noqa: B902 - RCLError and kin: bad --ros-args
+            reason = str(exc).splitlines()[0].split(', at /')[0]
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        if reason is None:
+            held.seek(0)
+            sys.stderr.write(held.read().decode('utf-8', 'replace'))
+    return reason
 
 
 def _parser():
@@ -71,44 +99,43 @@ def main(argv=None):
                 print(f'rigidrot_record: {t}: {exc}', file=sys.stderr)
                 return 2
 
-    try:
-        writer = BagWriter(None, 'rigidrot_record', flush_period=0.4, path=opts.output)
-    except OSError as exc:
-        print(f'rigidrot_record: cannot record to {opts.output}: {exc}', file=sys.stderr)
+    out = opts.output
+    if os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
+        print(f'rigidrot_record: {out} exists and is not an empty directory; nothing is '
+              f'overwritten: choose another output directory', file=sys.stderr)
         return 2
     try:
-        rclpy.init(args=['rigidrot_record'] + ros_args)
+        reason = init_ros_quietly('rigidrot_record', ros_args)
+        if reason is not None:
+            print(f'rigidrot_record: invalid --ros-args: {reason}', file=sys.stderr)
+            return 2
         node = rclpy.create_node('rigidrot_record')
-    except (rclpy.exceptions.ROSInterruptException, ExternalShutdownException,
-            KeyboardInterrupt):
-        writer.close()
+    except (ExternalShutdownException, KeyboardInterrupt):
         return 0
-    except Exception as exc:  # noqa: B902 - bad --ros-args: one line, not a traceback
-        writer.close()
-        print(f'rigidrot_record: cannot start: {str(exc).splitlines()[0]}', file=sys.stderr)
-        return 2
 
-    def event(level, text):
-        print(f'rigidrot_record: {text}', file=sys.stderr, flush=True)
+    def quit_with(text):
+        node.destroy_node()
+        rclpy.try_shutdown()
+        print(f'rigidrot_record: {text}', file=sys.stderr)
+        return 2
     try:
         for t in opts.topics:
             node.resolve_topic_name(t.partition(':')[0])
     except Exception as exc:  # noqa: B902 - rclpy raises its own types for bad names
-        node.destroy_node()
-        rclpy.try_shutdown()
-        writer.close()
-        print(f'rigidrot_record: invalid topic name: {str(exc).splitlines()[0]}',
-              file=sys.stderr)
-        return 2
+        return quit_with(f'invalid topic name: {str(exc).splitlines()[0]}')
+    try:
+        writer = BagWriter(None, 'rigidrot_record', flush_period=0.4, path=out)
+    except OSError as exc:
+        return quit_with(f'cannot record to {out}: {exc}')
+
+    def event(level, text):
+        print(f'rigidrot_record: {text}', file=sys.stderr, flush=True)
     try:
         rec = Recorder(node, writer, topics=opts.topics, all_topics=opts.all,
                        runs=not opts.no_runs, on_event=event)
     except ValueError as exc:
-        node.destroy_node()
-        rclpy.try_shutdown()
         writer.close()
-        print(f'rigidrot_record: {exc}', file=sys.stderr)
-        return 2
+        return quit_with(str(exc))
     print(f'rigidrot_record: recording to {writer.path}', file=sys.stderr, flush=True)
     end = time.monotonic() + opts.duration if opts.duration else None
 

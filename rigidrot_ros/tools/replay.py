@@ -19,6 +19,7 @@ import yaml
 from rigidrot_ros.io.bag import BagError, read_bag
 from rigidrot_ros.node.spin import spin_until_shutdown
 from rigidrot_ros.tools.cli import OneLineParser
+from rigidrot_ros.tools.record import init_ros_quietly
 
 
 def _qos(text):
@@ -113,7 +114,10 @@ def main(argv=None):
     t0 = msgs[0][2] + int(opts.start * 1e9)
     t1 = t0 + int(opts.duration * 1e9) if opts.duration is not None else None
     msgs = [m for m in msgs if m[2] >= t0 and (t1 is None or m[2] <= t1)]
-    rclpy.init(args=['rigidrot_replay'] + ros_args)
+    reason = init_ros_quietly('rigidrot_replay', ros_args)
+    if reason is not None:
+        print(f'rigidrot_replay: invalid --ros-args: {reason}', file=sys.stderr)
+        return 2
     node = rclpy.create_node('rigidrot_replay')
     pubs = {t: node.create_publisher(classes[t], t, _qos(bag.topics[t][1])) for t in classes}
     clock_pub = node.create_publisher(Clock, '/clock', 10) if opts.clock else None
