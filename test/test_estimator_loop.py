@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.io.bag import read_bag
-from rigidrot_ros.io.score import extract_streams
+from rigidrot_ros.io.score import anees_bounds, extract_streams
 from ros_helpers import next_domain_id, ros_env, script, start, stop
 
 pytestmark = pytest.mark.ros
@@ -92,6 +92,7 @@ def test_gyro_integrator_from_ahrs_end_to_end(tmp_path):
                   '-p', 'imu.enable:=true', '-p', 'odom.enable:=true',
                   '-p', f'imu.gyro_bias:={BIAS}', '-p', f'imu.gyro_noise_density:={NOISE}',
                   '-p', 'imu.gyro_random_walk:=0.0', '-p', 'imu.seed:=7',
+                  '-p', 'star_tracker.enable:=true', '-p', 'star_tracker.rate:=50.0',
                   '-p', 'record:=true', '-p', f'record_path:={root}',
                   '-p', f'record_topics:={EST_TOPICS}'], env)
     try:
@@ -126,6 +127,10 @@ def test_gyro_integrator_from_ahrs_end_to_end(tmp_path):
         for f in ('count', 'max', 'rms', 'p95', 'anees'):
             assert s_rec[key][f] == s_node[key][f], (key, f)
     assert s_node[('/odom', 'orientation')]['max'] <= 1e-12       # the truth itself
+    # a consistent sensor: the star tracker's white noise matches its covariance
+    star = s_node[('/star_tracker', 'orientation')]
+    lo, hi = anees_bounds(star['nees_count'], level=0.999)
+    assert star['nees_count'] > 100 and lo <= star['anees'] <= hi, star
     # the filter believes its gyro unbiased: over-confident, ANEES far above its bound
     assert est_score['anees'] > est_score['anees_bounds_95'][1] * 10
 

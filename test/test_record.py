@@ -175,7 +175,7 @@ def _run(cmd, env, **kw):
                           text=True, timeout=120, **kw)
 
 
-def test_sigkill_loses_at_most_about_a_second(tmp_path):
+def test_sigkill_loses_at_most_about_half_a_second(tmp_path):
     env = ros_env(next_domain_id())
     cap = start([sys.executable, '-c', CAPTURE, '8'], env)
     assert cap.stdout.readline().strip() == 'ready'
@@ -187,7 +187,7 @@ def test_sigkill_loses_at_most_about_a_second(tmp_path):
     assert contents.truncated
     stamps = [m[2] for m in contents.messages if m[0] == '/attitude']
     lost = (last_sent - max(stamps)) * 1e-9
-    assert lost <= 1.0, f'lost {lost:.3f} s'
+    assert lost <= 0.6, f'lost {lost:.3f} s'        # 0.4 s flush period + 0.1 s timer
     out = _run(['rigidrot_compare', str(bag)], env)
     assert out.returncode == 0, out.stderr
     assert 'unfinished file' in out.stderr and 'Traceback' not in out.stderr
