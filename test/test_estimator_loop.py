@@ -164,3 +164,50 @@ def test_gyro_integrator_from_ahrs_end_to_end(tmp_path):
         stats = json.loads(z.read('stats.json'))
     assert abs(stats['max'] - est_score['max']) <= 1e-9
     assert abs(stats['rmse'] - est_score['rms']) <= 1e-9
+
+
+def test_replay_into_the_filter_and_record_its_answer(tmp_path):
+    """A recorded run replayed into the filter; rigidrot_record keeps the filter's answer
+    and the replayed ~/run, so compare scores it against the exact truth."""
+    env = ros_env(next_domain_id())
+    root = tmp_path / 'node'
+    node = start([script('attitude_node'), '--ros-args', '-p', 'imu.enable:=true',
+                  '-p', f'imu.gyro_bias:={BIAS}', '-p', f'imu.gyro_noise_density:={NOISE}',
+                  '-p', 'imu.gyro_random_walk:=0.0', '-p', 'record:=true',
+                  '-p', f'record_path:={root}'], env)
+    time.sleep(6.0)
+    code, _, err = stop(node, signal.SIGINT)
+    assert code == 0, err
+    node_bag = next(root.iterdir())
+    ticks = sum(1 for m in read_bag(str(node_bag)).messages if m[0] == '/attitude')
+    env2 = ros_env(next_domain_id())                 # a quiet domain for the replay
+    est = start([script('rigidrot_demo_estimator')], env2)
+    rec = start([script('rigidrot_record'), '-o', str(tmp_path / 'replayed'),
+                 EST_TOPICS[0]], env2)
+    try:
+        rep = subprocess.run([script('rigidrot_replay'), str(node_bag), '--topics',
+                              '/attitude', '/imu', '/attitude_node/run', '--quiet'],
+                             env=env2, capture_output=True, text=True, timeout=120)
+        assert rep.returncode == 0, rep.stderr
+        time.sleep(1.0)
+    finally:
+        _, _, est_err = stop(est, signal.SIGINT)
+        rec_code, _, rec_err = stop(rec, signal.SIGINT)
+    assert rec_code == 0, rec_err
+    t0_ns = int(re.search(r'initialised from the attitude at stamp (\d+)', est_err).group(1))
+    contents = read_bag(str(tmp_path / 'replayed'))
+    assert len(contents.runs) == 1                     # the replayed run description
+    stream = [s for s in extract_streams(contents, ['/estimator/odom'])[0]
+              if s.field == 'orientation'][0]
+    run = contents.runs[0]
+    # every replayed tick from the one it started at has its estimate
+    assert len(stream.stamps) >= ticks - 5 - (t0_ns - int(run['start_ns'])) * 1e-9 * 100, (
+        len(stream.stamps), ticks)
+    scene = Scene.from_dict(run['scene'])
+    t = (stream.stamps - int(run['start_ns'])) * 1e-9
+    truth = solve(scene, tol=1e-12).at(t).quaternion
+    e_est = (Rotation.from_quat(stream.values) * Rotation.from_quat(truth).inv()).as_rotvec()
+    t0 = (t0_ns - int(run['start_ns'])) * 1e-9
+    e_exp = _expected_error_n(scene, t0, t)
+    allowed = 6 * np.sqrt(3) * NOISE * np.sqrt(t - t0) + 2e-5
+    assert np.all(np.linalg.norm(e_est - e_exp, axis=1) <= allowed)
