@@ -269,3 +269,37 @@ def test_record_all_with_duration(tmp_path):
     assert topics['/attitude'] == 'geometry_msgs/msg/QuaternionStamped'
     assert topics['/attitude_node/run'] == 'std_msgs/msg/String'
     assert {'/angular_velocity', '/diagnostics'} <= set(topics)
+
+
+@pytest.mark.parametrize('typed', [True, False])
+def test_record_matches_a_best_effort_publisher(tmp_path, typed):
+    """A best-effort publisher is recorded (a reliable subscription would never match)."""
+    env = ros_env(next_domain_id())
+    pub = start([sys.executable, '-c', textwrap.dedent('''
+        import time, rclpy
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import String
+        rclpy.init()
+        n = rclpy.create_node('lossy')
+        p = n.create_publisher(String, '/lossy', QoSProfile(
+            depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+        end = time.monotonic() + 60
+        k = 0
+        while time.monotonic() < end:
+            p.publish(String(data=str(k)))
+            k += 1
+            rclpy.spin_once(n, timeout_sec=0.01)
+    ''')], env)
+    topic = '/lossy:std_msgs/msg/String' if typed else '/lossy'
+    try:
+        out = subprocess.run([script('rigidrot_record'), '-o', str(tmp_path / 'b'), topic,
+                              '--duration', '5'], env=env, capture_output=True, text=True,
+                             timeout=120)
+    finally:
+        stop(pub, signal.SIGINT)
+    assert out.returncode == 0, out.stderr
+    assert 'best-effort' in out.stderr, out.stderr
+    with AnyReader([tmp_path / 'b']) as reader:
+        conn = reader.connections[0]
+        assert conn.msgcount > 50, out.stderr
+        assert conn.ext.offered_qos_profiles[0].reliability.name == 'BEST_EFFORT'
