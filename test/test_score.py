@@ -429,3 +429,38 @@ def test_writer_memory_is_bounded_and_split_bags_read_whole(tmp_path):
     c = read_bag(w.path)
     assert [m[2] for m in c.messages] == sorted(m[2] for m in c.messages)
     assert len(c.messages) == 7 and len(c.runs) == 1
+
+
+def test_two_nodes_in_one_bag_each_topic_scored_against_its_own(tmp_path):
+    """Namespaced nodes: a topic goes with the node that publishes it or owns its namespace."""
+    other = Scene(inertia=(3.0, 3.0, 3.0), torque=(0.1, 0.0, 0.0), omega0=(0.0, 1.0, 0.0),
+                  attitude0=(0.0, 0.0, 0.0, 1.0))
+    n = 100
+    t = np.arange(n) / RATE
+    stamps = START + np.round(t * 1e9).astype(np.int64)
+    q1 = solve(SCENE, tol=1e-12).at(t).quaternion
+    q2 = solve(other, tol=1e-12).at(t).quaternion
+    q1_est = (Rotation.from_quat(q1) * Rotation.from_rotvec(0.01 * AXIS)).as_quat()
+    w = BagWriter(str(tmp_path), 'two')
+    for ns, scene in (('/sat1', SCENE), ('/sat2', other)):
+        info = json.loads(_run_msg().data)
+        info.update(node=f'{ns}/attitude_node', scene=scene.as_dict(),
+                    topics={f'{ns}/attitude': 'geometry_msgs/msg/QuaternionStamped'})
+        w.add_topic(f'{ns}/attitude_node/run', 'std_msgs/msg/String')
+        w.write(f'{ns}/attitude_node/run', serialize_message(String(data=json.dumps(info))),
+                START)
+    for topic in ('/sat1/attitude', '/sat2/attitude', '/sat1/estimator/attitude',
+                  '/estimator/attitude'):
+        w.add_topic(topic, 'geometry_msgs/msg/QuaternionStamped')
+    for k in range(n):
+        for topic, q in (('/sat1/attitude', q1), ('/sat2/attitude', q2),
+                         ('/sat1/estimator/attitude', q1_est), ('/estimator/attitude', q1_est)):
+            w.write(topic, serialize_message(_make('QuaternionStamped', stamps[k], q[k], None)),
+                    stamps[k])
+    w.close()
+    c = read_bag(w.path)
+    res = {r['topic']: r for r in score_against_runs(c, extract_streams(c)[0])}
+    assert res['/sat1/attitude']['max'] < 1e-12 and res['/sat2/attitude']['max'] < 1e-12
+    assert abs(res['/sat1/estimator/attitude']['max'] - 0.01) < 1e-12
+    assert res['/estimator/attitude']['count'] == 0
+    assert 'cannot tell which one is the truth' in res['/estimator/attitude']['reason']

@@ -100,19 +100,42 @@ def anees_bounds(m, dof=3, level=0.95):
     return [float(lo), float(hi)]
 
 
-def _runs(bag):
+def _runs(bag, topic=None):
+    """Return the runs that give the truth for ``topic``, sorted by start.
+
+    With runs of one node that is all of them. With several nodes in one bag (namespaces),
+    a topic goes with the node that publishes it (the run's ``topics``), else with the
+    node whose namespace prefixes it (``/sat1/estimator/odom`` -> ``/sat1/...``); a topic
+    that matches no node, or several, cannot be scored against one truth.
+    """
     runs = sorted(bag.runs, key=lambda r: int(r['start_ns']))
     if not runs:
         raise ScoreError(f'{bag.path}: the log has no rigidrot_run metadata and no run '
                          f'description (the ~/run topic of the node), so the truth cannot be '
                          f'recomputed; record ~/run with the other topics, or compare '
                          f'against another log with --truth')
-    return runs
+    nodes = {str(r.get('node', '')) for r in runs}
+    if topic is None or len(nodes) == 1:
+        return runs
+    own = {n for n in nodes
+           if any(topic in (r.get('topics') or {}) or topic in (r.get('topics') or {}).values()
+                  for r in runs if str(r.get('node', '')) == n)}
+    if not own:
+        own = {n for n in nodes if n.rsplit('/', 1)[0] and topic.startswith(
+            n.rsplit('/', 1)[0] + '/')}
+        if len(own) > 1:          # the longest namespace wins (/a/b over /a)
+            best = max(len(n.rsplit('/', 1)[0]) for n in own)
+            own = {n for n in own if len(n.rsplit('/', 1)[0]) == best}
+    if len(own) != 1:
+        raise ScoreError(f'{bag.path}: runs of several nodes {sorted(nodes)}: cannot tell '
+                         f'which one is the truth for {topic} (put the estimator in the '
+                         f'namespace of its node, or score each node in its own bag)')
+    return [r for r in runs if str(r.get('node', '')) in own]
 
 
-def scene_times(bag, stamps):
+def scene_times(bag, stamps, topic=None):
     """(run index per stamp, scene time t per stamp, runs); index -1 before the first run."""
-    runs = _runs(bag)
+    runs = _runs(bag, topic)
     starts = np.array([int(r['start_ns']) for r in runs], dtype=np.int64)
     idx = np.searchsorted(starts, stamps, side='right') - 1
     t = np.full(len(stamps), np.nan)
@@ -172,22 +195,31 @@ def score_against_runs(bag, streams, cov_frame='body'):
     results = []
     solutions = {}
     for s in streams:
-        idx, t, runs = scene_times(bag, s.stamps)
+        try:
+            idx, t, runs = scene_times(bag, s.stamps, s.topic)
+        except ScoreError as exc:
+            if not bag.runs:
+                raise
+            results.append({'topic': s.topic, 'type': s.type, 'field': s.field,
+                            'label': s.label, 'count': 0, 'unit': '', 't': [], 'error': [],
+                            'reason': str(exc).split(': ', 1)[-1]})
+            continue
         err = np.full(len(t), np.nan)
         comp = np.full((len(t), 3), np.nan)
         for i, r in enumerate(runs):
             sel = np.nonzero((idx == i) & np.all(np.isfinite(s.values), axis=1))[0]
             if not len(sel):
                 continue
-            if i not in solutions:
+            key = (str(r.get('node', '')), int(r['start_ns']))
+            if key not in solutions:
                 try:
                     scene = Scene.from_dict(r['scene'])
-                    solutions[i] = solve(scene, tol=float(r.get('tol', 1e-12)),
-                                         backend=r.get('backend'))
+                    solutions[key] = solve(scene, tol=float(r.get('tol', 1e-12)),
+                                           backend=r.get('backend'))
                 except (ValueError, KeyError, TypeError, ArithmeticError) as exc:
                     raise ScoreError(f'{bag.path}: run {r.get("run", i)} has an unusable '
                                      f'scene: {exc}') from None
-            truth = solutions[i].at(t[sel])
+            truth = solutions[key].at(t[sel])
             if s.field == ORIENTATION:
                 e = rotation_error(truth.quaternion, s.values[sel])
                 if cov_frame == 'inertial':
@@ -222,8 +254,8 @@ def score_against_stream(bag, streams, truth_bag, truth_streams):
         # the same topic if the truth log has it, else the node's own, else the first
         own = {t for r in truth_bag.runs for t in (r.get('topics') or {})}
         ref = sorted(ref, key=lambda r: (r.topic != s.topic, r.topic not in own))[0]
-        _, t, _ = scene_times(bag, s.stamps)
-        _, tr, _ = scene_times(truth_bag, ref.stamps)
+        _, t, _ = scene_times(bag, s.stamps, s.topic)
+        _, tr, _ = scene_times(truth_bag, ref.stamps, ref.topic)
         keep = np.isfinite(tr) & np.all(np.isfinite(ref.values), axis=1)
         order = np.argsort(tr[keep])
         tr, vals = tr[keep][order], ref.values[keep][order]

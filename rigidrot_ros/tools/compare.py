@@ -33,7 +33,8 @@ def _table(results, skipped):
     for r in results:
         kind = r['type'].split('/')[-1]
         if not r['count']:
-            lines.append(f'{r["label"]:36s} {kind:26s} {0:6d}  (no message inside a run)')
+            why = r.get('reason', 'no message inside a run')
+            lines.append(f'{r["label"]:36s} {kind:26s} {0:6d}  ({why})')
             continue
         nees_txt = ''
         if 'anees' in r:
