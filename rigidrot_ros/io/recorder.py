@@ -156,8 +156,12 @@ class Recorder:
         self._warned_waiting = False
         self._poll_timer = node.create_timer(poll_period, self._poll)
         self._flush_timer = node.create_timer(flush_timer, self._flush)
+        own = ({p.topic_name for p in node.publishers} if self._exclude_own else set())
         for topic, type_name in self._typed.items():
-            self._subscribe(topic, [], type_name)
+            if topic not in own:
+                self._subscribe(topic, [], type_name)
+            else:
+                self._verified.add(topic)        # written through record_published
         self._poll()
 
     # -- state -------------------------------------------------------------------------------
@@ -216,8 +220,8 @@ class Recorder:
         return qos_to_yaml([pubs[0].qos_profile]) if pubs else qos_yaml()
 
     def _on_raw(self, topic, data):
-        if not self.active:
-            return
+        if not self.active or topic in self._direct:
+            return                              # closed, or the node writes it itself
         try:
             if not self._writer.has_topic(topic):       # a typed topic's first message
                 self._add_channel(topic, self._typed[topic],
