@@ -207,7 +207,7 @@ def test_compare_scores_a_perturbed_estimator(tmp_path, typed):
     root = tmp_path / 'runs'
     node = start([script('attitude_node'), '--ros-args', '-p', 'record:=true',
                   '-p', f'record_path:={root}',
-                  '-p', "record_topics:=['/estimator/attitude%s']" % (
+                  '-p', "record_topics:=['/estimator/attitude%s', '/attitude']" % (
                       ':geometry_msgs/msg/QuaternionStamped' if typed else '')], env)
     first = est.stdout.readline()                # the estimator's first output (volatile)
     assert first.strip(), est.stderr.read()
@@ -226,6 +226,11 @@ def test_compare_scores_a_perturbed_estimator(tmp_path, typed):
         assert min(got) - sent[0] <= 0.1e9, (min(got) - sent[0]) * 1e-9
         sent = [s for s in sent if s >= min(got)]
     assert set(sent[:-2]) <= got                     # (the last may cross the shutdown)
+    # /attitude, listed too, is the node's own: written once per tick, not also raw
+    counts = {}
+    for m in read_bag(str(bag)).messages:
+        counts[m[0]] = counts.get(m[0], 0) + 1
+    assert counts['/attitude'] == counts['/angular_velocity']
     out = _run(['rigidrot_compare', str(bag), '--json', str(tmp_path / 'e.json')], env)
     assert out.returncode == 0, out.stderr
     topics = {t['topic']: t for t in json.loads((tmp_path / 'e.json').read_text())['topics']}
