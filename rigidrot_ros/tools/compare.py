@@ -39,7 +39,8 @@ def _table(results, skipped):
         nees_txt = ''
         if 'anees' in r:
             lo, hi = r['anees_bounds_95']
-            flag = '' if lo <= r['anees'] <= hi else '  outside'
+            flag = ('' if lo <= r['anees'] <= hi else '  below: conservative'
+                    if r['anees'] < lo else '  above: over-confident')
             nees_txt = f'{r["anees"]:.3g} [{lo:.3g}, {hi:.3g}]{flag}'
         elif r.get('nees_count') == 0:
             nees_txt = 'no usable covariance'
