@@ -464,3 +464,29 @@ def test_two_nodes_in_one_bag_each_topic_scored_against_its_own(tmp_path):
     assert abs(res['/sat1/estimator/attitude']['max'] - 0.01) < 1e-12
     assert res['/estimator/attitude']['count'] == 0
     assert 'cannot tell which one is the truth' in res['/estimator/attitude']['reason']
+
+
+def test_truth_from_a_second_log_gives_the_same_nees(tmp_path):
+    """--truth OTHER_BAG: the node's logged attitude as truth, NEES as against the exact."""
+    n = 300
+    rng = np.random.default_rng(5)
+    _, stamps, q_true, _ = _truth(n)
+    p = np.diag([2e-6, 1e-6, 3e-6])
+    e = rng.multivariate_normal(np.zeros(3), p, size=n)
+    q_est = (Rotation.from_quat(q_true) * Rotation.from_rotvec(e)).as_quat()
+    est = _write_bag(tmp_path, {'/est': ('geometry_msgs/msg/PoseWithCovarianceStamped',
+                                         lambda i: _make('PoseWithCovarianceStamped',
+                                                         stamps[i], q_est[i], None, p))},
+                     n=n, name='est')
+    truth = _write_bag(tmp_path, {'/attitude': ('geometry_msgs/msg/QuaternionStamped',
+                                                lambda i: _make('QuaternionStamped', stamps[i],
+                                                                q_true[i], None))},
+                       n=n, name='truth')
+    a, b = tmp_path / 'a.json', tmp_path / 'b.json'
+    assert compare.main([str(est), '--json', str(a)]) == 0
+    assert compare.main([str(est), '--truth', str(truth), '--json', str(b)]) == 0
+    exact = json.loads(a.read_text())['topics'][0]
+    logged = json.loads(b.read_text())['topics'][0]
+    assert logged['count'] == exact['count'] == n
+    assert_allclose(logged['anees'], exact['anees'], rtol=1e-9)
+    assert_allclose(logged['max'], exact['max'], rtol=1e-9)

@@ -260,6 +260,7 @@ def score_against_stream(bag, streams, truth_bag, truth_streams):
         order = np.argsort(tr[keep])
         tr, vals = tr[keep][order], ref.values[keep][order]
         err = np.full(len(t), np.nan)
+        comp = np.full((len(t), 3), np.nan)
         for k, tk in enumerate(t):
             if (not len(tr) or not np.isfinite(tk) or not tr[0] <= tk <= tr[-1]
                     or not np.all(np.isfinite(s.values[k]))):
@@ -268,10 +269,12 @@ def score_against_stream(bag, streams, truth_bag, truth_streams):
             lo = max(hi - 1, 0)
             w = 0.0 if tr[hi] == tr[lo] else (tk - tr[lo]) / (tr[hi] - tr[lo])
             if s.field == ORIENTATION:
-                err[k] = quat.angle_between(s.values[k], _slerp(vals[lo], vals[hi], w))
+                comp[k] = rotation_error(_slerp(vals[lo], vals[hi], w), s.values[k])
             else:
-                err[k] = np.linalg.norm(s.values[k] - ((1 - w) * vals[lo] + w * vals[hi]))
-        results.append(_summary(s, t, err))
+                comp[k] = s.values[k] - ((1 - w) * vals[lo] + w * vals[hi])
+            err[k] = np.linalg.norm(comp[k])
+        nv = nees(comp, s.cov) if (s.field == ORIENTATION and s.cov is not None) else None
+        results.append(_summary(s, t, err, comp, nv))
     return results
 
 
