@@ -9,6 +9,7 @@ import csv
 import json
 import os
 from pathlib import Path
+import shutil
 import subprocess
 import sys
 
@@ -490,3 +491,31 @@ def test_truth_from_a_second_log_gives_the_same_nees(tmp_path):
     assert logged['count'] == exact['count'] == n
     assert_allclose(logged['anees'], exact['anees'], rtol=1e-9)
     assert_allclose(logged['max'], exact['max'], rtol=1e-9)
+
+
+def test_reindex_a_torn_split_bag(tmp_path):
+    """A split bag whose last file was cut off (the writer killed) is finished whole."""
+    from rigidrot_ros.io.bag import reindex
+    w = BagWriter(str(tmp_path), 'torn', flush_period=1e9, split_seconds=1e-9)
+    w.add_topic('/attitude_node/run', 'std_msgs/msg/String')
+    w.add_topic('/a', 'std_msgs/msg/String')
+    w.write('/attitude_node/run', serialize_message(_run_msg()), START)
+    for k in range(5):
+        w.write('/a', serialize_message(String(data=f'{k}')), START + k + 1)
+        w.flush()
+    torn = tmp_path / 'copy'
+    shutil.copytree(w.path, torn)                 # as a SIGKILL would leave it
+    w.close()
+    files = sorted(torn.glob('*.mcap'))
+    assert len(files) == 5
+    with pytest.raises(Exception):
+        with AnyReader([torn]) as reader:
+            list(reader.messages())
+    out = reindex(str(torn))
+    assert [os.path.basename(f) for f in out['rewritten']] == [files[-1].name]
+    with AnyReader([torn]) as reader:
+        got = [reader.deserialize(d, c.msgtype).data for c, _, d in reader.messages()
+               if c.topic == '/a']
+    assert got == [f'{k}' for k in range(5)]
+    info = yaml.safe_load((torn / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['message_count'] == 6 and len(info['files']) == 5
