@@ -84,7 +84,11 @@ def _floats(name, value, size):
     for i, v in enumerate(value):
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise ValueError(f'parameter {name}[{i}] must be a number, got {v!r}')
-        out.append(float(v))
+        try:
+            out.append(float(v))
+        except OverflowError:                                   # an int beyond 1.8e308
+            raise ValueError(f'parameter {name}[{i}] is beyond the float64 range '
+                             f'(|x| <= 1.8e308)') from None
     if len(out) != size:
         raise ValueError(f'parameter {name} must have {size} numbers, got {len(out)}')
     return tuple(out)
@@ -110,6 +114,8 @@ def scene_from_params(params):
 def solver_options(params):
     """Return ``(tol, backend)`` for :func:`solve`, validated, backend None for 'auto'."""
     tol = params.get('tol', 1e-12)
+    if isinstance(tol, int) and not isinstance(tol, bool) and abs(tol) > 1e308:
+        tol = math.inf                                          # an int beyond the float range
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not math.isfinite(tol) \
             or tol < MIN_TOL:
         raise ValueError(f'parameter tol must be a finite number >= {MIN_TOL} rad, got {tol!r}')

@@ -61,3 +61,21 @@ def test_quick_run_writes_charts_and_checked_results(tmp_path):
     assert any(s.startswith('fail') for s in statuses)
     assert (tmp_path / 'work_precision.csv').read_text().rstrip().splitlines()[-1] \
         .startswith('# {')
+
+
+def test_quick_ratios_check_every_answer(tmp_path):
+    """The ratios part runs, times both DOP853 forms and finds every exact bound held."""
+    out = subprocess.run([script('rigidrot_bench'), '--quick', '--only', 'ratios', '--out',
+                          str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    with open(tmp_path / 'results.json', encoding='utf-8') as fh:
+        rows = json.load(fh)['ratios']
+    parts = {r['part'] for r in rows}
+    assert {'stream 100 Hz', 'one query', 'batch memory', 'scalar at(t) random',
+            'tick 100 Hz tight loop'} <= parts
+    timed = [r for r in rows if r['part'] in ('stream 100 Hz', 'one query')
+             or r['part'].endswith('samples')]
+    assert timed and all(r['bounds_hold'] for r in timed)
+    assert all(r['exact_error_rad'] <= r['exact_max_bound_rad'] for r in timed)
+    assert all(r['dop853_cpu_s'] > 0 and r['dop853_lean_cpu_s'] > 0 for r in timed)
+    assert all(r['p50_us'] > 0 for r in rows if r['part'].startswith(('scalar', 'tick')))

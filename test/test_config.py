@@ -12,6 +12,7 @@ PRESETS = {
     'axial_torque.yaml': 'axial-torque',
     'transverse_virtual.yaml': 'transverse-virtual',
     'transverse_body.yaml': 'transverse-body',
+    'torque_free_triaxial.yaml': 'torque-free-triaxial',
 }
 
 

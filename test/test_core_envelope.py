@@ -15,6 +15,7 @@ from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.core.adiabatic import ADIABATIC_DELTA, AdiabaticKernel
 from rigidrot_ros.core.kernel import HyperKernel
+from rigidrot_ros.core.method import hyper_kernel, taylor_kernel
 from rigidrot_ros.core.models import DELTA_SWITCH
 from rigidrot_ros.core.taylor import TaylorKernel
 
@@ -89,7 +90,7 @@ def test_1f1_falls_back_to_taylor_past_its_bit_budget(monkeypatch):
     monkeypatch.setattr(HyperKernel, 'FALLBACK_BITS', 40)    # 40 bits cannot reach 1e-13
     p, q, r0 = 0.3, -0.2, 0.5
     U = (p * p + q * q) / (4 * 30.0)
-    kernel = HyperKernel(p, q, r0, U, 'flint', tol=1e-13)
+    kernel = hyper_kernel(p, q, r0, U, 'flint', tol=1e-13)
     a, ea = kernel.evaluate(3.0)
     assert 'taylor' in kernel.method
     b, eb = TaylorKernel(*(mpmath.mpf(v) for v in (p, q, r0, U)), tol=1e-13).evaluate(3.0)
@@ -215,14 +216,14 @@ def test_far_first_query_seeds_a_checkpoint_by_1f1():
     p, q, r0 = 6.0, 8.0, 0.5
     u = (p * p + q * q) / (4 * 2500.0)
     args = [mpmath.mpf(v) for v in (p, q, r0, u)]
-    hybrid = TaylorKernel(*args, tol=4e-13)
-    stepping = TaylorKernel(*args, tol=4e-13)
-    stepping._hyper = False                                 # never try 1F1
+    hybrid = taylor_kernel(*args, tol=4e-13)
+    stepping = TaylorKernel(*args, tol=4e-13)               # no seeder: never tries 1F1
     for t in (2000.0, 2000.01, 2000.02):
         a, ea = hybrid.evaluate(t)
         b, eb = stepping.evaluate(t)
         assert np.linalg.norm(a - b) <= ea + eb
-    assert isinstance(hybrid._hyper, HyperKernel)            # the 1F1 seed was used
+    assert isinstance(hybrid.seeder.hyper, HyperKernel)      # the 1F1 seed was used
+    assert hybrid.seeded == 1
     assert 2000.0 in hybrid._ck[1][0]
 
 
@@ -234,7 +235,6 @@ def test_adiabatic_series_against_certified_taylor(delta, rng):
     u = (p * p + q * q) / (4 * delta)
     adiabatic = AdiabaticKernel(p, q, r0, u, tol=4e-13)
     taylor = TaylorKernel(*(mpmath.mpf(v) for v in (p, q, r0, u)), tol=4e-14)
-    taylor._hyper = False
     for t in (0.0, 0.3, 7.0, 90.0, 800.0):
         a, ea = adiabatic.evaluate(t)
         b, eb = taylor.evaluate(t)

@@ -15,7 +15,7 @@ from scipy.integrate import solve_ivp
 
 from rigidrot_ros.core import quaternion as quat
 
-__all__ = ['TimeBudget', 'scipy_ivp', 'rk4', 'rkmk4', 'magnus4', 'PEERS']
+__all__ = ['TimeBudget', 'scipy_ivp', 'scipy_ivp_lean', 'rk4', 'rkmk4', 'magnus4', 'PEERS']
 
 
 class TimeBudget(RuntimeError):
@@ -70,6 +70,54 @@ def scipy_ivp(scene, t_eval, method='DOP853', rtol=1e-10, atol=None, budget=60.0
         dw, df = dyn(y[:3], y[7])
         dq = 0.5 * quat.multiply(y[3:7], np.append(y[:3], 0.0))
         return np.concatenate([dw, dq, [df]])
+
+    y0 = np.concatenate([scene.omega0, scene.attitude0, [0.0]])
+    t_eval = np.atleast_1d(np.asarray(t_eval, dtype=float))
+    r = solve_ivp(rhs, (0.0, float(t_eval[-1])), y0, method=method, rtol=rtol,
+                  atol=rtol if atol is None else atol, t_eval=t_eval)
+    if not r.success:
+        raise ArithmeticError(r.message)
+    q = r.y[3:7].T
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def scipy_ivp_lean(scene, t_eval, method='DOP853', rtol=1e-10, atol=None, budget=60.0):
+    """:func:`scipy_ivp` with the right-hand side in plain floats (no small-array numpy).
+
+    The same equations; about 4x cheaper per step than the array form measured here, so
+    the ratios against it are the honest ones for a user who writes a lean integrator.
+    """
+    i1, i2, i3 = (float(v) for v in scene.inertia)
+    m = [float(v) for v in scene.torque]
+    k = None
+    if scene.torque_frame == 'virtual':
+        inertia = scene.inertia
+        k = [j for j in range(3) if inertia[(j + 1) % 3] == inertia[(j + 2) % 3]][0]
+        ip, ik = inertia[(k + 1) % 3], inertia[k]
+        ratio = (ip - ik) / ip
+        a1, a2 = (k + 1) % 3, (k + 2) % 3
+    check = _deadline(budget)
+    n_calls = [0]
+
+    def rhs(t, y):
+        n_calls[0] += 1
+        if n_calls[0] % 256 == 0:
+            check()
+        w1, w2, w3, x, yq, z, w, f = y
+        m1, m2, m3 = m
+        df = 0.0
+        if k is not None:
+            c, s = math.cos(f), math.sin(f)
+            mb = list(m)
+            mb[a1] = c * m[a1] + s * m[a2]
+            mb[a2] = -s * m[a1] + c * m[a2]
+            m1, m2, m3 = mb
+            df = ratio * (w1, w2, w3)[k]
+        return np.array([
+            (m1 - (i3 - i2) * w2 * w3) / i1, (m2 - (i1 - i3) * w3 * w1) / i2,
+            (m3 - (i2 - i1) * w1 * w2) / i3,
+            0.5 * (w * w1 + yq * w3 - z * w2), 0.5 * (w * w2 + z * w1 - x * w3),
+            0.5 * (w * w3 + x * w2 - yq * w1), -0.5 * (x * w1 + yq * w2 + z * w3), df])
 
     y0 = np.concatenate([scene.omega0, scene.attitude0, [0.0]])
     t_eval = np.atleast_1d(np.asarray(t_eval, dtype=float))

@@ -6,7 +6,6 @@ reference far tighter than anything measured: the exact solution at tol = 2e-14 
 violated claim, not plotted as a win.
 """
 
-import argparse
 import csv
 import datetime
 import json
@@ -15,16 +14,25 @@ import os
 import platform
 import sys
 import time
+import tracemalloc
 
 import mpmath
 import numpy as np
 
 from rigidrot_ros import __version__
-from rigidrot_ros.bench import peers
 from rigidrot_ros.core import PrecisionError, Scene, solve
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core.kernel import HyperKernel
 from rigidrot_ros.core.taylor import TaylorKernel
+from rigidrot_ros.tools.cli import OneLineParser
+
+try:
+    from rigidrot_ros.bench import peers
+except ImportError as _exc:     # scipy is the 'bench' extra: main() says what to install
+    peers = None
+    _PEERS_MISSING = _exc.name or str(_exc)
+else:
+    _PEERS_MISSING = None
 
 REF_TOL = 2e-14
 
@@ -54,7 +62,11 @@ def _cpu():
 
 def footer():
     """Versions, CPU and date: printed with every result."""
-    import scipy
+    try:
+        import scipy
+        sp = scipy.__version__
+    except ImportError:
+        sp = 'absent'
     try:
         import flint
         fl = flint.__version__
@@ -62,7 +74,7 @@ def footer():
         fl = 'absent'
     return {
         'rigidrot_ros': __version__, 'python': platform.python_version(),
-        'numpy': np.__version__, 'scipy': scipy.__version__, 'mpmath': mpmath.__version__,
+        'numpy': np.__version__, 'scipy': sp, 'mpmath': mpmath.__version__,
         'python-flint': fl, 'cpu': _cpu(), 'cores': os.cpu_count(),
         'machine': platform.node(),
         'date': datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
@@ -326,60 +338,177 @@ def envelope(quick, log, max_turn=2e5):
     return rows
 
 
-#: A spacecraft-like scene for the long-horizon ratios: I = 100 kg m^2, 10.8 mN m, so
-#: U = 1.08e-4 rad/s^2; omega0 lies near the torque axis (delta = 10.4, the 1F1 path) and
-#: the rates stay near 1 rad/s over 1e4 s.
-RATIO_SCENE = Scene(inertia=(100.0, 100.0, 100.0), torque=(0.006, -0.004, 0.008),
-                    omega0=(0.3, -0.2, 0.5), attitude0=(0.1, 0.2, 0.3, 0.9))
+#: The issue's spacecraft scene: axial torque 2e-4 N m on I = (2, 2, 3) (delta = 325,
+#: the certified Taylor path).
+SPACECRAFT = Scene(inertia=(2.0, 2.0, 3.0), torque=(0.0, 0.0, 2e-4), omega0=(0.3, -0.2, 0.5))
+RATIO_FIELDS = (
+    'part', 'scene', 'samples', 'horizon_s', 'exact_cpu_s', 'dop853_cpu_s',
+    'dop853_lean_cpu_s', 'speedup_vs_dop853', 'speedup_vs_dop853_lean', 'exact_error_rad',
+    'exact_max_bound_rad', 'bounds_hold', 'dop853_error_rad', 'mean_us', 'p50_us', 'p99_us',
+    'memory_ratio')
+
+
+def ratio_scenes():
+    """Return the preset scenes (config/*.yaml) and the spacecraft scene, by name."""
+    from rigidrot_ros import settings
+    folder = os.path.dirname(settings.find_config('default.yaml'))
+    out = {}
+    for name in sorted(os.listdir(folder)):
+        if name.endswith('.yaml'):
+            params = settings.load_defaults(os.path.join(folder, name))
+            out[name[:-5]] = settings.scene_from_params(params)
+    out['spacecraft'] = SPACECRAFT
+    return out
+
+
+def _row(**kw):
+    row = {k: math.nan for k in RATIO_FIELDS}
+    row.update(kw)
+    return row
+
+
+def _check(scene, t, samples, every):
+    """Exact errors against single evaluations at REF_TOL, and whether every bound held."""
+    pick = np.unique(np.concatenate([np.arange(0, len(t), every), [len(t) - 1]]))
+    sol = solve(scene, tol=REF_TOL)
+    ref_q = np.empty((len(pick), 4))
+    ref_b = np.empty(len(pick))
+    for i, j in enumerate(pick):
+        r = sol.at(float(t[j]))
+        ref_q[i], ref_b[i] = r.quaternion, r.error_bound
+    err = quat.angle_between(samples.quaternion[pick], ref_q)
+    held = bool(np.all(err <= samples.error_bound[pick] + ref_b))
+    return float(err.max()), float(samples.error_bound.max()), held, pick, ref_q
+
+
+def _versus_dop853(part, name, scene, t, repeats, budget, log, every):
+    """Time solve + at(t) and both DOP853 forms at rtol 1e-12 on t; check every answer."""
+    cpu, s = _timed(lambda: solve(scene, tol=1e-12).at(t), repeats)
+    err, mb, held, pick, ref_q = _check(scene, t, s, every)
+    dop = {}
+    for key, fn in (('dop853', peers.scipy_ivp), ('lean', peers.scipy_ivp_lean)):
+        reps = repeats if t[-1] <= 100.0 else 1          # long DOP853 runs: once
+        try:
+            c, q = _timed(lambda: fn(scene, t, 'DOP853', 1e-12, budget=budget), reps)
+            dop[key] = (c, float(quat.angle_between(q[pick], ref_q).max()))
+        except peers.TimeBudget:
+            dop[key] = (math.nan, math.nan)
+    row = _row(part=part, scene=name, samples=len(t), horizon_s=float(t[-1]), exact_cpu_s=cpu,
+               dop853_cpu_s=dop['dop853'][0], dop853_lean_cpu_s=dop['lean'][0],
+               speedup_vs_dop853=dop['dop853'][0] / cpu,
+               speedup_vs_dop853_lean=dop['lean'][0] / cpu, exact_error_rad=err,
+               exact_max_bound_rad=mb, bounds_hold=held, dop853_error_rad=dop['dop853'][1])
+    log(f'{part:22s} {name:18s} exact {1e3 * cpu:9.2f} ms  DOP853 '
+        f'{1e3 * dop["dop853"][0]:10.1f} ms ({row["speedup_vs_dop853"]:7.1f}x)  lean DOP853 '
+        f'{1e3 * dop["lean"][0]:10.1f} ms ({row["speedup_vs_dop853_lean"]:7.1f}x)  err '
+        f'{err:.1e} (bound {mb:.1e}, held {held})  DOP853 err {dop["dop853"][1]:.1e}')
+    return row
+
+
+def _latencies(fn, times):
+    out = np.empty(len(times))
+    clock = time.perf_counter
+    for i, x in enumerate(times):
+        c = clock()
+        fn(x)
+        out[i] = clock() - c
+    return 1e6 * out
 
 
 def ratios(quick, log, budget=600.0):
-    """Exact against DOP853 at equal accuracy: (a) one query, (b) a 100 Hz stream, at T."""
-    scene = RATIO_SCENE
-    ref_sol = solve(scene, tol=REF_TOL)
+    """Measure the issue's ratios against scipy DOP853 at rtol 1e-12, all in one run.
+
+    (a) a 100 Hz stream over 60 s per scene; (b) 1e6 samples over 1e4 s (spacecraft);
+    (c) one query at T = 1e3 s, ``solve`` included; (d) random-access scalar ``at(t)``,
+    t uniform in [0, 60] s, after ``solve``; (e) the node's tight loop: successive 100 Hz
+    scalar calls; (f) the peak memory of the 1e6-sample batch (tracemalloc) as a multiple
+    of its output arrays. DOP853 runs in two forms: the peers' array right-hand side, and
+    a lean one in plain floats (the same equations, about 4x cheaper per step).
+    """
+    scenes = ratio_scenes()
+    if quick:
+        scenes = {k: scenes[k] for k in ('default', 'spacecraft')}
+    repeats = 1 if quick else 3
     rows = []
-    horizons = (60.0,) if quick else (60.0, 1e4)
-    for T in horizons:
-        for workload in ('query', 'stream'):
-            t_eval = np.array([T]) if workload == 'query' else \
-                np.arange(1, int(round(T * 100)) + 1) * 0.01
-            ref = ref_sol.at(t_eval).quaternion
-            runs = []
-            for tol in (1e-9, 1e-12):
-                cpu, q = _timed(lambda: solve(scene, tol=tol).at(t_eval).quaternion, 1)
-                runs.append(('exact (flint)', tol, cpu, float(quat.angle_between(q, ref).max())))
-            for rt in ((1e-9, 1e-10, 1e-11, 1e-12, 1e-13) if T < 1e3 else (1e-10, 1e-13)):
-                try:
-                    cpu, q = _timed(lambda: peers.scipy_ivp(scene, t_eval, 'DOP853', rt,
-                                                            budget=budget), 1)
-                    err = float(quat.angle_between(q, ref).max())
-                except peers.TimeBudget:
-                    cpu, err = budget, math.nan
-                runs.append(('DOP853', rt, cpu, err))
-            for target in (1e-9, 1e-12):
-                best = {}
-                for name, knob, cpu, err in runs:
-                    if err <= target and (name not in best or cpu < best[name][0]):
-                        best[name] = (cpu, knob, err)
-                ex, dp = best.get('exact (flint)'), best.get('DOP853')
-                dop_best = min((r for r in runs if r[0] == 'DOP853' and math.isfinite(r[3])),
-                               key=lambda r: r[3], default=None)
-                row = {'T_s': T, 'workload': workload, 'samples': len(t_eval),
-                       'target_rad': target,
-                       'exact_cpu_s': ex[0] if ex else math.nan,
-                       'exact_tol': ex[1] if ex else math.nan,
-                       'dop853_cpu_s': dp[0] if dp else math.nan,
-                       'dop853_rtol': dp[1] if dp else math.nan,
-                       'ratio_exact_over_dop853': (ex[0] / dp[0]) if ex and dp else math.nan,
-                       'dop853_best_error_rad': dop_best[3] if dop_best else math.nan,
-                       'dop853_best_cpu_s': dop_best[2] if dop_best else math.nan}
-                rows.append(row)
-                log(f'ratio T={T:g} {workload:6s} target {target:g}: exact '
-                    f'{row["exact_cpu_s"]:.4f} s DOP853 {row["dop853_cpu_s"]:.4f} s '
-                    f'(rtol {row["dop853_rtol"]:g}) ratio '
-                    f'{row["ratio_exact_over_dop853"]:.3g}; DOP853 best error '
-                    f'{row["dop853_best_error_rad"]:.2e}')
+    horizon = 5.0 if quick else 60.0
+    t_stream = np.arange(1, int(round(horizon * 100)) + 1) * 0.01
+    for name, scene in scenes.items():
+        rows.append(_versus_dop853('stream 100 Hz', name, scene, t_stream, repeats, budget,
+                                   log, every=10))
+    n_big, t_big = (10 ** 4, 100.0) if quick else (10 ** 6, 1e4)
+    t = np.arange(1, n_big + 1) * (t_big / n_big)
+    rows.append(_versus_dop853(f'{n_big:.0e} samples', 'spacecraft', SPACECRAFT, t, 1, budget,
+                               log, every=max(1, n_big // 200)))
+    sol = solve(SPACECRAFT, tol=1e-12)
+    sol.at(t[:10])
+    tracemalloc.start()
+    try:
+        s = sol.at(t)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    size = s.t.nbytes + s.quaternion.nbytes + s.omega.nbytes + s.error_bound.nbytes
+    rows.append(_row(part='batch memory', scene='spacecraft', samples=n_big,
+                     horizon_s=t_big, memory_ratio=peak / size))
+    log(f'batch memory           spacecraft         peak {peak / 1e6:.1f} MB for '
+        f'{size / 1e6:.1f} MB of output: {peak / size:.2f}x')
+    t_query = np.array([100.0 if quick else 1e3])
+    for name, scene in scenes.items():
+        rows.append(_versus_dop853('one query', name, scene, t_query, repeats, budget, log,
+                                   every=1))
+    rng = np.random.default_rng(10)
+    for name, scene in scenes.items():
+        sol = solve(scene, tol=1e-12)
+        lat = _latencies(lambda x: sol.at(x), rng.uniform(0.0, horizon, 200 if quick else 3000))
+        rows.append(_row(part='scalar at(t) random', scene=name, samples=len(lat),
+                         horizon_s=horizon, mean_us=float(lat.mean()),
+                         p50_us=float(np.percentile(lat, 50)),
+                         p99_us=float(np.percentile(lat, 99))))
+        sol = solve(scene, tol=1e-12)
+        tick = _latencies(lambda x: sol.at(x), [float(x) for x in t_stream])
+        rows.append(_row(part='tick 100 Hz tight loop', scene=name, samples=len(tick),
+                         horizon_s=horizon, mean_us=float(tick.mean()),
+                         p50_us=float(np.percentile(tick, 50)),
+                         p99_us=float(np.percentile(tick, 99))))
+        log(f'scalar at(t)           {name:18s} random p50 {rows[-2]["p50_us"]:6.1f} us p99 '
+            f'{rows[-2]["p99_us"]:7.1f} us | 100 Hz tick mean {rows[-1]["mean_us"]:6.1f} us '
+            f'p50 {rows[-1]["p50_us"]:6.1f} us p99 {rows[-1]["p99_us"]:7.1f} us')
     return rows
+
+
+def ratios_chart(rows, foot, out):
+    """Bar chart of the speed-ups over DOP853 (both forms), per part and scene."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from rigidrot_ros.bench.charts import _caption, _save
+    timed = [r for r in rows if math.isfinite(r['speedup_vs_dop853'])]
+    if not timed:
+        return []
+    parts = list(dict.fromkeys(r['part'] for r in timed))
+    fig, axes = plt.subplots(1, len(parts), figsize=(4.6 * len(parts), 4.4), squeeze=False)
+    for ax, part in zip(axes[0], parts):
+        sel = [r for r in timed if r['part'] == part]
+        x = np.arange(len(sel))
+        ax.bar(x - 0.2, [r['speedup_vs_dop853'] for r in sel], 0.4,
+               label='vs DOP853 (peers.scipy_ivp)')
+        ax.bar(x + 0.2, [r['speedup_vs_dop853_lean'] for r in sel], 0.4,
+               label='vs DOP853, plain-float RHS')
+        ax.axhline(10.0, color='gray', lw=0.8, ls='--')
+        ax.set_yscale('log')
+        ax.set_xticks(x)
+        ax.set_xticklabels([r['scene'] for r in sel], rotation=35, ha='right', fontsize=7)
+        ax.set_title(f'{part} ({sel[0]["samples"]} samples to {sel[0]["horizon_s"]:g} s)',
+                     fontsize=8)
+        ax.set_ylabel('DOP853 CPU time / exact CPU time (solve included)', fontsize=7)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle('exact solution (tol 1e-12) against scipy DOP853 (rtol = atol = 1e-12)',
+                 fontsize=9)
+    fig.tight_layout(rect=(0, 0.03, 1, 0.95))
+    _caption(fig, foot)
+    paths = _save(fig, out, 'ratios')
+    plt.close(fig)
+    return paths
 
 
 def _write_csv(path, rows, foot):
@@ -392,30 +521,113 @@ def _write_csv(path, rows, foot):
         fh.write('# ' + json.dumps(foot) + '\n')
 
 
+_NEEDS = {'wp': ('scipy',), 'horizon': ('scipy',), 'stability': ('scipy',),
+          'crosscheck': (), 'envelope': (), 'ratios': ('scipy',), 'soak': (),
+          'triaxial': ('scipy',)}
+
+
+def _missing(modules):
+    """Return the names among ``modules`` that cannot be imported."""
+    out = []
+    for name in modules:
+        if name == 'scipy' and _PEERS_MISSING is not None:
+            out.append(name)
+            continue
+        try:
+            __import__(name)
+        except ImportError:
+            out.append(name)
+    return out
+
+
+def _install_hint(missing):
+    return (f'rigidrot_bench needs {" and ".join(missing)}, which a plain `pip install .` '
+            "does not install: pip install -e '.[bench]' in the checkout (or pip install "
+            f'{" ".join(missing)})')
+
+
+def charts_only(path, out, log):
+    """Redraw every chart from a ``results.json`` into ``out``; return the exit status."""
+    try:
+        with open(path, encoding='utf-8') as fh:
+            results = json.load(fh)
+    except OSError as exc:
+        print(f'rigidrot_bench: --charts-from {path}: {exc.strerror or exc}', file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        print(f'rigidrot_bench: --charts-from {path}: not JSON ({exc})', file=sys.stderr)
+        return 2
+    if not isinstance(results, dict) or not isinstance(results.get('footer'), dict):
+        print(f'rigidrot_bench: --charts-from {path}: not a rigidrot_bench results.json '
+              '(no footer)', file=sys.stderr)
+        return 2
+    os.makedirs(out, exist_ok=True)
+    from rigidrot_ros.bench import charts
+    paths = charts.draw(results, out)
+    if not paths:
+        print(f'rigidrot_bench: --charts-from {path}: no chartable results in it',
+              file=sys.stderr)
+        return 2
+    for p in paths:
+        log(f'wrote {p}')
+    return 0
+
+
 def main(argv=None):
     """Entry point of ``rigidrot_bench``."""
-    ap = argparse.ArgumentParser(prog='rigidrot_bench', description=__doc__.splitlines()[0])
+    ap = OneLineParser(prog='rigidrot_bench', description=__doc__.splitlines()[0])
     ap.add_argument('--out', default='bench_out', help='directory for charts and data')
     ap.add_argument('--quick', action='store_true', help='a smoke run, under a minute')
-    ap.add_argument('--only', choices=['wp', 'horizon', 'stability', 'envelope', 'ratios'],
-                    action='append')
+    ap.add_argument('--only', choices=list(_NEEDS), action='append',
+                    help='run only this part (repeatable; default: wp, horizon, stability); '
+                         'results merge into an existing OUT/results.json')
+    ap.add_argument('--soak-minutes', type=float, default=10.0, metavar='MIN',
+                    help='length of the soak part (--only soak), minutes (default 10)')
+    ap.add_argument('--charts-from', metavar='RESULTS_JSON',
+                    help='only redraw the charts from a results.json into --out '
+                         '(needs matplotlib, runs nothing)')
     opts = ap.parse_args(argv)
-    os.makedirs(opts.out, exist_ok=True)
-    repeats = 1 if opts.quick else 3
-    budget = 1.0 if opts.quick else 60.0
-    foot = footer()
-    parts = opts.only or ['wp', 'horizon', 'stability']
     t0 = time.monotonic()
 
     def log(line):
         print(f'[{time.monotonic() - t0:7.1f} s] {line}', flush=True)
 
+    if not (opts.soak_minutes > 0 and math.isfinite(opts.soak_minutes)):
+        ap.error(f'argument --soak-minutes: must be a positive number, got {opts.soak_minutes}')
+    if opts.charts_from is not None:
+        missing = _missing(['matplotlib'])
+        if missing:
+            print(f'rigidrot_bench: {_install_hint(missing)}', file=sys.stderr)
+            return 2
+        return charts_only(opts.charts_from, opts.out, log)
+    parts = opts.only or ['wp', 'horizon', 'stability']
+    missing = _missing(sorted({m for p in parts for m in _NEEDS[p]} | {'matplotlib'}))
+    if missing:
+        print(f'rigidrot_bench: {_install_hint(missing)}', file=sys.stderr)
+        return 2
+    try:
+        os.makedirs(opts.out, exist_ok=True)
+    except OSError as exc:
+        print(f'rigidrot_bench: --out {opts.out}: {exc.strerror or exc}', file=sys.stderr)
+        return 2
+    repeats = 1 if opts.quick else 3
+    budget = 1.0 if opts.quick else 60.0
+    foot = footer()
+
     results = {}
     merged = os.path.join(opts.out, 'results.json')
     if os.path.exists(merged):            # a partial run (--only) adds to an earlier one
-        with open(merged, encoding='utf-8') as fh:
-            results = json.load(fh)
-    results['footer'] = foot
+        try:
+            with open(merged, encoding='utf-8') as fh:
+                results = json.load(fh)
+        except ValueError as exc:
+            print(f'rigidrot_bench: {merged} is not JSON ({exc}); move it away or choose '
+                  'another --out', file=sys.stderr)
+            return 2
+    if parts == ['crosscheck'] and 'footer' in results:
+        results['footer_crosscheck_run'] = foot     # the charts keep the map's own footer
+    else:
+        results['footer'] = foot
     if 'wp' in parts:
         results['work_precision'] = work_precision(opts.quick, repeats, budget, log)
         _write_csv(os.path.join(opts.out, 'work_precision.csv'), results['work_precision'],
@@ -426,12 +638,32 @@ def main(argv=None):
     if 'stability' in parts:
         results['stability'] = stability_map(opts.quick, 20.0 if not opts.quick else 1.0, log)
         _write_csv(os.path.join(opts.out, 'stability.csv'), results['stability'], foot)
+    if 'crosscheck' in parts:
+        if not results.get('stability'):
+            print(f'rigidrot_bench: --only crosscheck needs the stability map in {merged} '
+                  '(run --only stability first)', file=sys.stderr)
+            return 2
+        from rigidrot_ros.bench import crosscheck
+        results['stability_crosscheck'] = crosscheck.stability_crosscheck(
+            results['stability'], log)
+        _write_csv(os.path.join(opts.out, 'stability_crosscheck.csv'),
+                   results['stability_crosscheck'], foot)
     if 'ratios' in parts:
         results['ratios'] = ratios(opts.quick, log)
         _write_csv(os.path.join(opts.out, 'ratios.csv'), results['ratios'], foot)
+        for path in ratios_chart(results['ratios'], foot, opts.out):
+            log(f'wrote {path}')
     if 'envelope' in parts:
         results['envelope'] = envelope(opts.quick, log)
         _write_csv(os.path.join(opts.out, 'envelope.csv'), results['envelope'], foot)
+    if 'soak' in parts:
+        from rigidrot_ros.bench import soak
+        results['soak'] = soak.soak(opts.soak_minutes, log)
+        _write_csv(os.path.join(opts.out, 'soak.csv'),
+                   [{'t_s': t, 'rss_mb': m} for t, m in results['soak']['samples']], foot)
+    if 'triaxial' in parts:                     # torque-free triaxial rows: bench/triaxial.py
+        from rigidrot_ros.bench import triaxial
+        results['triaxial'] = triaxial.run(opts.out, opts.quick, foot, log)
     with open(os.path.join(opts.out, 'results.json'), 'w', encoding='utf-8') as fh:
         json.dump(results, fh, indent=1, default=float)
     from rigidrot_ros.bench import charts
@@ -440,8 +672,12 @@ def main(argv=None):
     violated = [r for r in results.get('work_precision', []) if r['status'] == 'claim violated']
     for r in violated:
         log(f'CLAIM VIOLATED: {r}')
+    soak_failed = 'soak' in parts and results['soak']['exit_code'] != 0
+    if soak_failed:
+        log(f'SOAK: attitude_node exited with status {results["soak"]["exit_code"]}: '
+            f'{results["soak"]["stderr_tail"][-500:]}')
     print(json.dumps(foot))
-    return 1 if violated else 0
+    return 1 if violated or soak_failed else 0
 
 
 if __name__ == '__main__':

@@ -32,7 +32,7 @@ import mpmath
 from mpmath import mp
 import numpy as np
 
-from .kernel import angle_prec, reduce_angle, SETUP_PREC
+from .backends import angle_prec, PrecisionError, reduce_angle, SETUP_PREC
 from .quaternion import axis_floats as _axis
 from .quaternion import multiply_floats as _qmul
 
@@ -72,7 +72,6 @@ class AdiabaticKernel:
         self._f0 = self._frame(r0)
         self.prec = SETUP_PREC
         if self.err > self.tol:
-            from .kernel import PrecisionError
             raise PrecisionError(f'adiabatic series estimate {self.err:.2g} exceeds tol '
                                  f'{self.tol:.2g}: delta too small for it')
 
@@ -102,7 +101,7 @@ class AdiabaticKernel:
         """
         d, u = self._df, self._uf
         xf = float(x)
-        if 1e-60 < d < 1e60 and 1e-100 < u < 1e100 and abs(xf) < 1e60:
+        if 1e-40 < d < 1e40 and 1e-40 < u < 1e40 and abs(xf) < 1e40:   # no over/underflow
             r = math.hypot(xf, d)
             theta = math.atan2(d, xf)
             th_dot = -d * u / (r * r)

@@ -38,93 +38,27 @@ import mpmath
 from mpmath import mp
 import numpy as np
 
+from .backends import (  # noqa: F401  (re-exported)
+    _Exact, _FlintBackend, _mag, _MpmathBackend, _t_mag, ANGLE_GUARD_BITS, angle_prec,
+    available_backends, make_backend, PrecisionError, reduce_angle, SETUP_PREC,
+)
+from .ddphase import DDPoly
+
 __all__ = [
     'PrecisionError', 'SETUP_PREC', 'available_backends', 'ConstantKernel', 'AxisKernel',
     'HyperKernel', 'PolyAngle', 'angle_prec', 'reduce_angle',
 ]
 
-#: Bits used for per-scene constants (exact float inputs carried far beyond float64).
-SETUP_PREC = 256
-_FOUR_PI_CACHE = {}
-
-
-class PrecisionError(ArithmeticError):
-    """The special-function evaluation did not reach the requested accuracy."""
-
-
-def _four_pi():
-    p = mp.prec
-    if p not in _FOUR_PI_CACHE:
-        _FOUR_PI_CACHE[p] = 4 * mp.pi
-    return _FOUR_PI_CACHE[p]
-
-
-def reduce_angle(x):
-    """Reduce an mpf angle modulo 4 pi (the period of the half-angle) to a float.
-
-    Exact to the current mp precision: the caller must carry ``log2 |x| + 70`` bits (see
-    :func:`angle_prec`) for the result to be good to float64.
-    """
-    four_pi = _four_pi()
-    return float(x - four_pi * mpmath.nint(x / four_pi))
-
-
-#: Bits carried beyond ``log2 |angle|`` so that an angle reduced modulo 4 pi keeps about
-#: 2^-70 rad absolute accuracy (constants and 4 pi have relative error ~2^-prec).
-ANGLE_GUARD_BITS = 80
-
-
-def angle_prec(mag):
-    """Working precision (bits) for an angle with ``|angle| <= 2^mag``: SETUP_PREC or more.
-
-    Rounded up to a multiple of 64 so that precisions (and their cached constants) repeat.
-    """
-    need = int(mag) + ANGLE_GUARD_BITS
-    if need <= SETUP_PREC:
-        return SETUP_PREC
-    return -(-need // 64) * 64
-
-
-def _t_mag(t):
-    """Return an integer e with ``|t| < 2^e`` (t a finite float; 0 gives a large negative e)."""
-    return math.frexp(t)[1] if t != 0.0 else -2000
-
-
-class _Exact:
-    """Per-scene constants computed from exact float inputs at any precision, cached.
-
-    ``source`` is a number (taken as exact) or a function of no arguments that computes
-    the value (or a list of values) at the current mpmath precision.
-    """
-
-    def __init__(self, source):
-        self._source = source
-        self._cache = {}
-
-    def at(self, prec):
-        """Return the value(s) at ``prec`` bits."""
-        v = self._cache.get(prec)
-        if v is None:
-            with mp.workprec(prec):
-                v = self._source() if callable(self._source) else self._source
-                v = [+mpmath.mpf(x) for x in v] if isinstance(v, (list, tuple)) \
-                    else +mpmath.mpf(v)
-            self._cache[prec] = v
-        return v
-
-
-def _mag(x):
-    """``mpmath.mag`` with -inf for zero replaced by a large negative integer."""
-    return -100000 if x == 0 else int(mpmath.mag(x))
-
 
 class PolyAngle:
     """Angle ``c1 t + c2 t^2`` (rad) evaluated from exact inputs, reduced modulo 4 pi.
 
-    Float64 would carry ``|angle| * 1e-16`` rad of error (1e-6 rad at 1e10 rad); this
-    evaluates in ``SETUP_PREC`` bits, or ``log2 |angle| + ANGLE_GUARD_BITS`` where the
-    angle is larger (a phase of 1e300 rad needs some 1080 bits), recomputing ``c1`` and
-    ``c2`` at that precision, and reduces before rounding to float.
+    Float64 would carry ``|angle| * 1e-16`` rad of error (1e-6 rad at 1e10 rad). Where
+    it applies (|angle| up to about 1.4e16 rad) the angle is evaluated in double-double
+    arithmetic with a proved bound (:mod:`.ddphase`); beyond, in ``SETUP_PREC`` bits, or
+    ``log2 |angle| + ANGLE_GUARD_BITS`` where the angle is larger (a phase of 1e300 rad
+    needs some 1080 bits), recomputing ``c1`` and ``c2`` at that precision, and reduced
+    before rounding to float.
 
     Parameters
     ----------
@@ -140,21 +74,52 @@ class PolyAngle:
         self._c1f, self._c2f = float(self.c1), float(self.c2)
         # |c1| < 2^e1, |c2| < 2^e2 (+1 for the rounding at SETUP_PREC)
         self._e1, self._e2 = _mag(self.c1) + 1, _mag(self.c2) + 1
+        # the double-double coefficients from the exact ones at 2 SETUP_PREC bits
+        self._dd = DDPoly(*self._c.at(2 * SETUP_PREC))
 
     def prec_at(self, t):
-        """Working precision (bits) that :meth:`angle` uses at t."""
+        """Working precision (bits) that the multiple-precision path uses at t."""
         et = _t_mag(t)
         return angle_prec(max(self._e1 + et, self._e2 + 2 * et) + 1)
 
-    def angle(self, t):
-        """Angle at t (float, reduced to (-2 pi, 2 pi])."""
-        if self.zero:
-            return 0.0
+    def _angle_mp(self, t):
         prec = self.prec_at(t)
         c1, c2 = self._c.at(prec)
         with mp.workprec(prec):
             tt = mpmath.mpf(t)
             return reduce_angle((c1 + c2 * tt) * tt)
+
+    def angle_bound(self, t):
+        """Angle at one float t (reduced to about (-2 pi, 2 pi]) and its error bound, rad.
+
+        The bound excludes the final rounding of the reduced angle to float64 (part of
+        the composition floor of every sample).
+        """
+        if self.zero:
+            return 0.0, 0.0
+        out = self._dd.angle(t)
+        if out is None:
+            return self._angle_mp(t), 0.0
+        return out
+
+    def angle(self, t):
+        """Angle at t (float, reduced to about (-2 pi, 2 pi])."""
+        return self.angle_bound(t)[0]
+
+    def angles(self, t):
+        """Angles and their error bounds at the times ``t`` (float ndarray), rad."""
+        t = np.asarray(t, dtype=float)
+        if self.zero:
+            return np.zeros_like(t), np.zeros_like(t)
+        ang, bound, covered = self._dd.angles(t)
+        if not covered.all():
+            ang, bound = ang.reshape(-1), bound.reshape(-1)
+            flat = t.reshape(-1)
+            for i in np.flatnonzero(~covered.reshape(-1)):
+                ang[i] = self._angle_mp(float(flat[i]))
+                bound[i] = 0.0
+            ang, bound = ang.reshape(t.shape), bound.reshape(t.shape)
+        return ang, bound
 
     def rate(self, t):
         """Time derivative of the angle at t, rad/s."""
@@ -165,7 +130,8 @@ class ConstantKernel:
     """Constant angular velocity (no torque): ``q(t) = exp(omega t / 2)`` (Eq. 6, 62-64).
 
     ``omega`` is a list of numbers (exact) or a function computing it at the current
-    mpmath precision; the angle ``|omega| t`` is formed at the precision it needs.
+    mpmath precision; the angle ``|omega| t`` is formed in double-double or at the
+    precision it needs (:class:`PolyAngle`).
     """
 
     method = 'closed-form'
@@ -178,19 +144,30 @@ class ConstantKernel:
         with mp.workprec(SETUP_PREC):
             self.axis = (np.array([float(w / self.norm) for w in self.omega])
                          if self.norm != 0 else np.zeros(3))
-        self._e = _mag(self.norm) + 1
+        self.phase = PolyAngle(lambda: self._norm.at(mp.prec), 0)
         self.prec = SETUP_PREC
 
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and its error bound (quaternion norm)."""
         if self.norm == 0:
             return np.array([0.0, 0.0, 0.0, 1.0]), 0.0
-        prec = angle_prec(self._e + _t_mag(t))
-        norm = self._norm.at(prec)
-        with mp.workprec(prec):
-            phi = reduce_angle(norm * mpmath.mpf(t))
+        phi, err = self.phase.angle_bound(t)
         h = 0.5 * phi
-        return np.append(math.sin(h) * self.axis, math.cos(h)), 0.0
+        return np.append(math.sin(h) * self.axis, math.cos(h)), 0.5 * err
+
+    def evaluate_many(self, t):
+        """Quaternions (n, 4) and component-error bounds (n,) at the times ``t``."""
+        t = np.asarray(t, dtype=float)
+        if self.norm == 0:
+            out = np.zeros(t.shape + (4,))
+            out[..., 3] = 1.0
+            return out, np.zeros(t.shape)
+        phi, err = self.phase.angles(t)
+        h = 0.5 * phi
+        out = np.empty(t.shape + (4,))
+        out[..., :3] = np.sin(h)[..., None] * self.axis
+        out[..., 3] = np.cos(h)
+        return out, 0.5 * err
 
 
 class AxisKernel:
@@ -212,120 +189,20 @@ class AxisKernel:
 
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and its error bound (quaternion norm)."""
-        h = 0.5 * self.angle.angle(t)
+        phi, err = self.angle.angle_bound(t)
+        h = 0.5 * phi
         # an attitude error e moves the quaternion by 2 sin(e / 4) <= e / 2
-        return np.array([0.0, 0.0, math.sin(h), math.cos(h)]), 0.5 * self.dropped * abs(t)
+        return (np.array([0.0, 0.0, math.sin(h), math.cos(h)]),
+                0.5 * (err + self.dropped * abs(t)))
 
-
-# ---------------------------------------------------------------------------------------
-# special-function backends
-
-class _MpmathBackend:
-    name = 'mpmath'
-    certified = False
-
-    @staticmethod
-    def workprec(p):
-        return mp.workprec(p)
-
-    @staticmethod
-    def real(x):
-        return mpmath.mpf(x)
-
-    @staticmethod
-    def cplx(re, im):
-        return mpmath.mpc(re, im)
-
-    @staticmethod
-    def hyp1f1(a, b, z):
-        try:
-            return mpmath.hyp1f1(a, b, z)
-        except mpmath.libmp.NoConvergence as exc:
-            raise PrecisionError(f'mpmath hyp1f1 did not converge: {exc}') from None
-
-    @staticmethod
-    def exp(z):
-        return mpmath.exp(z)
-
-    @staticmethod
-    def abs(z):
-        return float(abs(z))
-
-    @staticmethod
-    def parts(z):
-        """(re mid, im mid, radius) as floats; mpmath numbers carry no radius."""
-        return float(z.real), float(z.imag), 0.0
-
-
-class _FlintBackend:
-    name = 'flint'
-    certified = True
-
-    def __init__(self):
-        import flint
-        self.flint = flint
-
-    def workprec(self, p):
-        return self.flint.ctx.workprec(p)
-
-    def real(self, x):
-        """Exact (or correctly rounded) conversion of an mpf/float to an arb ball."""
-        # mpmath.mpf(mpf) would round to the ambient precision: read the bits directly
-        if not isinstance(x, mpmath.mpf):
-            with mp.workprec(SETUP_PREC):
-                x = mpmath.mpf(x)
-        sign, man, exp, _ = x._mpf_
-        if man == 0:
-            return self.flint.arb(0)
-        val = self.flint.arb(self.flint.fmpz(-man if sign else man))
-        return val * self.flint.arb(2) ** exp if exp >= 0 else val / self.flint.arb(2) ** (-exp)
-
-    def cplx(self, re, im):
-        return self.flint.acb(self.real(re), self.real(im))
-
-    @staticmethod
-    def hyp1f1(a, b, z):
-        return z.hypgeom_1f1(a, b)
-
-    @staticmethod
-    def exp(z):
-        return z.exp()
-
-    @staticmethod
-    def abs(z):
-        return float(abs(z).upper())
-
-    @staticmethod
-    def parts(z):
-        re, im = z.real, z.imag
-        rad = math.hypot(float(re.rad()), float(im.rad()))
-        if not (re.is_finite() and im.is_finite()):
-            return math.nan, math.nan, math.inf
-        return float(re.mid()), float(im.mid()), rad
-
-
-def available_backends():
-    """Names of the installed special-function backends, fastest first."""
-    names = []
-    try:
-        import flint  # noqa: F401
-        names.append('flint')
-    except ImportError:
-        pass
-    names.append('mpmath')
-    return names
-
-
-def make_backend(name):
-    if name == 'flint':
-        try:
-            return _FlintBackend()
-        except ImportError:
-            raise ValueError("backend 'flint' needs python-flint: pip install python-flint") \
-                from None
-    if name == 'mpmath':
-        return _MpmathBackend()
-    raise ValueError(f"backend must be None, 'flint' or 'mpmath', got {name!r}")
+    def evaluate_many(self, t):
+        """Quaternions (n, 4) and component-error bounds (n,) at the times ``t``."""
+        phi, err = self.angle.angles(t)
+        h = 0.5 * phi
+        out = np.zeros(np.shape(phi) + (4,))
+        out[..., 2] = np.sin(h)
+        out[..., 3] = np.cos(h)
+        return out, 0.5 * (err + self.dropped * np.abs(t))
 
 
 class HyperKernel:
@@ -343,24 +220,34 @@ class HyperKernel:
         Error asked of the kernel quaternion (Euclidean norm of the component error).
     max_prec : int
         Ceiling on the working precision, bits.
-    fallback : bool
-        With flint, continue a sample by Taylor series when 1F1 would need more than
-        ``FALLBACK_BITS``; when false, try up to ``max_prec`` and raise PrecisionError.
+    fallback : callable or None
+        With flint, a factory of the kernel that continues a sample when 1F1 would need
+        more than ``FALLBACK_BITS`` (:func:`rigidrot_ros.core.method.hyper_kernel` passes
+        the certified Taylor continuation); None: try up to ``max_prec`` and raise
+        PrecisionError.
+    check : bool
+        Evaluate at t = 0 on construction, so that an impossible scene fails at once.
+    setup_prec : int
+        Bits for the derived constants (sqrt U, ...): at least those of the inputs.
     """
 
     #: With flint, a sample whose 1F1 would need more bits than this is continued by
     #: certified Taylor series instead (see :mod:`rigidrot_ros.core.taylor`).
     FALLBACK_BITS = 1024
 
-    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=True):
+    def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=None, check=True,
+                 setup_prec=SETUP_PREC):
         self.backend = make_backend(backend)
-        self.fallback = bool(fallback)
+        self.fallback = fallback if callable(fallback) else None
         self.method = f'hypergeometric-{self.backend.name}'
         self.tol = float(tol)
         self.max_prec = int(max_prec)
         self._fallback = None
         self._inputs = (p, q, r0, U)
-        with mp.workprec(SETUP_PREC):
+        # sqrt(U), s0 and conj(Delta)/sqrt(U) are rounded here: at least as finely as the
+        # inputs, whose rounding the caller accounts for (the phase s^2 / 4 can be 1e100 rad)
+        self.setup_prec = max(SETUP_PREC, int(setup_prec))
+        with mp.workprec(self.setup_prec):
             p, q, r0, U = (mpmath.mpf(v) for v in (p, q, r0, U))
             self.sqrtU = mpmath.sqrt(U)
             self.delta = (p * p + q * q) / (4 * U)
@@ -374,6 +261,13 @@ class HyperKernel:
         # Start where the magnitudes of the even/odd solutions (about e^{pi delta/4}
         # each) would leave the tolerance's bits plus guard bits.
         need = -math.log2(self.tol) + 2 * math.log2(math.e) * math.pi * float(self.delta) / 4
+        # ... plus the bits of the phase s0^2 / 4, formed at the working precision, and
+        # (mpmath's estimate) of |s0| and of the v2 gain (2 + |s0|) / |conj(Delta) / sqrt U|
+        ms0 = max(0, _mag(self.s0))
+        need += 2 * ms0
+        if not self.backend.certified:
+            dbar = mpmath.hypot(self.dbar_re, self.dbar_im)
+            need += ms0 + max(0, max(ms0, 2) - _mag(dbar))
         self.predicted = int(max(64, 24 + min(need, 1e9)))
         self.prec = min(self.predicted, self.max_prec)
         if not self.backend.certified and self.predicted > self.max_prec:
@@ -384,7 +278,8 @@ class HyperKernel:
                 f'{float(self.delta):.4g} is large (small torque against the transverse '
                 f"rate). Use backend='flint' (certified Taylor continuation) or raise "
                 f'max_prec.')
-        self.evaluate(0.0)                       # fail now, not at the first sample
+        if check:
+            self.evaluate(0.0)                   # fail now, not at the first sample
 
     # -- per-precision constants ----------------------------------------------------------
     def _constants(self, prec):
@@ -446,11 +341,14 @@ class HyperKernel:
             if b.certified:
                 err = math.hypot(r1, r2)
             else:
-                # running-error estimate: eps * ||Y(s)|| * ||Y(s0)^-1|| * |u0| * v2 gain
+                # running-error estimate: eps * ||Y(s)|| * ||Y(s0)^-1|| * |u0| * v2 gain,
+                # times the phases s^2 / 4 and s0^2 / 4 (rounding s moves them by eps s^2 / 2)
                 ns = max(b.abs(ye), b.abs(yep), b.abs(yo), b.abs(yop))
                 su = b.abs(s)
+                s0 = abs(float(self.s0))
                 gain = 1.0 + (2.0 + su) / b.abs(c['dbar'])
-                err = 64.0 * 2.0 ** -prec * ns * c['cond0'] * (1.0 + abs(float(self.s0))) * gain
+                phase = 1.0 + 0.5 * (su * su + s0 * s0)
+                err = 64.0 * 2.0 ** -prec * ns * c['cond0'] * (1.0 + s0) * gain * phase
         if not np.all(np.isfinite(q)):
             err = math.inf
         # float64 rounding of the four components
@@ -465,7 +363,7 @@ class HyperKernel:
         prec = self.prec
         last_err = math.inf
         ceiling = self.max_prec
-        if self.backend.certified and self.fallback:
+        if self.backend.certified and self.fallback is not None:
             ceiling = min(ceiling, self.FALLBACK_BITS)
             prec = min(prec, ceiling)
             if self.predicted > 2 * self.FALLBACK_BITS:
@@ -484,12 +382,10 @@ class HyperKernel:
             step = 32 if not math.isfinite(err) else \
                 max(32, int(math.log2(err) - math.log2(self.tol)) + 16)
             prec = min(ceiling, max(prec + step, int(prec * 1.25)))
-        if self.backend.certified and self.fallback:
+        if self.backend.certified and self.fallback is not None:
             if self._fallback is None:
-                from .taylor import TaylorKernel
-                self._fallback = TaylorKernel(*self._inputs, tol=self.tol,
-                                              max_prec=self.max_prec)
-                self.method = 'hypergeometric-flint+taylor-series-flint'
+                self._fallback = self.fallback()
+                self.method = f'hypergeometric-flint+{self._fallback.method}'
             return self._fallback.evaluate(t)
         pr = self.params
         raise PrecisionError(

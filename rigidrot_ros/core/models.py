@@ -23,12 +23,13 @@ from mpmath import mp
 import numpy as np
 
 from . import quaternion as quat
-from .adiabatic import ADIABATIC_DELTA, AdiabaticKernel
-from .dense import dense_spinor, Window
+from .adiabatic import AdiabaticKernel
+from .dense import DenseSpinor
 from .kernel import (
     angle_prec, available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle,
     PrecisionError, SETUP_PREC,
 )
+from .method import DELTA_SWITCH, spinor_kernel  # noqa: F401  (DELTA_SWITCH re-exported)
 from .scene import Scene
 from .taylor import TaylorKernel
 
@@ -36,17 +37,18 @@ __all__ = ['solve', 'Solution', 'Samples', 'NoExactSolution', 'MODELS', 'FLOAT_F
            'MAX_PREC']
 
 #: Attitude error (rad) of composing float64 quaternions, included in every error bound.
+#: Some 30 roundings of 1.1e-16 (products, sines, the reduced angles) stay below 4e-15;
+#: the floor also covers the first ddphase.IN_FLOOR (1e-18 rad) of each phase's bound.
 FLOAT_FLOOR = 1e-14
 #: The smallest tol accepted, rad: twice the float64 floor.
 MIN_TOL = 2 * FLOAT_FLOOR
-#: Above this delta = (p^2 + q^2) / (4U) the flint backend continues the spinor by
-#: certified Taylor series instead of 1F1: measured here, 1F1 needs about 65 + 2.3 delta
-#: bits and costs 2.6 ms a sample at delta = 80 (5 ms at 160), while the Taylor
-#: continuation streams at 0.3-0.5 ms a sample.
-DELTA_SWITCH = 80.0
 #: Batches of at least this many times use dense output (:mod:`.dense`): one exact
 #: evaluation per window, the exact solution's Taylor series inside it.
 DENSE_MIN = 8
+#: Batches are evaluated in chunks of this many samples: bounded temporary memory, and
+#: temporaries small enough to be reused rather than mapped afresh (measured here: 1e6
+#: samples in 0.74 s at 8192, 1.7 s at 32768).
+CHUNK = 8192
 #: A transverse kernel rate (rad/s) at most this, and below 2^-200 of the rate scale, is
 #: neglected: the attitude bound then grows by rate * |t|, under 1e-14 rad to 1e16 s.
 DROP_RATE = 1e-30
@@ -68,6 +70,9 @@ MODELS = {
     'transverse-body': 'axisymmetric body, body-fixed transverse torque, r0 = 0 (Theorem 4)',
     'oblique-virtual': 'axisymmetric body, oblique torque fixed in the virtual sphere '
                        '(Theorems 2 and 3 combined by the reduction theorem, Eq. 22-25)',
+    # torque-free triaxial body: rigidrot_ros/core/triaxial.py
+    'torque-free-triaxial': 'three different moments, no torque (Euler-Poinsot): Jacobi '
+                            'elliptic functions, angle about h by their integral',
 }
 
 
@@ -152,13 +157,14 @@ def _classify(scene):
     if len(set(inertia)) == 1:
         return ('torque-free-sphere' if not any(m) else 'sphere'), 2
     sym = [k for k in range(3) if inertia[(k + 1) % 3] == inertia[(k + 2) % 3]]
+    if not sym and not any(m):
+        return 'torque-free-triaxial', None            # evaluated by core/triaxial.py
     if not sym:
-        what = 'with a torque' if any(m) else 'without torque'
         raise NoExactSolution(
-            f'inertia {inertia} has three different moments; {what} such a body has no exact '
-            f'solution here (Romano treats spherical and axisymmetric bodies; torque-free '
-            f'triaxial motion needs Jacobi elliptic functions). Make two moments equal, '
-            f'or put omega0 and the torque along one principal axis.')
+            f'inertia {inertia} has three different moments; with a torque such a body has '
+            f'no exact solution here (Romano treats spherical and axisymmetric bodies; the '
+            f'torque-free triaxial body is exact). Make two moments equal, remove the '
+            f'torque, or put omega0 and the torque along one principal axis.')
     k = sym[0]
     names = 'xyz'
     m_ax = m[k]
@@ -186,23 +192,24 @@ def _classify(scene):
 
 
 #: Dense output runs its Taylor recurrence in float64: it is used only where the kernel's
-#: rates stay within [DENSE_RATES[0], DENSE_RATES[1]] rad/s (no overflow or underflow of
-#: the coefficients, whose scale is rate^n); elsewhere samples are evaluated one by one.
-DENSE_RATES = (1e-12, 1e12)
+#: rates (and sqrt U) stay within [DENSE_RATES[0], DENSE_RATES[1]] rad/s, so that its
+#: coefficients and majorants (about rate^n / n!, n up to ~40) neither overflow nor
+#: underflow; elsewhere samples are evaluated one by one.
+DENSE_RATES = (1e-6, 1e7)
 
 
-def _dense_safe(kernel):
-    """Float (p, q, r0, U) of a spinor kernel whose rates suit dense output, else None."""
+def _dense_tmax(kernel):
+    """Largest |t| to which dense output suits the kernel's rates (-1: never)."""
     if not isinstance(kernel, _SPINOR_KERNELS):
-        return None
+        return -1.0
     p, q, r0, u = (kernel.params[k] for k in ('p', 'q', 'r0', 'U'))
     if not all(math.isfinite(v) for v in (p, q, r0, u)):
-        return None
-    d = math.hypot(p, q)
-    if max(d, math.sqrt(u)) < DENSE_RATES[0] or \
-            max(math.hypot(r0, d), math.sqrt(u)) > DENSE_RATES[1]:
-        return None
-    return d, r0, u
+        return -1.0
+    d, top = math.hypot(p, q), DENSE_RATES[1]
+    if max(d, math.sqrt(u)) < DENSE_RATES[0] or max(math.hypot(r0, d), math.sqrt(u)) > top:
+        return -1.0
+    # |r0| + U t <= sqrt(top^2 - d^2): the rate at t stays below the top
+    return (math.sqrt(top * top - d * d) - abs(r0)) / u * (1 - 1e-12) if u > 0 else math.inf
 
 
 def _transverse_sq(w0, m, i_t, i_3):
@@ -348,56 +355,47 @@ class Solution:
                 else:
                     # the kernel quaternion may take 2/5 of the attitude budget
                     ktol = 0.4 * (tol - FLOAT_FLOOR)
-                    delta_mp = (wk[0] ** 2 + wk[1] ** 2) / (4 * U)
-                    delta = float(delta_mp)
-                    # bits mpmath's 1F1 would need (HyperKernel's own predictor)
-                    mp_bits = 24 - math.log2(ktol) + 2 * math.log2(math.e) * math.pi * delta / 4
-                    mp_hopeless = backend == 'mpmath' and mp_bits > max_prec and \
-                        'flint' in available_backends()
-                    # the adiabatic series only where its estimate 10 eps^3 meets the tol
-                    adiabatic_ok = 10 / (4 * delta_mp) ** 3 + mpmath.mpf(1e-15) <= ktol
-                    if delta >= ADIABATIC_DELTA and adiabatic_ok:
-                        kernel = AdiabaticKernel(wk[0], wk[1], wk[2], U, tol=ktol,
-                                                 inputs=inputs)
-                    else:
-                        # inputs rounded at SETUP_PREC: relative error < 2^-(SETUP_PREC - 8)
-                        # of the rate, so the attitude drifts by at most that times
+                    kernel = spinor_kernel(wk[0], wk[1], wk[2], U, ktol, backend, max_prec,
+                                           inputs=inputs, setup_prec=prec_in)
+                    if not isinstance(kernel, AdiabaticKernel):
+                        # inputs (and the kernels' derived constants) rounded at prec_in
+                        # bits: relative error < 2^-(prec_in - 8) of the rate, so the
+                        # attitude drifts by at most that times the turn
                         # int |omega_K| dt <= |omega_K(0)| |t| + U t^2 / 2
                         kin = 2.0 ** -(prec_in - 8)
                         self._kin_rates = (float(wnorm), float(U))
-                        if (backend == 'flint' and delta > DELTA_SWITCH) or mp_hopeless:
-                            kernel = TaylorKernel(wk[0], wk[1], wk[2], U, tol=ktol,
-                                                  max_prec=max_prec)
-                        else:
-                            kernel = HyperKernel(wk[0], wk[1], wk[2], U, backend, tol=ktol,
-                                                 max_prec=max_prec)
             self._kin = kin
             q_sk = np.array([float(v) for v in q_sk])
             self._w_s0 = np.array([float(v) for v in w_s])
             self._m_over_I = np.array([float(v / mI) for v in ms])
             self._rdot = float(ms[2] / mI3)                    # d r / dt = m3 / I3
-        self._dense_ok = _dense_safe(kernel)
+        self._dense_tmax = _dense_tmax(kernel)
+        # spinor kernels return |k| = 1 only to within their error: normalise them
+        self._unit_fix = isinstance(kernel, _SPINOR_KERNELS)
         self._kernel = kernel
-        self._window = None
+        self._dense = DenseSpinor(kernel) if self._dense_tmax >= 0 else None
         self._left = quat.multiply(
             quat.multiply(np.array(scene.attitude0), quat.conjugate(q_b1b)), q_sk)
         self._mid = quat.conjugate(q_sk)
         self._right = q_b1b
-        self._left_t, self._mid_t, self._right_t = (
-            tuple(float(v) for v in x) for x in (self._left, self._mid, self._right))
+        # q = left ⊗ k ⊗ (cos(f/2) P0 + sin(f/2) P1): q_z(f) is linear in (cos, sin)
+        eye = np.eye(4)
+        self._lmat = np.stack([quat.multiply(self._left, e) for e in eye], axis=-1)
+        self._p0 = quat.multiply(self._mid, self._right)
+        self._p1 = quat.multiply(quat.multiply(self._mid, eye[2]), self._right)
+        self._left_t, self._p0_t, self._p1_t = (
+            tuple(float(v) for v in x) for x in (self._left, self._p0, self._p1))
         self._r0 = float(w0[2])
+        self._perm_idx = [int(np.argmax(np.abs(row))) for row in self._perm_T]
         self._floats = (float(self._w_s0[0]), float(self._w_s0[1]), float(self._m_over_I[0]),
                         float(self._m_over_I[1]))
 
     def _dense_at(self, tmax):
         """Whether dense output is safe up to |t| = tmax (see DENSE_RATES)."""
-        if self._dense_ok is None:
-            return False
-        d, r0, u = self._dense_ok
-        return math.hypot(abs(r0) + u * tmax, d) <= DENSE_RATES[1]
+        return tmax <= self._dense_tmax
 
     def _input_error(self, t):
-        """Kernel component error from rounding its inputs at SETUP_PREC, at |t| (array).
+        """Kernel component error from rounding its inputs (prec_in bits), at |t| (array).
 
         The rate is off by at most ``kin`` of itself, so the attitude by at most
         ``kin * int |omega_K| dt``; a quaternion moves by half the attitude angle.
@@ -425,10 +423,12 @@ class Solution:
     def _why_bound(self):
         if isinstance(self._kernel, AxisKernel) and self._kernel.dropped:
             return (f'a transverse rate of {self._kernel.dropped:.3g} rad/s, below 2^-200 of '
-                    f'the rate, is neglected: the bound grows by that times |t|')
+                    f'the rate, is neglected: the bound grows by that times |t|, to the limit '
+                    f'tol at |t| = {self.tol / self._kernel.dropped:.3g} s')
         if self._kin:
-            return (f'its inputs carry {SETUP_PREC} bits, so the bound grows with the turn '
-                    f'|omega_K| |t| + U t^2 / 2 (limit about 1e55 rad)')
+            return (f'its inputs carry {round(8 - math.log2(self._kin))} bits, so the bound '
+                    f'grows with the turn |omega_K| |t| + U t^2 / 2, whose limit at this tol '
+                    f'is about {self.tol / self._kin:.2g} rad')
         return 'the kernel bound'
 
     def _omega_overflow(self, tt, omega):
@@ -439,18 +439,19 @@ class Solution:
                 f'omega0 = {self.scene.omega0} rad/s, torque / inertia up to '
                 f'{float(np.max(np.abs(self._m_over_I))):.3g} rad/s^2. Use a shorter horizon.')
 
-    def _omega_b1(self, tt, f):
+    def _omega_b1(self, tt, f, cs=None):
         """Omega in B at times tt, f(tt) given (overflow gives inf, without a warning).
 
         omega_S(t) = omega_S(0) + (m/I) t; omega_B' = (Rz(-f) omega_S_perp, r(t)).
+        ``cs``: (cos f, sin f) if already at hand.
         """
         with np.errstate(over='ignore', invalid='ignore'):
             a = self._w_s0[0] + self._m_over_I[0] * tt
             b = self._w_s0[1] + self._m_over_I[1] * tt
-            c, s = np.cos(f), np.sin(f)
-            w_b1 = np.stack([a * c + b * s, -a * s + b * c, self._r0 + self._rdot * tt],
+            c, s = (np.cos(f), np.sin(f)) if cs is None else cs
+            w_b1 = np.stack([a * c + b * s, b * c - a * s, self._r0 + self._rdot * tt],
                             axis=-1)
-            return w_b1 @ self._perm_T.T
+            return w_b1[..., self._perm_idx]
 
     @property
     def method(self):
@@ -496,26 +497,66 @@ class Solution:
         if not np.all(np.isfinite(tt)):
             raise ValueError('t must be finite')
         n = len(tt)
-        kin = self._input_error(tt)
         if self._kin:                                          # refuse before the work
-            self._check(tt, 2.0 * kin + FLOAT_FLOOR, np.zeros(3))
-        k = np.empty((n, 4))
-        kerr = np.empty(n)
-        if n >= DENSE_MIN and self._dense_at(float(np.max(np.abs(tt)))):
+            self._check(tt, 2.0 * self._input_error(tt) + FLOAT_FLOOR, np.zeros(3))
+        q = np.empty((n, 4))
+        omega = np.empty((n, 3))
+        err = np.empty(n)
+        if n == 0:
+            return Samples(tt, q, omega, err)
+        order = None
+        if n > 1 and not np.all(tt[1:] >= tt[:-1]):
             order = np.argsort(tt, kind='stable')
-            k[order], kerr[order] = dense_spinor(self._kernel, tt[order])
-        else:
-            for i, ti in enumerate(tt):
-                k[i], kerr[i] = self._kernel.evaluate(float(ti))
-        kerr = kerr + kin
-        f = np.array([self._f.angle(float(ti)) for ti in tt])
-        q = quat.multiply(quat.multiply(self._left, k),
-                          quat.multiply(quat.multiply(self._mid, quat.about_z(f)), self._right))
-        omega = self._omega_b1(tt, f)
-        # a component error e of a unit quaternion moves the attitude by <= 2 asin(e)
-        err = 2.0 * np.arcsin(np.minimum(kerr, 1.0)) + FLOAT_FLOOR
-        self._check(tt, err, omega)
+        ts = tt if order is None else tt[order]
+        # chunks from t = 0 outwards, so windows chain in their own direction
+        neg = int(np.searchsorted(ts, 0.0, side='left'))
+        chunks = [(max(0, e - CHUNK), e) for e in range(neg, 0, -CHUNK)]
+        chunks += [(s, min(n, s + CHUNK)) for s in range(neg, n, CHUNK)]
+        dense = n >= DENSE_MIN and self._dense_at(max(abs(float(ts[0])), abs(float(ts[-1]))))
+        for a, b in chunks:
+            tc = ts[a:b]
+            qc, wc, ec = self._chunk(tc, dense)
+            self._check(tc, ec, wc)
+            if order is None:
+                q[a:b], omega[a:b], err[a:b] = qc, wc, ec
+            else:
+                idx = order[a:b]
+                q[idx], omega[idx], err[idx] = qc, wc, ec
         return Samples(tt, q, omega, err)
+
+    def _chunk(self, tc, dense):
+        """Quaternions, rates and bounds at the sorted times ``tc`` (one chunk)."""
+        m = len(tc)
+        kernel = self._kernel
+        if dense:
+            k = np.empty((m, 4))
+            kerr = np.empty(m)
+            self._dense.many(tc, k, kerr)
+        elif hasattr(kernel, 'evaluate_many'):
+            k, kerr = kernel.evaluate_many(tc)
+        else:
+            k = np.empty((m, 4))
+            kerr = np.empty(m)
+            for i, ti in enumerate(tc):
+                k[i], kerr[i] = kernel.evaluate(float(ti))
+        kerr = kerr + self._input_error(tc)
+        if self._unit_fix:
+            # return unit quaternions at any tol: |k/|k| - k*| <= |k - k*| + ||k| - 1|
+            norm = np.linalg.norm(k, axis=-1)
+            bad = ~(norm > 0) | ~np.isfinite(norm)               # only at a meaningless tol
+            norm[bad] = 1.0
+            k[bad] = (0.0, 0.0, 0.0, 1.0)
+            k = k / norm[:, None]
+            kerr = kerr + np.abs(norm - 1.0) + np.where(bad, np.inf, 0.0)
+        f, ferr = self._f.angles(tc)
+        h = 0.5 * f
+        c, s = np.cos(h), np.sin(h)
+        q2 = c[:, None] * self._p0 + s[:, None] * self._p1
+        q = quat.multiply(k @ self._lmat.T, q2)
+        omega = self._omega_b1(tc, f)
+        # a component error e of a unit quaternion moves the attitude by <= 2 asin(e)
+        err = 2.0 * np.arcsin(np.minimum(kerr, 1.0)) + ferr + FLOAT_FLOOR
+        return q, omega, err
 
     def omega_at(self, t):
         """Angular velocity of B relative to N, in B, rad/s, at t (float or 1-D array).
@@ -526,22 +567,18 @@ class Solution:
         tt = _times(t)
         if not np.all(np.isfinite(tt)):
             raise ValueError('t must be finite')
-        f = np.vectorize(self._f.angle, otypes=[float])(tt)
+        f = self._f.angles(tt)[0]
         omega = self._omega_b1(tt, f)
         if not np.all(np.isfinite(omega)):
             raise ValueError(self._omega_overflow(tt, omega))
         return omega
 
     def _kernel_scalar(self, t):
-        """Kernel at one time; successive times reuse the current dense-output window."""
-        if not self._dense_at(abs(t)):
-            return self._kernel.evaluate(t)
-        win = self._window
-        if win is None or not win.contains(t):
-            win = self._window = Window(self._kernel, t)
-        if not win.ok:
-            return self._kernel.evaluate(t)
-        return win.quaternion(t), win.bound
+        """Kernel at one time as a float 4-tuple; the node's stream reuses dense windows."""
+        if self._dense is not None and self._dense_at(abs(t)):
+            return self._dense.at(t)
+        k, kerr = self._kernel.evaluate(t)
+        return tuple(k.tolist()), kerr
 
     def _at_scalar(self, t):
         """:meth:`at` for one time, in plain floats (the node's per-tick path)."""
@@ -555,20 +592,35 @@ class Solution:
                 self._check(np.asarray(t), np.float64(2.0 * kin + FLOAT_FLOOR), np.zeros(3))
         k, kerr = self._kernel_scalar(t)
         kerr = kerr + kin
-        f = self._f.angle(t)
-        c, s = math.cos(f), math.sin(f)
+        if self._unit_fix:
+            x, y, z, w = k
+            n2 = x * x + y * y + z * z + w * w
+            if not abs(n2 - 1.0) <= 1e-15:                     # off unit (coarse tol)
+                norm = math.sqrt(n2)
+                if 0.0 < norm < math.inf:
+                    k = (x / norm, y / norm, z / norm, w / norm)
+                    kerr += abs(norm - 1.0)
+                else:                                          # only at a meaningless tol
+                    k, kerr = (0.0, 0.0, 0.0, 1.0), math.inf
+        f, ferr = self._f.angle_bound(t)
+        h = 0.5 * f
+        c, s = math.cos(h), math.sin(h)
+        p0, p1 = self._p0_t, self._p1_t
+        q2 = (c * p0[0] + s * p1[0], c * p0[1] + s * p1[1], c * p0[2] + s * p1[2],
+              c * p0[3] + s * p1[3])
         mul = quat.multiply_floats
-        q = mul(mul(self._left_t, tuple(k)),
-                mul(mul(self._mid_t, quat.axis_floats(2, f)), self._right_t))
+        q = mul(mul(self._left_t, k), q2)
+        cf, sf = math.cos(f), math.sin(f)
         w0x, w0y, mx, my = self._floats
         a, b = w0x + mx * t, w0y + my * t                    # python floats: inf, no warning
-        w_b1 = (a * c + b * s, -a * s + b * c, self._r0 + self._rdot * t)
-        err = 2.0 * math.asin(min(kerr, 1.0)) + FLOAT_FLOOR
+        w_b1 = (a * cf + b * sf, b * cf - a * sf, self._r0 + self._rdot * t)
+        err = 2.0 * math.asin(min(kerr, 1.0)) + ferr + FLOAT_FLOOR
         if not (err <= self.tol and math.isfinite(w_b1[0] + w_b1[1] + w_b1[2])):
             with np.errstate(over='ignore', invalid='ignore'):
                 self._check(np.asarray(t), np.float64(err), np.array(w_b1) @ self._perm_T.T)
-        omega = self._perm_T @ np.array(w_b1)
-        return Samples(np.asarray(t), np.array(q), omega, np.float64(err))
+        pi = self._perm_idx
+        return Samples(np.asarray(t), np.array(q),
+                       np.array((w_b1[pi[0]], w_b1[pi[1]], w_b1[pi[2]])), np.float64(err))
 
 
 def solve(scene, tol=1e-12, backend=None, max_prec=4096):
@@ -620,4 +672,7 @@ def solve(scene, tol=1e-12, backend=None, max_prec=4096):
             not 64 <= max_prec <= MAX_PREC:
         raise ValueError(f'max_prec must be an integer from 64 to {MAX_PREC} bits (a higher '
                          f'ceiling could run for hours), got {max_prec!r}')
+    if _classify(scene)[0] == 'torque-free-triaxial':       # core/triaxial.py
+        from .triaxial import TriaxialSolution
+        return TriaxialSolution(scene, tol_f, backend, max_prec, FLOAT_FLOOR)
     return Solution(scene, tol_f, backend, max_prec)

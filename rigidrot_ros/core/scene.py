@@ -65,8 +65,11 @@ class Scene:
     Raises
     ------
     ValueError
-        Naming the field: non-finite or non-numeric values, non-positive moments, moments
-        that break the triangle inequality, a zero quaternion, an unknown torque_frame.
+        Naming the field: non-finite or non-numeric values, numbers beyond the float64
+        range (an int of 10**400), non-positive moments, moments that break the triangle
+        inequality, a zero quaternion, an unknown torque_frame. Any finite float is
+        accepted otherwise (5e-324 ... 1.8e308); :func:`solve` refuses what it cannot
+        evaluate, with the reason.
 
     Examples
     --------
@@ -99,10 +102,14 @@ class Scene:
                 f'torque_frame must be one of {TORQUE_FRAMES}, got {self.torque_frame!r}')
         omega0 = _vector('omega0', self.omega0, 3)
         att = _vector('attitude0', self.attitude0, 4)
-        norm = math.hypot(*att)
-        if norm == 0.0:
+        big = max(abs(v) for v in att)
+        if big == 0.0:
             raise ValueError(f'attitude0 must be a nonzero quaternion (x, y, z, w), got {att}')
-        if abs(norm - 1.0) > 4.5e-16:      # leave unit input bit-for-bit as given
+        if not abs(math.hypot(*att) - 1.0) <= 4.5e-16:   # leave unit input bit-for-bit
+            # scale by the largest component first: no overflow (1e308 ...) and no
+            # denormal rounding (5e-324 ...) in the norm
+            att = tuple(v / big for v in att)
+            norm = math.hypot(*att)
             att = tuple(v / norm for v in att)
         object.__setattr__(self, 'inertia', inertia)
         object.__setattr__(self, 'torque', torque)

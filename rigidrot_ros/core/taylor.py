@@ -25,16 +25,13 @@ import math
 
 import numpy as np
 
-__all__ = ['TaylorKernel', 'MAX_STEP_TURN', 'MAX_SEED_TURN']
+from .backends import _FlintBackend, PrecisionError
 
-#: A query that would step across more than HYBRID_TURN radians first tries one certified
-#: 1F1 evaluation and, if it succeeds, seeds a checkpoint there. Its bit budget grows with
-#: the stepping it would replace (about 0.27 ms per 10 rad): measured here, delta = 3000 at
-#: t = 1e4 s takes 59 ms at 4096 bits against 216 ms of stepping; delta = 1271, 2886 and
-#: 8747 at t = 2e4...8e4 s take 0.63 s (8192 bits), 2.7 s (16384) and 0.19 s (8192)
-#: against 16 s, 100 s and 293 s of stepping.
-HYBRID_TURN = 2e4
-HYBRID_BITS = ((2e5, 4096), (2e6, 16384), (math.inf, 32768))
+__all__ = ['TaylorKernel', 'STEP_COST_MS_PER_RAD', 'MAX_STEP_TURN', 'MAX_SEED_TURN']
+
+#: Measured cost of certified stepping, ms per radian turned (steps of R h = 20..40 rad
+#: at 128 bits): a query farther than a seed would cost first tries the seeder.
+STEP_COST_MS_PER_RAD = 0.045
 #: Limits on a far query (rad turned from the nearest checkpoint): stepping across more
 #: than MAX_STEP_TURN rad (about 0.27 ms per 10 rad: a minute or so) is refused with a
 #: PrecisionError naming t, and a 1F1 seed is not even tried past MAX_SEED_TURN rad
@@ -54,11 +51,16 @@ class TaylorKernel:
         Bound asked on the kernel quaternion's component error (2-norm).
     max_prec : int
         Ceiling on the working precision, bits.
+    seeder : callable or None
+        ``seeder(t, stepping_ms) -> (quaternion, bound) or None``: an independent exact
+        evaluation at a far t, tried before stepping there when it is expected to be
+        cheaper (:func:`rigidrot_ros.core.method.taylor_kernel` passes certified 1F1,
+        whose derived constants carry the inputs' bits).
     """
 
     method = 'taylor-series-flint'
 
-    def __init__(self, p, q, r0, U, tol, max_prec=4096):
+    def __init__(self, p, q, r0, U, tol, max_prec=4096, seeder=None):
         import flint
         self.flint = flint
         self.tol = float(tol)
@@ -67,13 +69,12 @@ class TaylorKernel:
         self.params = {'p': float(p), 'q': float(q), 'r0': float(r0), 'U': float(U)}
         self._u = float(U)
         self._dabs = math.hypot(float(p), float(q))
-        self._hyper = None              # a 1F1 evaluator for far queries (False: never try)
-        self._hyper_failed_at = 0       # the largest bit budget at which it failed
+        self.seeder = seeder
+        self.seeded = 0                 # checkpoints seeded by the seeder
         self.prec = 128
         self._reset(self.prec)
 
     def _reset(self, prec):
-        from .kernel import _FlintBackend
         b = _FlintBackend()
         acb, arb = self.flint.acb, self.flint.arb
         p, q, r0, U = self._inputs
@@ -148,21 +149,14 @@ class TaylorKernel:
             h *= 0.5
         return math.ldexp(1.0, math.floor(math.log2(h)))     # exact binary step
 
-    def _seed_by_1f1(self, t, sign, turn):
-        """Try one certified 1F1 evaluation at a far t; on success store it as checkpoint."""
-        from .kernel import HyperKernel, PrecisionError
-        bits = next(b for limit, b in HYBRID_BITS if turn <= limit)
-        if self._hyper is False or bits <= self._hyper_failed_at:
+    def _seed(self, t, sign, turn):
+        """Try the seeder at a far t; on success store its value as a checkpoint."""
+        if self.seeder is None:
             return None
-        try:
-            if self._hyper is None or self._hyper.max_prec < bits:
-                self._hyper = HyperKernel(*self._inputs, backend='flint', tol=0.5 * self.tol,
-                                          max_prec=bits, fallback=False)
-            (x, y, z, w), err = self._hyper.evaluate(t)
-        except PrecisionError:
-            self._hyper = None                       # not affordable at this budget: step
-            self._hyper_failed_at = bits
+        got = self.seeder(t, turn * STEP_COST_MS_PER_RAD)
+        if got is None:
             return None
+        (x, y, z, w), err = got
         acb = self.flint.acb
         with self.flint.ctx.workprec(self.prec):
             st = (acb(w, z), acb(-y, x), err)
@@ -171,6 +165,7 @@ class TaylorKernel:
         j = bisect.bisect_right(key, sign * t)
         times.insert(j, t)
         states.insert(j, st)
+        self.seeded += 1
         return st
 
     def _state(self, t):
@@ -181,26 +176,32 @@ class TaylorKernel:
         i = bisect.bisect_right(key, sign * t) - 1
         tk, st = times[i], states[i]
         turn = max(self._rate(tk), self._rate(t)) * abs(t - tk)
-        if turn > HYBRID_TURN and turn <= MAX_SEED_TURN:
-            seeded = self._seed_by_1f1(t, sign, turn)
+        if 40.0 < turn <= MAX_SEED_TURN:
+            seeded = self._seed(t, sign, turn)
             if seeded is not None:
                 return seeded
         if not turn <= MAX_STEP_TURN:
-            from .kernel import PrecisionError
             p = self.params
+            seed = ('no seed (a certified 1F1 evaluation, up to 32768 bits) could be had '
+                    'there' if turn <= MAX_SEED_TURN and self.seeder is not None else
+                    'no seed is tried there' if self.seeder is None else
+                    f'a 1F1 seed is not tried past {MAX_SEED_TURN:.3g} rad')
             raise PrecisionError(
                 f't = {t!r} s is out of reach: the certified Taylor continuation would '
                 f'step across {turn:.3g} rad from its nearest checkpoint (t = {tk!r} s), '
                 f'beyond its limit of {MAX_STEP_TURN:.3g} rad (about a minute of CPU), and '
-                f'no 1F1 evaluation within {HYBRID_BITS[-1][1]} bits could seed it there '
-                f'(kernel p, q, r0 = {p["p"]:.4g}, {p["q"]:.4g}, {p["r0"]:.4g} rad/s, '
+                f'{seed} (kernel p, q, r0 = {p["p"]:.4g}, {p["q"]:.4g}, {p["r0"]:.4g} rad/s, '
                 f'U = {p["U"]:.4g} rad/s^2). Use a shorter horizon (a larger torque / '
                 f'inertia or a smaller spin turns less per second).')
         with self.flint.ctx.workprec(self.prec):
             while tk != t:
                 h = self._hmax(tk)
                 if abs(t - tk) <= h:
-                    return self._advance(tk, st, t - tk)
+                    st = self._advance(tk, st, t - tk)
+                    if i == len(times) - 1 and abs(t - tk) >= 0.25 * h:
+                        times.append(t)                        # a stream resumes from t
+                        states.append(st)
+                    return st
                 st = self._advance(tk, st, sign * h)
                 tk = tk + sign * h
                 if i == len(times) - 1:                        # extend the stored path
@@ -213,7 +214,6 @@ class TaylorKernel:
 
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and a certified bound on its component error."""
-        from .kernel import _FlintBackend, PrecisionError
         while True:
             v1, v2, err = self._state(float(t))
             w, z, _ = _FlintBackend.parts(v1)

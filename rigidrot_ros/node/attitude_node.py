@@ -30,6 +30,7 @@ import difflib
 import json
 import math
 import sys
+import textwrap
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -41,10 +42,11 @@ import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rcl_interfaces.msg import ParameterType, SetParametersResult
 import rclpy
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import ParameterException, ParameterNotDeclaredException
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
@@ -56,7 +58,7 @@ from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
 from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter
 from rigidrot_ros.io.recorder import Recorder, type_name_of
-from rigidrot_ros.node.spin import spin_until_shutdown
+from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.sensors import Gyro, StarTracker
 from rigidrot_ros.settings import (
     load_defaults, OUTPUT_KEYS, scene_from_params, SCENE_KEYS, sensor_settings, solver_options,
@@ -154,8 +156,20 @@ _EPS = float(np.finfo(float).eps)
 _BUDGET_S = 0.02
 
 
+#: A new scene is refused when either of its two trial samples takes longer than this, s.
+_TRIAL_LIMIT_S = 1.0
+
+
 class SceneError(ValueError):
     """The parameters at start-up are invalid or do not describe a solvable scene."""
+
+
+class UnknownParameterError(ParameterNotDeclaredException):
+    """A parameter name the node does not declare; the message names it and the known ones."""
+
+    def __init__(self, names, known):
+        Exception.__init__(self, f'unknown parameter(s) {", ".join(map(str, names))}: '
+                                 f'attitude_node declares {", ".join(known)}')
 
 
 def _check_run_params(p):
@@ -189,6 +203,33 @@ def build_solution(p):
         raise ValueError(f'no exact solution for this scene: {exc}') from None
     except PrecisionError as exc:
         raise ValueError(f'the scene cannot be evaluated to tol: {exc}') from None
+    except Exception as exc:        # whatever else the core raises: refuse the scene
+        raise ValueError(f'the scene cannot be solved: {type(exc).__name__}: {exc} (inertia '
+                         f'{list(scene.inertia)}, torque {list(scene.torque)}, omega0 '
+                         f'{list(scene.omega0)})') from None
+
+
+def _trial(sol, p):
+    """Evaluate the first two ticks of a candidate scene; return None or why it fails.
+
+    A scene whose first tick (t = 0) or second (one period in, scaled by ``time_scale``)
+    cannot be evaluated, or costs more than :data:`_TRIAL_LIMIT_S`, would leave the node
+    publishing nothing, or blocking its services; it is refused instead.
+    """
+    t1 = float(p['time_scale']) / float(p['publish_rate'])
+    for t in (0.0, t1):
+        c0 = time.perf_counter()
+        try:
+            sol.at(t)
+        except Exception as exc:    # PrecisionError, ValueError, or anything else
+            return (f'the scene cannot be evaluated at t = {t:g} s (the first ticks): '
+                    f'{type(exc).__name__}: {exc}')
+        cost = time.perf_counter() - c0
+        if cost > _TRIAL_LIMIT_S:
+            return (f'one sample of this scene takes {cost:.3g} s to evaluate ({sol.model}, '
+                    f"{sol.method}), beyond the node's limit of {_TRIAL_LIMIT_S:g} s; try "
+                    "backend 'auto' or a larger tol")
+    return None
 
 
 class _Stats:
@@ -259,6 +300,9 @@ class AttitudeNode(Node):
         self._warn_unknown_overrides()
         try:
             self._solution = build_solution(self._values())
+            trial = _trial(self._solution, self._values())
+            if trial is not None:
+                raise ValueError(f'scene {self._scene_summary()}: {trial}')
             self._sensors = sensor_settings(self._values())
             self._use_sensors(_make_sensors(self._solution, self._sensors))
         except ValueError as exc:
@@ -344,24 +388,68 @@ class AttitudeNode(Node):
             p[param.name] = param.value
         return p
 
-    def _on_set(self, params):
-        names = [p.name for p in params]
-        unknown = [n for n in names if n not in _DESCRIPTIONS]
+    def set_parameters(self, parameter_list):
+        """Set parameters one by one (rclpy), naming any undeclared one in the error."""
+        self._refuse_undeclared(parameter_list)
+        return super().set_parameters(parameter_list)
+
+    def set_parameters_atomically(self, parameter_list):
+        """Set parameters all at once (rclpy), naming any undeclared one in the error.
+
+        The parameter services call this; rclpy's own check reports an undeclared name as
+        ``Invalid access to undeclared parameter(s): []``.
+        """
+        self._refuse_undeclared(parameter_list)
+        return super().set_parameters_atomically(parameter_list)
+
+    def _refuse_undeclared(self, parameter_list):
+        unknown = [getattr(p, 'name', p) for p in parameter_list
+                   if not self.has_parameter(getattr(p, 'name', ''))]
         if unknown:
-            return SetParametersResult(successful=False,
-                                       reason=f'unknown parameter(s) {unknown}')
+            raise UnknownParameterError(unknown, sorted(_DESCRIPTIONS))
+
+    def _scene_summary(self):
+        p = self._values()
+        return ', '.join(f'{k} {p[k]!r}' for k in ('inertia', 'torque', 'omega0'))
+
+    def _on_set(self, params):
+        """Validate a change against the whole scene; refuse with a reason naming it."""
+        names = [p.name for p in params]
+        try:
+            reason = self._check_change(params, names)
+        except Exception as exc:        # never let a parameter change kill the node
+            reason = f'{type(exc).__name__}: {exc}'
+        if reason is None:
+            if 'publish_rate' in names:
+                self._make_timer(float(self._values(params)['publish_rate']))
+            return SetParametersResult(successful=True)
+        if not any(n in reason for n in names):
+            reason = f'parameter(s) {", ".join(names)}: {reason}'
+        return SetParametersResult(successful=False, reason=reason)
+
+    def _check_change(self, params, names):
+        """Return None if ``params`` may be set, else the reason (str)."""
+        unknown = [n for n in names if n not in _DESCRIPTIONS and not self.has_parameter(n)]
+        if unknown:
+            return str(UnknownParameterError(unknown, sorted(_DESCRIPTIONS)))
+        for p in params:
+            if p.type_ == Parameter.Type.NOT_SET:
+                return f'parameter {p.name} cannot be unset (it would be undeclared)'
+        if not any(n in _DESCRIPTIONS for n in names):
+            return None                 # rclpy's own (use_sim_time, ...): rclpy checks them
         candidate = self._values(params)
         try:
-            if any(n in SCENE_KEYS or n in ('tol', 'backend') for n in names):
-                build_solution(candidate)          # validate the whole scene, keep running
+            if any(n in SCENE_KEYS or n in ('tol', 'backend', 'time_scale') for n in names):
+                sol = build_solution(candidate)    # validate the whole scene, keep running
+                reason = _trial(sol, candidate)
+                if reason is not None:
+                    return f'parameter(s) {", ".join(names)}: {reason}'
             else:
                 _check_run_params(candidate)
             sensor_settings(candidate)             # the sensors, and time_scale against them
         except ValueError as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        if 'publish_rate' in names:
-            self._make_timer(candidate['publish_rate'])
-        return SetParametersResult(successful=True)
+            return str(exc)
+        return None
 
     def _make_timer(self, rate):
         if self._timer is not None:
@@ -425,7 +513,7 @@ class AttitudeNode(Node):
         c0 = time.perf_counter()
         try:
             s = self._solution.at(t)
-        except (PrecisionError, ValueError) as exc:
+        except Exception as exc:        # PrecisionError, or anything else: report, keep going
             self._failed(t, exc)
             return
         st.times.append(time.perf_counter() - c0)
@@ -440,8 +528,9 @@ class AttitudeNode(Node):
     def _failed(self, t, exc):
         st = self._stats
         st.errors += 1
-        st.last_error = str(exc)
-        self.get_logger().error(f'evaluation failed at t = {t} s: {exc}',
+        st.last_error = str(exc) if isinstance(exc, (PrecisionError, ValueError)) else \
+            f'{type(exc).__name__}: {exc}'
+        self.get_logger().error(f'evaluation failed at t = {t} s: {st.last_error}',
                                 throttle_duration_sec=1.0)
 
     def _grid(self, rate, last, now_ns):
@@ -486,7 +575,7 @@ class AttitudeNode(Node):
             t0, t1 = self._scene_time(self._stamp_ns(rate, k - 1)), self._scene_time(ns1)
             try:
                 r = self._gyro.read(t0, t1)
-            except (PrecisionError, ValueError) as exc:
+            except Exception as exc:    # PrecisionError or anything else: report it
                 self._failed(t1, exc)
                 continue
             stamp = msgs.stamp(ns1)
@@ -518,7 +607,7 @@ class AttitudeNode(Node):
             ns = self._stamp_ns(rate, k)
             try:
                 r = self._star.read(self._scene_time(ns))
-            except (PrecisionError, ValueError) as exc:
+            except Exception as exc:    # PrecisionError or anything else: report it
                 self._failed(self._scene_time(ns), exc)
                 continue
             pairs.append((self._pub_star, msgs.star_tracker(msgs.stamp(ns), frame,
@@ -537,6 +626,11 @@ class AttitudeNode(Node):
         level, msg = DiagnosticStatus.OK, f'exact solution: {sol.model}'
         if mx > self._period:
             level, msg = DiagnosticStatus.WARN, 'evaluation slower than the timer period'
+        delivered = self._delivered_rate()
+        if delivered is not None and delivered < 0.9 * self._period_hz:
+            level, msg = DiagnosticStatus.WARN, (
+                f'delivering {delivered:.4g} Hz of the {self._period_hz:g} Hz asked '
+                '(publish_rate beyond what this machine and executor deliver)')
         if bound > sol.tol:
             level, msg = DiagnosticStatus.WARN, 'error bound above tol'
         if st.skipped > st.skipped_reported:
@@ -562,6 +656,7 @@ class AttitudeNode(Node):
             'ticks_published': str(st.published),
             'ticks_late': str(st.late), 'ticks_missed': str(st.missed),
             'publish_rate_hz': f'{self._period_hz:g}',
+            'delivered_rate_hz': '' if delivered is None else f'{delivered:.4g}',
         }
         status = DiagnosticStatus(level=level, name=f'{self.get_name()}: exact attitude',
                                   message=msg, hardware_id=self.get_fully_qualified_name())
@@ -570,6 +665,23 @@ class AttitudeNode(Node):
         arr.header.stamp = self.get_clock().now().to_msg()
         arr.status = [status]
         self._pub_diag.publish(arr)
+
+    def _delivered_rate(self):
+        """Ticks published per second since the last call (steady clock), or None.
+
+        None while the window is shorter than 0.5 s or holds fewer than 5 periods at the
+        asked rate (too few ticks to judge), and for the first window after a rate change.
+        """
+        now, count = time.monotonic(), self._stats.published
+        last = getattr(self, '_rate_window', None)
+        self._rate_window = (now, count, self._period_hz)
+        if last is None or last[2] != self._period_hz:
+            return None
+        span = now - last[0]
+        if span < 0.5 or span * self._period_hz < 5:
+            self._rate_window = last            # keep accumulating
+            return None
+        return (count - last[1]) / span
 
     # -- recording and the run description -------------------------------------------------
     def _start_recording(self):
@@ -633,6 +745,9 @@ class AttitudeNode(Node):
     def _on_reset(self, request, response):
         try:
             solution = build_solution(self._values())
+            trial = _trial(solution, self._values())
+            if trial is not None:
+                raise ValueError(trial)
             sensors = sensor_settings(self._values())
             devices = _make_sensors(solution, sensors)
         except ValueError as exc:
@@ -658,20 +773,87 @@ class AttitudeNode(Node):
         return self._solution
 
 
+def usage():
+    """Return the ``attitude_node --help`` text: parameters, defaults, topics, services."""
+    try:
+        defaults = load_defaults()
+    except (OSError, ValueError) as exc:
+        defaults = {}
+        missing = f' (defaults unavailable: {exc})'
+    else:
+        missing = ''
+    lines = [
+        'usage: attitude_node [-h] [--ros-args [-p NAME:=VALUE] [--params-file FILE] '
+        '[-r FROM:=TO] ...]',
+        '',
+        __doc__.splitlines()[0].split(': ', 1)[1],
+        '',
+        'Topics and services (relative names: namespaces and remapping apply):',
+        '  attitude            geometry_msgs/QuaternionStamped  q_NB (x, y, z, w), frame_id N',
+        '  angular_velocity    geometry_msgs/Vector3Stamped     omega of B rel. N, in B, rad/s',
+        '  /diagnostics        diagnostic_msgs/DiagnosticArray  1 Hz: model, error bound, '
+        'timing, delivered rate',
+        '  ~/reset             std_srvs/srv/Trigger             restart at t = 0 from the '
+        'current parameters',
+        '  with imu.enable: imu (sensor_msgs/Imu), delta_angle, delta_rotation '
+        '(Vector3Stamped);',
+        '  with star_tracker.enable: star_tracker (PoseWithCovarianceStamped); with '
+        'odom.enable,',
+        '  transform.enable, markers.enable: odom, transform, markers (the truth)',
+        '',
+        f'Parameters (-p NAME:=VALUE or --params-file FILE; default in brackets){missing}:',
+    ]
+    for name, (text, _) in _DESCRIPTIONS.items():
+        value = defaults.get(name, '?')
+        bounds = ''
+        if name in _RANGES:
+            bounds = f', range [{_RANGES[name].from_value:g}, {_RANGES[name].to_value:g}]'
+        lines.append(f'  {name} [{value!r}{bounds}]')
+        lines += textwrap.wrap(text, 92, initial_indent=' ' * 6, subsequent_indent=' ' * 6)
+    lines += ['', 'An invalid scene or argument exits with status 2 and one line saying why; '
+              'Ctrl-C or SIGTERM end the node (and finish a recording) with status 0.']
+    return '\n'.join(lines)
+
+
 def main(args=None):
-    """Entry point of ``attitude_node`` (accepts the usual ``--ros-args``)."""
-    rclpy.init(args=args)
+    """Entry point of ``attitude_node`` (accepts the usual ``--ros-args``).
+
+    ``args`` is a full command line as in ``sys.argv`` (program name first). Returns the
+    exit status: 0 after Ctrl-C/SIGTERM or ``--help``, 2 for bad arguments or parameters.
+    """
+    argv = list(sys.argv if args is None else args)
+    own, ros_args = split_ros_args(argv[1:])
+    if any(a in ('-h', '--help') for a in own):
+        print(usage())
+        return 0
+    if own:
+        print(f'attitude_node: unrecognized arguments: {" ".join(own)} (ROS arguments go '
+              'after --ros-args; see attitude_node --help)', file=sys.stderr)
+        return 2
+    reason = init_ros('attitude_node', ros_args)
+    if reason is not None:
+        print(f'attitude_node: {reason}', file=sys.stderr)
+        return 2
     try:
         node = AttitudeNode()
     except SceneError as exc:
-        print(f'attitude_node: invalid parameters: {exc}', file=sys.stderr)
+        print(f'attitude_node: invalid parameters: {_one_line(exc)}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         rclpy.try_shutdown()
         return 0
+    except Exception as exc:            # e.g. an invalid remapped name: one line, status 2
+        print(f'attitude_node: cannot start: {type(exc).__name__}: '
+              f'{_one_line(exc)}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
     spin_until_shutdown(node)
     return 0
+
+
+def _one_line(exc):
+    return ' '.join(str(exc).split())
 
 
 if __name__ == '__main__':

@@ -1,10 +1,118 @@
-"""One way to run and stop a node: spin until Ctrl-C, SIGTERM or a shutdown, then clean up."""
+"""How the console scripts start and stop ROS: arguments, ``rclpy.init``, spin, clean-up.
+
+- :func:`split_ros_args` separates a script's own arguments from ``--ros-args ... [--]``.
+- :func:`init_ros` runs ``rclpy.init`` and turns a failure (a missing ``--params-file``, a
+  malformed ``-p``) into one line of text instead of rcl's log line and a traceback.
+- :func:`spin_until_shutdown` spins until Ctrl-C, SIGTERM or a shutdown, then cleans up.
+"""
+
+import os
+import re
+import sys
+import tempfile
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ['spin_until_shutdown']
+__all__ = ['split_ros_args', 'init_ros', 'spin_until_shutdown']
+
+
+def split_ros_args(argv):
+    """Split ``argv`` into ``(own, ros)``.
+
+    ``ros`` holds every ``--ros-args ... [--]`` block (with its markers), ``own`` the rest,
+    as ``rclpy.utilities.remove_ros_args`` would split them, but without parsing.
+
+    Examples
+    --------
+    >>> split_ros_args(['--count', '5', '--ros-args', '-r', '__ns:=/a'])
+    (['--count', '5'], ['--ros-args', '-r', '__ns:=/a'])
+    """
+    own, ros, in_ros = [], [], False
+    for arg in argv:
+        if arg == '--ros-args':
+            in_ros = True
+            ros.append(arg)
+        elif in_ros and arg == '--':
+            in_ros = False
+            ros.append(arg)
+        elif in_ros:
+            ros.append(arg)
+        else:
+            own.append(arg)
+    return own, ros
+
+
+def _check_params_files(ros_args):
+    """Return a one-line reason if a ``--params-file`` argument names no readable file."""
+    for i, arg in enumerate(ros_args):
+        if arg != '--params-file':
+            continue
+        if i + 1 >= len(ros_args) or ros_args[i + 1] in ('--', '--ros-args'):
+            return '--params-file needs a file name'
+        path = ros_args[i + 1]
+        if not os.path.exists(path):
+            return f'--params-file {path}: no such file'
+        if not os.path.isfile(path):
+            return f'--params-file {path}: not a file'
+        if not os.access(path, os.R_OK):
+            return f'--params-file {path}: not readable'
+    return None
+
+
+def _clean_rcl_message(text):
+    """Drop rcl's source locations and prefix from an ``RCLError`` message."""
+    text = re.sub(r',? at /[^,]*?:\d+', '', str(text))
+    text = text.replace('failed to initialize rcl: ', '')
+    return ' '.join(text.split())
+
+
+def init_ros(prog, ros_args):
+    """Run ``rclpy.init`` with ``ros_args``; return None, or one line saying why it failed.
+
+    rcl prints its own ``[ERROR] ... Failed to parse global arguments`` line before it
+    raises; that output is held back and dropped on failure (shown on success), so a user
+    who mistyped an argument reads one line that names it.
+
+    Parameters
+    ----------
+    prog : str
+        Program name, passed as ``argv[0]``.
+    ros_args : list of str
+        The ``--ros-args ...`` part of the command line (may be empty).
+
+    Returns
+    -------
+    str or None
+        None when ROS is initialised; else the reason, e.g.
+        ``'--params-file config/nope.yaml: no such file'``.
+    """
+    reason = _check_params_files(ros_args)
+    if reason is not None:
+        return reason
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with tempfile.TemporaryFile() as held:
+            os.dup2(held.fileno(), 2)
+            try:
+                rclpy.init(args=[prog] + list(ros_args))
+            except _rclpy.RCLError as exc:
+                text = _clean_rcl_message(exc)
+                where = 'environment' if 'ROS_' in text and 'parse' not in text else \
+                    '--ros-args'
+                reason = f'invalid {where}: {text}'
+            finally:
+                os.dup2(saved, 2)
+            if reason is None:
+                held.seek(0)
+                data = held.read()
+                if data:
+                    os.write(2, data)
+    finally:
+        os.close(saved)
+    return reason
 
 
 def spin_until_shutdown(node, loop=None):

@@ -1,0 +1,778 @@
+"""Torque-free motion of a body with three different moments (Euler-Poinsot), exact.
+
+Frames: N inertial; B body (principal axes); B' the body axes relabelled by a proper
+rotation ``R_B'B`` (a permutation with signs) so that 2' is the intermediate axis and 3'
+the axis about which the angular momentum circulates (the largest-moment axis when
+``D = |h|^2 / 2T`` exceeds the middle moment, the smallest otherwise), with
+``omega_3'(0) > 0``; L a frame whose third axis is the constant angular momentum h. A
+matrix ``R_XY`` maps Y-components to X-components, ``v_X = R_XY @ v_Y``; quaternions are
+(x, y, z, w), active, ``q_XY`` the quaternion of ``R_XY``. The motion is
+
+    omega_B'(t) = (A1 cn u, sigma A2 sn u, A3 dn u),   u = lam t + u0,  parameter m,
+    q_NB(t) = q_NL ⊗ q_z(xi(t)) ⊗ q_LB'(u) ⊗ q_B'B,
+
+with ``q_LB'`` the smallest rotation taking ``h_B' / |h|`` to e3 (regular, since
+``h_3' > 0``), and the angle about h
+
+    xi(t) = (2T/|h|) t - c ∫_{u0}^{u} g(v) dv,   g = dn / (1 + beta dn),
+    beta = I3' A3 / |h|,  c = (I1' A1)(sigma I2' A2) / |h|^2
+
+(Euler's equations give ``omega_B'``: Landau & Lifshitz, Mechanics, Sec. 37; the angle
+follows from ``h . omega = 2T`` and the connection of the smallest rotation,
+``xi' = 2T/|h| - (u1 u2' - u2 u1') / (1 + u3)``, ``u = h_B' / |h|``; cf. Celledoni,
+Fassò, Säfström, Zanna, SIAM J. Sci. Comput. 30 (2008), where the same integral appears
+as an elliptic integral of the third kind). On the separatrix (m = 1) sn = tanh,
+cn = dn = sech and ``∫ g = 2 / sqrt(1 - beta^2) atan(sqrt((1 - beta)/(1 + beta)) tanh(u/2))``.
+
+Evaluation: per scene, at >= 128 bits (mpmath), K(m), u0 = F(am u0 | m)
+and a table of Taylor expansions of sn, cn, dn and the periodic part Q of ``∫ g`` on cells
+of width 1/8 covering the quarter period [0, K], built by stepping the Taylor series of
+the Jacobi system ``s' = c d, c' = -s d, d' = -m s c`` from u = 0 and checked against the
+exact values at u = K. Per sample, in float64 (vectorised): the phases ``lam t`` and
+``Omega t`` reduced modulo the period exactly (the constant split in 26-bit pieces, every
+partial product exact), one Horner pass per function, three quaternion products.
+
+The error bound is an a-priori float64 analysis, proved, not an estimate: the majorant
+series ``1/(1 - u)`` bounds every Taylor coefficient of sn, cn, dn at a real point by 1
+and ``1/(1 - 2u)`` those of g, so the table's truncation (< 1e-17) is bounded exactly;
+Horner rounding is bounded per cell from the stored coefficients; phase reduction,
+folding and the quaternion formulas add bounded rounding (a few ulp allowed for libm's
+sin, cos, exp, atan and sqrt). Within 1 - m < ~1e-50 of the separatrix (K > 60) the
+table would be too long and :func:`solve` refuses. The per-scene
+constants are computed by mpmath at >= 128 bits; on the flint backend K(m) and u0 are
+confirmed against Arb balls, and the table is checked at u = K to 1e-25, far below the
+bound. They are checked, not carried as balls: ``method`` does not say 'flint'.
+"""
+
+from fractions import Fraction
+import math
+
+import mpmath
+from mpmath import mp
+import numpy as np
+
+from . import quaternion as quat
+from .kernel import PrecisionError
+
+__all__ = ['TriaxialSolution', 'MODEL', 'REFERENCE']
+
+MODEL = 'torque-free-triaxial'
+REFERENCE = ('three different moments, no torque (Euler-Poinsot): Jacobi elliptic '
+             'functions and the angle about the angular momentum')
+
+_U = 2.0 ** -53                 # unit roundoff of float64
+_H = 0.125                      # cell width of the table, in u
+_R = _H / 2                     # largest |z| inside a cell
+_DEG = 17                       # degree of the stored polynomials
+_TWO27 = 134217729.0            # Veltkamp splitter 2^27 + 1
+_T_MAX = 1e250                  # beyond, t * 2^27 could overflow: refuse
+_K_MAX = 60.0                   # largest quarter period tabulated (1 - m >~ 1e-51)
+
+
+# ---------------------------------------------------------------------------------------
+# per-scene set-up (mpmath)
+
+def _series(s0, c0, d0, m, beta, n, prec):
+    """Taylor coefficients (fixed point: ints scaled by 2^prec) of sn, cn, dn and g.
+
+    From ``s' = c d, c' = -s d, d' = -m s c`` at a point where they take s0, c0, d0
+    (fixed point), and ``g = dn / (1 + beta dn)``; degree n. Each step truncates by at most
+    2^-prec; Python ints make this some 20 times faster than mpf.
+    """
+    s, c, d = [s0], [c0], [d0]
+    for k in range(n):
+        cd = sum(c[j] * d[k - j] for j in range(k + 1)) >> prec
+        sd = sum(s[j] * d[k - j] for j in range(k + 1)) >> prec
+        sc = sum(s[j] * c[k - j] for j in range(k + 1)) >> prec
+        s.append(cd // (k + 1))
+        c.append(-sd // (k + 1))
+        d.append(-((m * sc) >> prec) // (k + 1))
+    one = 1 << prec
+    w0 = one + ((beta * d0) >> prec)
+    g = [(d0 << prec) // w0]
+    for k in range(1, n + 1):
+        acc = sum(d[j] * g[k - j] for j in range(1, k + 1)) >> prec
+        g.append(((d[k] - ((beta * acc) >> prec)) << prec) // w0)
+    return s, c, d, g
+
+
+def _horner_fx(coef, shift):
+    """Sum of coef[k] z^k at z = 2^-shift (fixed point)."""
+    acc = 0
+    for a in reversed(coef):
+        acc = (acc >> shift) + a
+    return acc
+
+
+def _horner_fx_z(coef, z, prec):
+    """Sum of coef[k] z^k at a fixed-point z."""
+    acc = 0
+    for a in reversed(coef):
+        acc = ((acc * z) >> prec) + a
+    return acc
+
+
+def _integral_fx(coef, shift, sign):
+    """Integral of the series from 0 to sign * 2^-shift (sign = +1) or from -2^-shift to 0."""
+    out = 0
+    for k, a in enumerate(coef):
+        term = (a >> (shift * (k + 1))) // (k + 1)
+        out += term if (sign > 0 or k % 2 == 0) else -term
+    return out
+
+
+def _integral_fx_z(coef, z, prec):
+    """Integral of the series from 0 to a fixed-point z."""
+    out = 0
+    zp = z
+    for k, a in enumerate(coef):
+        out += ((a * zp) >> prec) // (k + 1)
+        zp = (zp * z) >> prec
+    return out
+
+
+def _pieces(x, count=8, bits=26):
+    """Split mpf x into floats of <= ``bits`` significant bits; residual after each."""
+    out, res = [], []
+    r = +x
+    for _ in range(count):
+        if r == 0:
+            p = 0.0
+        else:
+            with mp.workprec(bits):
+                p = float(+r)
+        out.append(p)
+        r = r - p
+        res.append(float(abs(r)) * (1 + 1e-12) + 1e-300)
+    return out, res
+
+
+def _split_offset(x):
+    """Reduce an mpf number of turns to [-1/2, 1/2] as a double-double (hi, lo)."""
+    x = x - mpmath.nint(x)
+    hi = float(x)
+    return hi, float(x - hi)
+
+
+def _arb_exact(flint, x):
+    """Return the mpf x as an exact arb (mantissa times a power of two)."""
+    sign, man, exp, _ = x._mpf_
+    v = flint.arb(int(man)) * flint.arb(2) ** int(exp)
+    return -v if sign else v
+
+
+def _sep_err(au, u_err):
+    """Error of sech, tanh and the angle integral at |u| = au known to u_err.
+
+    Their slopes are at most 1 and at most ``2 exp(-(|u| - u_err))``; where u_err is a
+    quarter of |u| or more (or infinite) only their range (2) bounds them.
+    """
+    with np.errstate(over='ignore', invalid='ignore'):
+        near = u_err <= 0.25 * au
+        tail = u_err * np.minimum(1.0, 2.0 * np.exp(-0.75 * np.where(near, au, 0.0)))
+        return np.where(near, tail, np.minimum(u_err, 2.0)) + 8 * _U
+
+
+def _check_with_arb(m, phi0, u0):
+    """Confirm mpmath's K(m) and F(phi0 | m) with Arb balls (python-flint), else raise."""
+    try:
+        import flint
+    except ImportError:
+        return
+    digits = int(mp.prec * 0.30103) + 10
+    old = flint.ctx.prec
+    flint.ctx.prec = mp.prec + 64
+    try:
+        m_b, phi_b = _arb_exact(flint, m), _arb_exact(flint, phi0)
+        pairs = ((flint.acb(m_b).elliptic_k(), mpmath.ellipk(m), 'K(m)'),
+                 (flint.acb.elliptic_f(phi_b, m_b), u0, 'F(phi0 | m)'))
+        for ball, val, name in pairs:
+            mid = mpmath.mpf(ball.real.mid().str(digits, radius=False))
+            rad = mpmath.mpf(ball.real.rad().str(5, radius=False))
+            if not abs(mid - val) <= rad + max(1, abs(val)) * mpmath.mpf(10) ** -30 or \
+                    rad > mpmath.mpf(10) ** -30:
+                raise PrecisionError(f'{name} by mpmath ({mpmath.nstr(val, 20)}) is not '
+                                     f'confirmed by Arb ({ball})')
+    finally:
+        flint.ctx.prec = old
+
+
+def _q_mp_mul(a, b):
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return [aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz]
+
+
+class _Turns:
+    """A phase ``rho t + offset`` in turns, reduced to [-1/2, 1/2] from exact float t.
+
+    ``rho`` is split into 26-bit pieces, t into two 26-bit halves (Veltkamp), so every
+    partial product is exact and its fractional part too; the fractions are summed in
+    double-double. Error, in turns: ``2 u + |t| (residual(k pieces) + |rho| 2^(8 - prec))``,
+    the last term for rho itself, computed from the exact inputs in some tens of
+    operations at ``prec`` bits (the current mpmath precision).
+    """
+
+    def __init__(self, rho, offset):
+        self.pieces, self.resid = _pieces(rho)
+        self.off = _split_offset(offset)
+        rel = float(abs(rho)) * 2.0 ** (8 - mp.prec)
+        self.resid = [r + rel for r in self.resid]
+
+    def _count(self, tmax):
+        for k, r in enumerate(self.resid):
+            if r * tmax <= 2.0 ** -62 or (k and r >= 0.5 * self.resid[k - 1]):
+                return k + 1                      # enough, or no better with more pieces
+        return len(self.pieces)
+
+    def reduce(self, t):
+        """Vectorised: (tau in [-1/2, 1/2], error bound in turns) for a float array t."""
+        c = _TWO27 * t
+        th = c - (c - t)
+        tl = t - th
+        k = self._count(float(np.max(np.abs(t))) if t.size else 0.0)
+        hi = np.full_like(t, self.off[0])
+        lo = np.full_like(t, self.off[1])
+        for p in self.pieces[:k]:
+            for part in (th, tl):
+                x = p * part
+                # a product beyond float range is an exact integer: fraction 0
+                f = np.where(np.isfinite(x), x - np.rint(x), 0.0)
+                s = hi + f
+                bb = s - hi
+                lo += (hi - (s - bb)) + (f - bb)
+                hi = s - np.rint(s)
+        tau = hi + lo
+        tau -= np.rint(tau)
+        return tau, 2 * _U + np.abs(t) * self.resid[k - 1] + 1e-30
+
+    def reduce1(self, t):
+        """Scalar :meth:`reduce` in Python floats."""
+        c = _TWO27 * t
+        th = c - (c - t)
+        tl = t - th
+        k = self._count(abs(t))
+        hi, lo = self.off
+        for p in self.pieces[:k]:
+            for part in (th, tl):
+                x = p * part
+                f = x - round(x) if math.isfinite(x) else 0.0
+                s = hi + f
+                bb = s - hi
+                lo += (hi - (s - bb)) + (f - bb)
+                hi = s - round(s)
+        tau = hi + lo
+        tau -= round(tau)
+        return tau, 2 * _U + abs(t) * self.resid[k - 1] + 1e-30
+
+
+def _frame(inertia, w):
+    """Choose B': return (rows of R_B'B as index/sign pairs, side sign of I3' - I2')."""
+    order = sorted(range(3), key=lambda i: inertia[i])       # ascending moments
+    lo_i, mid, hi_i = order
+    fi = [Fraction(v) for v in inertia]
+    fw = [Fraction(v) for v in w]
+    # 2T I2 - |h|^2 = sum I_i (I2 - I_i) w_i^2: > 0 when h circulates about the smallest
+    e2 = sum(fi[i] * (fi[mid] - fi[i]) * fw[i] ** 2 for i in range(3))
+    axis3, axis1 = (lo_i, hi_i) if e2 > 0 else (hi_i, lo_i)
+    s3 = 1 if w[axis3] > 0 else -1
+    idx = [axis1, mid, axis3]
+    # sign of the permutation (rows e_axis1, e_mid, e_axis3)
+    perm = np.eye(3)[idx]
+    s1 = int(round(np.linalg.det(perm))) * s3                 # det = s1 * s3 * det(perm) = 1
+    rows = np.stack([s1 * np.eye(3)[axis1], np.eye(3)[mid], s3 * np.eye(3)[axis3]])
+    return rows, e2 == 0
+
+
+class TriaxialSolution:
+    """The exact torque-free motion of a triaxial body; evaluate it with :meth:`at`.
+
+    Same interface as :class:`rigidrot_ros.core.models.Solution`.
+
+    Attributes
+    ----------
+    scene : Scene
+    model : str
+        ``'torque-free-triaxial'``.
+    method : str
+        ``'jacobi-elliptic-table'`` (m < 1) or ``'separatrix-closed-form'`` (m = 1, the
+        tennis-racket separatrix): float64 with an a-priori error bound; the per-scene
+        constants come from mpmath (K and u0 confirmed by Arb balls on the flint
+        backend; not carried as balls).
+    backend : str
+        The backend asked for ('flint' or 'mpmath'); both use the same evaluation, the
+        flint backend also confirms K(m) and u0 with Arb.
+    tol : float
+        Attitude accuracy asked, rad. :func:`solve` raises PrecisionError when the
+        float64 bound of this scene cannot meet it.
+    precision : int
+        Bits used for the per-scene constants.
+    """
+
+    model = MODEL
+
+    @property
+    def reference(self):
+        """Return what the model evaluates (its entry in ``models.MODELS``)."""
+        from .models import MODELS
+        return MODELS.get(MODEL, REFERENCE)
+
+    def __init__(self, scene, tol, backend, max_prec, floor):
+        self.scene = scene
+        self.tol = tol
+        self.backend = backend
+        self._floor = floor
+        inertia = scene.inertia
+        rows, on_separatrix = _frame(inertia, scene.omega0)
+        self._rows = rows                                        # R_B'B
+        q_b1b = quat.from_matrix(rows)
+        # 1 - m, free of cancellation, sets the working precision (m itself must not round
+        # to 1); K ~ log(4 / sqrt(1 - m)) sets the size of the table
+        with mp.workprec(128):
+            one_m = self._one_minus_m(rows)
+        extra = 0 if one_m == 0 else max(0, int(-mpmath.log(one_m, 2)) + 8)
+        if one_m != 0 and extra > 2 * _K_MAX * 1.45:
+            raise PrecisionError(
+                f'omega0 = {scene.omega0} lies within 1 - m = {mpmath.nstr(one_m, 2)} of the '
+                f'separatrix without being on it: the quarter period K = '
+                f'{float(mpmath.log(4 / mpmath.sqrt(one_m))):.0f} exceeds {_K_MAX} and its '
+                f'table would take minutes. Put omega0 on the separatrix or move it off by '
+                f'more than 1e-50 relative')
+        with mp.workprec(128 + extra):
+            self._setup(rows, on_separatrix, q_b1b, max_prec)
+        if self._static_bound > tol:
+            raise PrecisionError(
+                f'the float64 evaluation of this torque-free triaxial scene is bounded by '
+                f'{self._static_bound:.2e} rad, above tol = {tol!r} rad; ask tol >= '
+                f'{2 * self._static_bound:.1e}')
+
+    # -- set-up ----------------------------------------------------------------------
+    def _one_minus_m(self, rows):
+        wb = [mpmath.mpf(v) for v in self.scene.omega0]
+        ib = [mpmath.mpf(v) for v in self.scene.inertia]
+        w = [sum(rows[i][j] * wb[j] for j in range(3)) for i in range(3)]
+        i1, i2, i3 = (sum(rows[i][j] ** 2 * ib[j] for j in range(3)) for i in range(3))
+        e1 = i2 * (i2 - i1) * w[1] ** 2 + i3 * (i3 - i1) * w[2] ** 2
+        e2 = i1 * (i1 - i2) * w[0] ** 2 + i3 * (i3 - i2) * w[2] ** 2       # h^2 - 2T I2
+        return abs((i3 - i1) * e2 / ((i3 - i2) * e1))
+
+    def _setup(self, rows, on_separatrix, q_b1b, max_prec):
+        inertia = self.scene.inertia
+        wb = [mpmath.mpf(v) for v in self.scene.omega0]
+        ib = [mpmath.mpf(v) for v in inertia]
+        w = [sum(rows[i][j] * wb[j] for j in range(3)) for i in range(3)]     # omega_B'
+        i1, i2, i3 = (sum(rows[i][j] ** 2 * ib[j] for j in range(3)) for i in range(3))
+        sigma = 1 if i3 > i2 else -1
+        e3 = i1 * (i3 - i1) * w[0] ** 2 + i2 * (i3 - i2) * w[1] ** 2       # 2T I3 - h^2
+        e1 = i2 * (i2 - i1) * w[1] ** 2 + i3 * (i3 - i1) * w[2] ** 2       # h^2 - 2T I1
+        a1 = mpmath.sqrt(e3 / (i1 * (i3 - i1)))
+        a2 = mpmath.sqrt(e3 / (i2 * (i3 - i2)))
+        a3 = mpmath.sqrt(e1 / (i3 * (i3 - i1)))
+        lam = mpmath.sqrt((i3 - i2) * e1 / (i1 * i2 * i3))
+        hvec = [i1 * w[0], i2 * w[1], i3 * w[2]]
+        hn = mpmath.sqrt(sum(v * v for v in hvec))
+        two_t = i1 * w[0] ** 2 + i2 * w[1] ** 2 + i3 * w[2] ** 2
+        beta = i3 * a3 / hn
+        if on_separatrix:
+            m = mpmath.mpf(1)
+            s1 = 1 if w[0] > 0 else -1
+            amp1, amp2 = s1 * a1, sigma * s1 * a2
+            u0 = mpmath.atanh(w[1] / amp2)
+        else:
+            e2 = i1 * (i1 - i2) * w[0] ** 2 + i3 * (i3 - i2) * w[2] ** 2   # h^2 - 2T I2
+            m = 1 - (i3 - i1) * e2 / ((i3 - i2) * e1)
+            amp1, amp2 = a1, sigma * a2
+            phi0 = mpmath.atan2(w[1] / amp2, w[0] / amp1)
+            with mp.workprec(2 * mp.prec):      # ellipf loses bits as m -> 1, phi -> pi/2
+                u0 = +mpmath.ellipf(phi0, m)
+            if self.backend == 'flint':
+                _check_with_arb(m, phi0, u0)
+        self.m = m
+        self._beta_mp = beta
+        self._amp = np.array([float(amp1), float(amp2), float(a3)])
+        self._ut = np.array([float(i1 * amp1 / hn), float(i2 * amp2 / hn), float(beta)])
+        cq = (i1 * amp1) * (i2 * amp2) / hn ** 2
+        self._cq = float(cq)
+        self._lam = float(lam)
+        # q_NL: q_NB(0) ⊗ q_BB' ⊗ conj(q_LB'(0)); q_LB' = (u2, -u1, 0, 1 + u3) / norm
+        u = [v / hn for v in hvec]
+        p = [u[1], -u[0], mpmath.mpf(0), 1 + u[2]]
+        pn = mpmath.sqrt(sum(v * v for v in p))
+        p_conj = [-p[0] / pn, -p[1] / pn, -p[2] / pn, p[3] / pn]
+        att = [mpmath.mpf(v) for v in self.scene.attitude0]
+        qb = [mpmath.mpf(float(v)) for v in q_b1b]
+        qb_conj = [-qb[0], -qb[1], -qb[2], qb[3]]
+        left = _q_mp_mul(_q_mp_mul(att, qb_conj), p_conj)
+        ln = mpmath.sqrt(sum(v * v for v in left))
+        self._left = np.array([float(v / ln) for v in left])
+        self._right = np.array(q_b1b, dtype=float)
+        self._left_t = tuple(self._left)
+        self._right_t = tuple(self._right)
+        if on_separatrix:
+            self.method = 'separatrix-closed-form'
+            self.precision = 128
+            self._sep = True
+            self._u0 = float(u0)
+            self._u0_err = 2 * _U * abs(self._u0)
+            rb = mpmath.sqrt((1 - beta) / (1 + beta))
+            self._sep_c = (float(2 / mpmath.sqrt(1 - beta ** 2)), float(rb))
+            f0 = 2 / mpmath.sqrt(1 - beta ** 2) * mpmath.atan(rb * mpmath.tanh(u0 / 2))
+            self._xi_c = float(cq * f0)
+            omega = two_t / hn
+            self._xi_turns = _Turns(omega / (4 * mp.pi), 0)
+            # rounding of xi = 4 pi tau + xi_c - c F (|F| <= c0 pi / 2), then sin, cos
+            self._xi_round = 4 * _U * (2 * math.pi + abs(self._xi_c) +
+                                       abs(self._cq) * self._sep_c[0] * math.pi / 2) + 4 * _U
+            self._static_bound = self._floor + 40 * _U * (1 + abs(self._u0))
+            return
+        self._sep = False
+        self.method = 'jacobi-elliptic-table'
+        kk = mpmath.ellipk(m)
+        # precision and series degree for stepping over [0, K] (errors grow like e^u there)
+        prec = max(mp.prec, 128 + int(1.5 * float(kk)))
+        if prec > max(max_prec, 256) + 256:
+            raise PrecisionError(f'the quarter period K = {float(kk):.3g} needs {prec} bits '
+                                 f'(> max_prec = {max_prec}); raise max_prec')
+        self.precision = prec
+        with mp.workprec(prec):
+            self._build_table(m, beta, kk, int(30 + float(kk) / 2))
+        with mp.workprec(prec):
+            gbar = self._gbar_mp
+            u_turns = lam / (4 * kk)
+            self._u_turns = _Turns(u_turns, u0 / (4 * kk))
+            omega = two_t / hn - cq * gbar * lam
+            self._xi_turns = _Turns(omega / (4 * mp.pi), 0)
+            # Q at u0 (exact, from the high-precision table)
+            q_u0 = self._q_mp(u0, kk)
+            self._xi_c = float(cq * q_u0)
+        self._K = float(kk)
+        self._kk_mp = kk
+        # rounding of xi = 4 pi tau + xi_c - c Q (|Q| <= its cells' bound), then sin, cos
+        q_max = float(np.max(np.sum(np.abs(self._coef[:, :, 3]) *
+                                    (_R ** np.arange(_DEG + 1))[:, None], axis=0)))
+        self._xi_round = 4 * _U * (2 * math.pi + abs(self._xi_c) + abs(self._cq) * q_max) \
+            + 4 * _U
+        self._static_bound = self._bound_constant()
+
+    def _build_table(self, m, beta, kk, n):
+        """Step the Taylor series over [0, K]; store float cells and their error bounds."""
+        prec = mp.prec
+        one = 1 << prec
+
+        def fx(x):
+            return int(mpmath.nint(mpmath.ldexp(x, prec)))
+
+        def mpf(i):
+            return mpmath.ldexp(mpmath.mpf(i), -prec)
+
+        mf, bf = fx(m), fx(beta)
+        ncell = int(mpmath.ceil(kk / _H))
+        s, c, d, g = _series(0, one, one, mf, bf, n, prec)
+        vals = [_horner_fx(x, 4) for x in (s, c, d)]           # at u = h/2
+        cells, integ = [], []
+        acc = 0
+        prev = None
+        for _ in range(ncell):
+            ser = _series(vals[0], vals[1], vals[2], mf, bf, n, prec)
+            if prev is not None:
+                acc += _integral_fx(prev[3], 4, 1)
+            acc += _integral_fx(ser[3], 4, -1)
+            cells.append(ser)
+            integ.append(acc)
+            prev = ser
+            vals = [_horner_fx(x, 3) for x in ser[:3]]          # step h = 1/8
+        zk = fx(kk - (ncell - mpmath.mpf(0.5)) * _H)
+        last = cells[-1]
+        check = [_horner_fx_z(last[0], zk, prec) - one, _horner_fx_z(last[1], zk, prec),
+                 _horner_fx_z(last[2], zk, prec) - fx(mpmath.sqrt(1 - m))]
+        if max(abs(v) for v in check) > one >> 83:
+            raise PrecisionError(f'the elliptic table failed its check at u = K '
+                                 f'(m = {float(m)!r}): {[float(mpf(v)) for v in check]}')
+        total = mpf(integ[-1] + _integral_fx_z(last[3], zk, prec))
+        gbar = total / kk
+        self._gbar_mp = gbar
+        self._cells_fx = [ser[3] for ser in cells]
+        self._integ_fx = integ
+        self._fx = (fx, mpf, prec)
+        # to float straight from the fixed point (int / int rounds correctly)
+        gbar_fx = fx(gbar)
+        coef = np.zeros((_DEG + 1, ncell, 4))
+        for i, (ss, cc, dd, gg) in enumerate(cells):
+            centre_fx = (2 * i + 1) << (prec - 4)                 # (i + 1/2) / 8
+            qser = [integ[i] - ((gbar_fx * centre_fx) >> prec), gg[0] - gbar_fx] + \
+                [gg[k] // (k + 1) for k in range(1, _DEG)]
+            for f, ser in enumerate((ss, cc, dd, qser)):
+                coef[:, i, f] = [v / one for v in ser[:_DEG + 1]]
+        self._coef = coef
+        self._centres = (np.arange(ncell) + 0.5) * _H
+        self._ncell = ncell
+        # a-priori bounds per cell and function: truncation + coefficient rounding + Horner
+        r = _R
+        tail = np.array([r ** (_DEG + 1) / (1 - r)] * 3 +
+                        [r * (2 * r) ** _DEG / (_DEG + 1) / (1 - 2 * r)])
+        absc = np.abs(coef)
+        y = np.zeros((ncell, 4))
+        e = np.zeros((ncell, 4))
+        for k in range(_DEG, -1, -1):
+            y_next = y
+            y = absc[k] + r * y_next
+            e = r * e * (1 + 3 * _U) + _U * (2 * r * y_next + y) * (1 + 2 * _U)
+        self._cell_err = (e + _U * y + tail) * 1.01              # (ncell, 4)
+
+    def _q_mp(self, u, kk):
+        """Q(u) (the periodic part of the integral of g) at mpf u, from the fixed-point table."""
+        fx, mpf, prec = self._fx
+        four_k = 4 * kk
+        x = u - four_k * mpmath.nint(u / four_k)
+        sgn = -1 if x < 0 else 1
+        x = abs(x)
+        if x > kk:
+            y, sgn = 2 * kk - x, -sgn
+        else:
+            y = x
+        i = min(int(y / _H), self._ncell - 1)
+        z = y - (i + mpmath.mpf(0.5)) * _H
+        val = mpf(self._integ_fx[i] + _integral_fx_z(self._cells_fx[i], fx(z), prec))
+        return sgn * (val - self._gbar_mp * y)
+
+    def _bound_constant(self):
+        """Return the t-independent part of the per-sample bound (the phase at t = 0)."""
+        n = self._ncell
+        e0 = np.full(n, 2 * _U)
+        return float(np.max(self._bound(e0, e0, np.arange(n))))
+
+    # -- evaluation ------------------------------------------------------------------
+    def _bound(self, e_u, e_xi, idx):
+        """Attitude bound (rad) from the phase errors (turns) and the cells used."""
+        k = self._K
+        dy = 4 * k * e_u + 3 * _U * k + _U * _R
+        err = self._cell_err[idx] + dy[:, None]                  # (n, 4)
+        du = np.abs(self._ut) * (err[:, :3] + 2 * _U)
+        d_lb = 4.1 * np.hypot(np.hypot(du[:, 0], du[:, 1]), du[:, 2]) + 10 * _U
+        d_xi = 4 * np.pi * e_xi + abs(self._cq) * err[:, 3] + self._xi_round
+        return d_lb + d_xi + self._floor
+
+    def _table(self, tau):
+        """sn, cn, dn, Q at u = 4K tau (tau in [-1/2, 1/2]) and the cells used."""
+        a = np.abs(4.0 * tau)
+        j = a >= 1.0
+        rho = np.where(j, a - 1.0, a)
+        y = self._K * np.where(j, 1.0 - rho, rho)
+        idx = np.clip((y * (1.0 / _H)).astype(np.int64), 0, self._ncell - 1)
+        z = y - self._centres[idx]
+        coef = self._coef
+        acc = coef[_DEG][idx]
+        zc = z[:, None]
+        for kk in range(_DEG - 1, -1, -1):
+            acc = acc * zc + coef[kk][idx]
+        st = np.where(tau < 0, -1.0, 1.0)
+        sj = np.where(j, -1.0, 1.0)
+        sn = acc[:, 0] * st
+        cn = acc[:, 1] * sj
+        dn = acc[:, 2]
+        q = acc[:, 3] * st * sj
+        return sn, cn, dn, q, idx
+
+    def _separatrix(self, t):
+        u = self._lam * t + self._u0
+        au = np.abs(u)
+        e = np.exp(-au)
+        sech = 2 * e / (1 + e * e)
+        sg = np.where(u < 0, -1.0, 1.0)
+        tanh = sg * (1 - e * e) / (1 + e * e)
+        th2 = sg * (1 - e) / (1 + e)
+        c0, rb = self._sep_c
+        fint = c0 * np.arctan(rb * th2)
+        u_err = 3 * _U * (np.abs(self._lam * t) + abs(self._u0)) + self._u0_err
+        # |d sech/du|, |d tanh/du|, |d F/du| <= 2 exp(-(|u| - err)) (and <= 1, c0 / 2)
+        f_err = _sep_err(au, u_err)
+        return sech, tanh, fint, f_err
+
+    def _separatrix_scalar(self, t, txi, exi):
+        """:meth:`at` on the separatrix for one time, in plain floats (as :meth:`at`)."""
+        from .models import Samples
+        sech, tanh, fint, f_err = self._sep1(t)
+        c0 = self._sep_c[0]
+        ut = self._ut
+        ux, uy, uz = ut[0] * sech, ut[1] * tanh, ut[2] * sech
+        pw = 1.0 + uz
+        pn = math.sqrt(uy * uy + ux * ux + pw * pw)
+        px, py, pw = uy / pn, -ux / pn, pw / pn
+        xi = 4 * math.pi * txi + self._xi_c - self._cq * fint
+        hs, hc = math.sin(0.5 * xi), math.cos(0.5 * xi)
+        mid = (hc * px - hs * py, hc * py + hs * px, hs * pw, hc * pw)
+        mul = quat.multiply_floats
+        qq = mul(mul(self._left_t, mid), self._right_t)
+        amp = self._amp
+        omega = np.array([amp[0] * sech, amp[1] * tanh, amp[2] * sech]) @ self._rows
+        du = [abs(ut[f]) * (f_err + 2 * _U) for f in range(3)]
+        bound = (4.1 * math.hypot(*(float(v) for v in du)) + 10 * _U +
+                 4 * math.pi * exi + abs(self._cq) * c0 * f_err + self._xi_round + self._floor)
+        if bound > self.tol:
+            raise PrecisionError(f'the triaxial bound at t = {t!r} s is {bound:.2e} rad, '
+                                 f'above tol = {self.tol!r}')
+        return Samples(np.asarray(t), np.array(qq), omega, np.float64(bound))
+
+    def omega_at(self, t):
+        """Angular velocity of B relative to N, in B, rad/s, at t (float or 1-D array)."""
+        tt = np.asarray(t, dtype=float)
+        flat = np.atleast_1d(tt)
+        self._check_t(flat)
+        if tt.ndim == 0:            # the scalar path of at(), bit for bit
+            tf = float(tt)
+            if self._sep:
+                sech, tanh, _, _ = self._sep1(tf)
+                f = (sech, tanh, sech)
+            else:
+                sn, cn, dn, _, _, _ = self._table1(tf)
+                f = (cn, sn, dn)
+            return np.array([self._amp[i] * f[i] for i in range(3)]) @ self._rows
+        if self._sep:
+            sech, tanh, _, _ = self._separatrix(flat)
+            w = np.stack([self._amp[0] * sech, self._amp[1] * tanh, self._amp[2] * sech], -1)
+        else:
+            tau, _ = self._u_turns.reduce(flat)
+            sn, cn, dn, _, _ = self._table(tau)
+            w = np.stack([self._amp[0] * cn, self._amp[1] * sn, self._amp[2] * dn], -1)
+        out = w @ self._rows
+        return out.reshape(tt.shape + (3,))
+
+    @staticmethod
+    def _check_t(tt):
+        if not np.all(np.isfinite(tt)):
+            raise ValueError('t must be finite')
+        if tt.size and float(np.max(np.abs(tt))) > _T_MAX:
+            bad = float(tt.flat[np.argmax(np.abs(tt))])
+            raise PrecisionError(f't = {bad:.3g} s is beyond |t| = {_T_MAX:g} s, where the '
+                                 f'phase of the triaxial model can be reduced exactly')
+
+    def at(self, t):
+        """Evaluate the exact motion at time(s) t.
+
+        Parameters
+        ----------
+        t : float or 1-D array of float
+            Seconds since t = 0.
+
+        Returns
+        -------
+        Samples
+            ``quaternion`` q_NB (x, y, z, w), ``rotation`` R_NB, ``omega`` (rad/s, B
+            relative to N, in B) and ``error_bound`` (rad), shaped like ``t``.
+
+        Raises
+        ------
+        PrecisionError
+            When a sample's bound would exceed ``tol`` (|t| far beyond 1e15 s).
+        """
+        from .models import Samples
+        t_arr = np.asarray(t, dtype=float)
+        if t_arr.ndim == 0:
+            return self._at_scalar(float(t_arr))
+        if t_arr.ndim > 1:
+            raise ValueError(f't must be a float or a 1-D array, got shape {t_arr.shape}')
+        tt = t_arr
+        self._check_t(tt)
+        txi, exi = self._xi_turns.reduce(tt)
+        if self._sep:
+            sech, tanh, fint, f_err = self._separatrix(tt)
+            fn = (sech, tanh, sech)
+            q_val = fint
+            ferr = np.stack([f_err] * 4, -1)
+            du = np.abs(self._ut) * (ferr[:, :3] + 2 * _U)
+            bound = (4.1 * np.hypot(np.hypot(du[:, 0], du[:, 1]), du[:, 2]) + 10 * _U +
+                     4 * np.pi * exi + abs(self._cq) * self._sep_c[0] * f_err +
+                     self._xi_round + self._floor)
+            cn, sn, dn = sech, tanh, sech
+        else:
+            tau, eu = self._u_turns.reduce(tt)
+            sn, cn, dn, q_val, idx = self._table(tau)
+            bound = self._bound(eu, exi, idx)
+            fn = (cn, sn, dn)
+        ux, uy, uz = (self._ut[i] * fn[i] for i in range(3))
+        w = np.stack([self._amp[0] * fn[0], self._amp[1] * fn[1], self._amp[2] * fn[2]], -1)
+        omega = w @ self._rows
+        pw = 1.0 + uz
+        pn = np.sqrt(uy * uy + ux * ux + pw * pw)
+        px, py, pw = uy / pn, -ux / pn, pw / pn
+        xi = 4 * np.pi * txi + self._xi_c - self._cq * q_val
+        hs, hc = np.sin(0.5 * xi), np.cos(0.5 * xi)
+        # q_z(xi) ⊗ (px, py, 0, pw)
+        mid = np.stack([hc * px - hs * py, hc * py + hs * px, hs * pw, hc * pw], -1)
+        q = quat.multiply(quat.multiply(self._left, mid), self._right)
+        if np.any(bound > self.tol):
+            bad = float(tt[np.argmax(bound)])
+            raise PrecisionError(f'the triaxial bound at t = {bad!r} s is '
+                                 f'{float(np.max(bound)):.2e} rad, above tol = {self.tol!r}')
+        return Samples(tt, q, omega, bound)
+
+    def _table1(self, t):
+        """Scalar :meth:`_table` at time t: sn, cn, dn, Q, cell, phase error (turns)."""
+        tau, eu = self._u_turns.reduce1(t)
+        a = abs(4.0 * tau)
+        j = a >= 1.0
+        rho = a - 1.0 if j else a
+        y = self._K * (1.0 - rho if j else rho)
+        i = min(max(int(y * (1.0 / _H)), 0), self._ncell - 1)
+        z = y - (i + 0.5) * _H
+        rows = self._coef[:, i, :].tolist()
+        s = c = d = q = 0.0
+        for kk in range(_DEG, -1, -1):
+            r = rows[kk]
+            s = s * z + r[0]
+            c = c * z + r[1]
+            d = d * z + r[2]
+            q = q * z + r[3]
+        st = -1.0 if tau < 0 else 1.0
+        sj = -1.0 if j else 1.0
+        return s * st, c * sj, d, q * st * sj, i, eu
+
+    def _sep1(self, t):
+        """Scalar :meth:`_separatrix` at time t: sech, tanh, the integral, their error."""
+        u = self._lam * t + self._u0
+        au = abs(u)
+        e = math.exp(-au)
+        sech = 2 * e / (1 + e * e)
+        sg = -1.0 if u < 0 else 1.0
+        tanh = sg * (1 - e * e) / (1 + e * e)
+        th2 = sg * (1 - e) / (1 + e)
+        fint = self._sep_c[0] * math.atan(self._sep_c[1] * th2)
+        u_err = 3 * _U * (abs(self._lam * t) + abs(self._u0)) + self._u0_err
+        return sech, tanh, fint, float(_sep_err(np.float64(au), np.float64(u_err)))
+
+    def _at_scalar(self, t):
+        """:meth:`at` for one time, in plain floats."""
+        from .models import Samples
+        if not math.isfinite(t):
+            raise ValueError('t must be finite')
+        if abs(t) > _T_MAX:
+            self._check_t(np.array([t]))
+        txi, exi = self._xi_turns.reduce1(t)
+        if self._sep:
+            return self._separatrix_scalar(t, txi, exi)
+        s, c, d, q, i, eu = self._table1(t)
+        k = self._K
+        ut = self._ut
+        ux, uy, uz = ut[0] * c, ut[1] * s, ut[2] * d
+        pw = 1.0 + uz
+        pn = math.sqrt(uy * uy + ux * ux + pw * pw)
+        px, py, pw = uy / pn, -ux / pn, pw / pn
+        xi = 4 * math.pi * txi + self._xi_c - self._cq * q
+        hs, hc = math.sin(0.5 * xi), math.cos(0.5 * xi)
+        mid = (hc * px - hs * py, hc * py + hs * px, hs * pw, hc * pw)
+        mul = quat.multiply_floats
+        qq = mul(mul(self._left_t, mid), self._right_t)
+        amp = self._amp
+        omega = np.array([amp[0] * c, amp[1] * s, amp[2] * d]) @ self._rows
+        # the bound, as in _bound (scalar)
+        dy = 4 * k * eu + 3 * _U * k + _U * _R
+        ce = self._cell_err[i]
+        du = [abs(ut[f]) * (ce[f] + dy + 2 * _U) for f in range(3)]
+        d_lb = 4.1 * math.hypot(*(float(v) for v in du)) + 10 * _U
+        d_xi = 4 * math.pi * exi + abs(self._cq) * (ce[3] + dy) + self._xi_round
+        bound = d_lb + d_xi + self._floor
+        if bound > self.tol:
+            raise PrecisionError(f'the triaxial bound at t = {t!r} s is {bound:.2e} rad, '
+                                 f'above tol = {self.tol!r}')
+        return Samples(np.asarray(t), np.array(qq), omega, np.float64(bound))
