@@ -67,7 +67,7 @@ CASES = [
     row('rigidrot_record', ['-o', '{tmp}/r6', '/a', '--ros-args', '-p'], 2,
         ['invalid --ros-args']),
     row('rigidrot_record', ['-o', '{tmp}/r7', '/a', '--ros-args', '--params-file',
-                            '{tmp}/nope.yaml'], 2, ['invalid --ros-args']),
+                            '{tmp}/nope.yaml'], 2, ['nope.yaml', 'no such file']),
     row('rigidrot_replay', ['{tmp}/good', '--ros-args', '-p'], 2, ['invalid --ros-args']),
     row('rigidrot_demo_estimator', ['--ros-args', '-p'], 2, ['invalid --ros-args']),
     row('rigidrot_reindex', ['--help'], 0, ['usage: rigidrot_reindex', '--no-backup']),

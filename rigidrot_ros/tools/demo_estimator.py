@@ -126,11 +126,8 @@ def _check(opts):
 
 def main(argv=None):
     """Entry point of ``rigidrot_demo_estimator``; returns the exit status."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    ros_args = []
-    if '--ros-args' in argv:
-        i = argv.index('--ros-args')
-        argv, ros_args = argv[:i], argv[i:]
+    from rigidrot_ros.node.spin import split_ros_args
+    argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     opts = _parser().parse_args(argv)
     problem = _check(opts)
     if problem:
@@ -155,12 +152,11 @@ def _run(opts, ros_args):
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu
 
-    from rigidrot_ros.node.spin import spin_until_shutdown
-    from rigidrot_ros.tools.record import init_ros_quietly
+    from rigidrot_ros.node.spin import init_ros, spin_until_shutdown
 
-    reason = init_ros_quietly('rigidrot_demo_estimator', ros_args)
+    reason = init_ros('rigidrot_demo_estimator', ros_args)
     if reason is not None:
-        print(f'rigidrot_demo_estimator: invalid --ros-args: {reason}', file=sys.stderr)
+        print(f'rigidrot_demo_estimator: {reason}', file=sys.stderr)
         return 2
     node = rclpy.create_node('demo_estimator')
     out_qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,

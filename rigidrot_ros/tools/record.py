@@ -19,33 +19,6 @@ from rigidrot_ros.tools.cli import OneLineParser
 __all__ = ['main']
 
 
-def init_ros_quietly(prog, ros_args):
-    """``rclpy.init`` with ``ros_args``; None, or the reason it failed as one line.
-
-    rcl prints its own ``[ERROR] ... Failed to parse global arguments`` before it raises;
-    that output is held back and dropped on failure, shown on success.
-    """
-    import tempfile
-
-    import rclpy
-    sys.stderr.flush()
-    saved = os.dup(2)
-    reason = None
-    with tempfile.TemporaryFile() as held:
-        os.dup2(held.fileno(), 2)
-        try:
-            rclpy.init(args=[prog] + list(ros_args))
-        except Exception as exc:  # noqa: B902 - RCLError and kin: bad --ros-args
-            reason = str(exc).splitlines()[0].split(', at /')[0]
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        if reason is None:
-            held.seek(0)
-            sys.stderr.write(held.read().decode('utf-8', 'replace'))
-    return reason
-
-
 def _parser():
     ap = OneLineParser(
         prog='rigidrot_record', description=__doc__.splitlines()[0],
@@ -67,11 +40,8 @@ def _parser():
 
 def main(argv=None):
     """Entry point of ``rigidrot_record``; returns the exit status."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    ros_args = []
-    if '--ros-args' in argv:
-        i = argv.index('--ros-args')
-        argv, ros_args = argv[:i], argv[i:]
+    from rigidrot_ros.node.spin import split_ros_args
+    argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     opts = _parser().parse_args(argv)
     if not opts.topics and not opts.all:
         print('rigidrot_record: name the topics to record, or give --all', file=sys.stderr)
@@ -85,7 +55,7 @@ def main(argv=None):
 
     from rigidrot_ros.io.bag import BagWriter
     from rigidrot_ros.io.recorder import check_type, Recorder
-    from rigidrot_ros.node.spin import spin_until_shutdown
+    from rigidrot_ros.node.spin import init_ros, spin_until_shutdown
 
     for t in opts.topics:
         name, _, type_name = t.partition(':')
@@ -105,9 +75,9 @@ def main(argv=None):
               f'overwritten: choose another output directory', file=sys.stderr)
         return 2
     try:
-        reason = init_ros_quietly('rigidrot_record', ros_args)
+        reason = init_ros('rigidrot_record', ros_args)
         if reason is not None:
-            print(f'rigidrot_record: invalid --ros-args: {reason}', file=sys.stderr)
+            print(f'rigidrot_record: {reason}', file=sys.stderr)
             return 2
         node = rclpy.create_node('rigidrot_record')
     except (ExternalShutdownException, KeyboardInterrupt):

@@ -17,9 +17,8 @@ from rosgraph_msgs.msg import Clock
 import yaml
 
 from rigidrot_ros.io.bag import BagError, read_bag
-from rigidrot_ros.node.spin import spin_until_shutdown
+from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.tools.cli import OneLineParser
-from rigidrot_ros.tools.record import init_ros_quietly
 
 
 def _qos(text):
@@ -63,11 +62,7 @@ def _wait_for_matching(node, pubs, limit):
 
 def main(argv=None):
     """Entry point of ``rigidrot_replay``; returns the exit status."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    ros_args = []
-    if '--ros-args' in argv:
-        i = argv.index('--ros-args')
-        argv, ros_args = argv[:i], argv[i:]
+    argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     ap = OneLineParser(prog='rigidrot_replay', description=__doc__.splitlines()[0])
     ap.add_argument('bag', help='bag directory or .mcap file')
     ap.add_argument('--rate', type=float, default=1.0, help='speed factor (2: twice as fast)')
@@ -114,9 +109,9 @@ def main(argv=None):
     t0 = msgs[0][2] + int(opts.start * 1e9)
     t1 = t0 + int(opts.duration * 1e9) if opts.duration is not None else None
     msgs = [m for m in msgs if m[2] >= t0 and (t1 is None or m[2] <= t1)]
-    reason = init_ros_quietly('rigidrot_replay', ros_args)
+    reason = init_ros('rigidrot_replay', ros_args)
     if reason is not None:
-        print(f'rigidrot_replay: invalid --ros-args: {reason}', file=sys.stderr)
+        print(f'rigidrot_replay: {reason}', file=sys.stderr)
         return 2
     node = rclpy.create_node('rigidrot_replay')
     pubs = {t: node.create_publisher(classes[t], t, _qos(bag.topics[t][1])) for t in classes}
