@@ -30,10 +30,13 @@ setup(
     ],
     extras_require={
         'plot': ['matplotlib>=3.7'],
+        'estimator': ['ahrs>=0.3'],
         'bench': ['scipy>=1.10', 'matplotlib>=3.7'],
         'test': [
             'pytest>=7',
             'rosbags>=0.10',
+            'ahrs>=0.3',
+            'evo>=1.20',
             'matplotlib>=3.7',
             'scipy>=1.10',
             'flake8>=7',
@@ -61,6 +64,8 @@ setup(
             'rigidrot_compare = rigidrot_ros.tools.compare:main',
             'rigidrot_replay = rigidrot_ros.tools.replay:main',
             'rigidrot_demo_estimator = rigidrot_ros.tools.demo_estimator:main',
+            'rigidrot_record = rigidrot_ros.tools.record:main',
+            'rigidrot_reindex = rigidrot_ros.tools.reindex:main',
             'rigidrot_bench = rigidrot_ros.bench.run:main',
         ],
     },

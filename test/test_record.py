@@ -39,6 +39,8 @@ ESTIMATOR = textwrap.dedent('''
         out.quaternion.z = w * bz + x * by - y * bx + z * bw
         out.quaternion.w = w * bw - x * bx - y * by - z * bz
         pub.publish(out)
+        print(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, time.monotonic(),
+              flush=True)
     node.create_subscription(QuaternionStamped, '/attitude', cb, 100)
     end = time.monotonic() + float(sys.argv[1])
     while time.monotonic() < end:
@@ -59,6 +61,8 @@ CAPTURE = textwrap.dedent('''
             v = m.quaternion if kind == 'q' else m.vector
             vals = [v.x, v.y, v.z] + ([v.w] if kind == 'q' else [])
             got.append([kind, st, time.monotonic(), vals])
+            if len(got) == 1:
+                print('first', flush=True)
         return cb
     node.create_subscription(QuaternionStamped, '/attitude', add('q'), 1000)
     node.create_subscription(Vector3Stamped, '/angular_velocity', add('w'), 1000)
@@ -70,12 +74,23 @@ CAPTURE = textwrap.dedent('''
 ''')
 
 
-def _record(tmp_path, env, seconds, sig=signal.SIGTERM, extra=()):
-    """Run attitude_node with recording for about ``seconds``, end it with ``sig``."""
+def _captured(cap):
+    """The JSON list a CAPTURE process prints last."""
+    return json.loads(cap.communicate(timeout=60)[0].splitlines()[-1])
+
+
+def _record(tmp_path, env, seconds, sig=signal.SIGTERM, extra=(), cap=None):
+    """Run attitude_node with recording for about ``seconds``, end it with ``sig``.
+
+    With ``cap`` (a CAPTURE process), the seconds count from its first message: discovery
+    on a loaded machine takes up to seconds.
+    """
     root = tmp_path / 'runs'
     node = start([script('attitude_node'), '--ros-args', '-p', 'record:=true',
                   '-p', f'record_path:={root}', *extra], env)
-    assert wait_for(lambda: root.exists() and any(root.iterdir()), timeout=30)
+    assert wait_for(lambda: root.exists() and any(root.iterdir()), timeout=60)
+    if cap is not None:
+        assert cap.stdout.readline().strip() == 'first'
     time.sleep(seconds)
     code, out, err = stop(node, sig)
     bags = sorted(root.iterdir())
@@ -87,10 +102,10 @@ def test_round_trip_read_by_rosbags_and_mcap(tmp_path):
     env = ros_env(next_domain_id())
     cap = start([sys.executable, '-c', CAPTURE, '8'], env)
     assert cap.stdout.readline().strip() == 'ready'
-    bag, code, err = _record(tmp_path, env, 2.5)
+    bag, code, err = _record(tmp_path, env, 2.5, cap=cap)
     assert code == 0 and 'Traceback' not in err, err
     published = int(re.search(r'published (\d+) ticks', err).group(1))
-    got = json.loads(cap.communicate(timeout=60)[0])
+    got = _captured(cap)
     sent = {(k, st): vals for k, st, _, vals in got}
     # the independent reader: rosbags, on the bag directory (metadata.yaml + mcap)
     with AnyReader([bag]) as reader:
@@ -103,6 +118,10 @@ def test_round_trip_read_by_rosbags_and_mcap(tmp_path):
         matched = 0
         for conn, _, raw in reader.messages():
             m = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == '/attitude_node/run':
+                run = json.loads(m.data)           # the run description, as published
+                assert run['rigidrot_run'] == 1 and run['scene']['inertia'] == [2, 2, 1]
+                continue
             st = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
             if conn.topic == '/attitude':
                 vals = [m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w]
@@ -115,7 +134,7 @@ def test_round_trip_read_by_rosbags_and_mcap(tmp_path):
             if key in sent:
                 assert vals == sent[key]          # bit for bit what was published
                 matched += 1
-    assert matched >= len(sent) - 4 and matched > 300
+    assert matched >= len(sent) - 4 and matched > 200
     # the mcap reader: ROS 2 profile, schemas, encodings, channel metadata
     mcap_file = next(bag.glob('*.mcap'))
     with open(mcap_file, 'rb') as fh:
@@ -123,21 +142,26 @@ def test_round_trip_read_by_rosbags_and_mcap(tmp_path):
         assert r.get_header().profile == 'ros2'
         summary = r.get_summary()
         assert {s.name for s in summary.schemas.values()} == {
-            'geometry_msgs/msg/QuaternionStamped', 'geometry_msgs/msg/Vector3Stamped'}
+            'geometry_msgs/msg/QuaternionStamped', 'geometry_msgs/msg/Vector3Stamped',
+            'std_msgs/msg/String'}
         assert all(s.encoding == 'ros2msg' for s in summary.schemas.values())
         assert b'MSG: std_msgs/Header' in summary.schemas[1].data
         for ch in summary.channels.values():
             assert ch.message_encoding == 'cdr'
-            assert yaml.safe_load(ch.metadata['offered_qos_profiles'])[0]['depth'] == 10
+            prof = yaml.safe_load(ch.metadata['offered_qos_profiles'])[0]
+            if ch.topic == '/attitude_node/run':
+                assert prof['durability'] == 'transient_local' and prof['depth'] == 1
+            else:
+                assert prof['depth'] == 10 and prof['durability'] == 'volatile'
         assert summary.chunk_indexes and all(c.compression == 'zstd'
                                              for c in summary.chunk_indexes)
         runs = [m for m in r.iter_metadata() if m.name == 'rigidrot_run']
         assert len(runs) == 1 and json.loads(runs[0].metadata['scene'])['inertia'] == [2, 2, 1]
     meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-    assert meta['storage_identifier'] == 'mcap' and meta['message_count'] == 2 * published
+    assert meta['storage_identifier'] == 'mcap' and meta['message_count'] == 2 * published + 1
     # compare on the node's own log: within tol
     out = _run(['rigidrot_compare', str(bag), '--json', str(tmp_path / 's.json'),
-                '--plot', str(tmp_path / 's.png')], env)
+                '--plot', str(tmp_path / 's.png'), '--plot-truth'], env)
     assert out.returncode == 0, out.stderr
     summary = json.loads((tmp_path / 's.json').read_text())
     att = [t for t in summary['topics'] if t['topic'] == '/attitude'][0]
@@ -151,31 +175,62 @@ def _run(cmd, env, **kw):
                           text=True, timeout=120, **kw)
 
 
-def test_sigkill_loses_at_most_about_a_second(tmp_path):
+def test_sigkill_loses_at_most_about_half_a_second(tmp_path):
     env = ros_env(next_domain_id())
     cap = start([sys.executable, '-c', CAPTURE, '8'], env)
     assert cap.stdout.readline().strip() == 'ready'
-    bag, code, err = _record(tmp_path, env, 3.0, sig=signal.SIGKILL)
+    bag, code, err = _record(tmp_path, env, 3.0, sig=signal.SIGKILL, cap=cap)
     assert code == -signal.SIGKILL
-    got = json.loads(cap.communicate(timeout=60)[0])
+    got = _captured(cap)
     last_sent = max(st for k, st, _, _ in got if k == 'q')
     contents = read_bag(str(bag))
     assert contents.truncated
     stamps = [m[2] for m in contents.messages if m[0] == '/attitude']
     lost = (last_sent - max(stamps)) * 1e-9
-    assert lost <= 1.0, f'lost {lost:.3f} s'
+    assert lost <= 0.6, f'lost {lost:.3f} s'        # 0.4 s flush period + 0.1 s timer
     out = _run(['rigidrot_compare', str(bag)], env)
     assert out.returncode == 0, out.stderr
     assert 'unfinished file' in out.stderr and 'Traceback' not in out.stderr
 
 
-def test_compare_scores_a_perturbed_estimator(tmp_path):
+@pytest.mark.parametrize('typed', [True, False])
+def test_compare_scores_a_perturbed_estimator(tmp_path, typed):
+    """record_topics keeps an estimator from its first message; compare scores it.
+
+    With its type given the topic is subscribed before the estimator exists: nothing is
+    lost. By name only it is subscribed once it appears in the graph: at most the first
+    0.1 s of a volatile publisher can be lost.
+    """
+    from rigidrot_ros.io.score import extract_streams
     env = ros_env(next_domain_id())
-    est = start([sys.executable, '-c', ESTIMATOR, '10'], env)
-    bag, code, err = _record(tmp_path, env, 3.0,
-                             extra=['-p', "record_topics:=['/estimator/attitude']"])
-    stop(est, signal.SIGINT)
+    est = start([sys.executable, '-c', ESTIMATOR, '60'], env)
+    root = tmp_path / 'runs'
+    node = start([script('attitude_node'), '--ros-args', '-p', 'record:=true',
+                  '-p', f'record_path:={root}',
+                  '-p', "record_topics:=['/estimator/attitude%s', '/attitude']" % (
+                      ':geometry_msgs/msg/QuaternionStamped' if typed else '')], env)
+    first = est.stdout.readline()                # the estimator's first output (volatile)
+    assert first.strip(), est.stderr.read()
+    time.sleep(2.0)
+    code, _, err = stop(node, signal.SIGTERM)
+    _, est_out, _ = stop(est, signal.SIGINT)
     assert code == 0, err
+    sent = [int(first.split()[0])] + [int(line.split()[0]) for line in est_out.splitlines()
+                                      if line.strip()]
+    bag = next(root.iterdir())
+    streams, _ = extract_streams(read_bag(str(bag)), ['/estimator/attitude'])
+    got = set(streams[0].stamps.tolist())
+    if typed:
+        assert sent[0] in got                        # from its very first message
+    else:
+        assert min(got) - sent[0] <= 0.1e9, (min(got) - sent[0]) * 1e-9
+        sent = [s for s in sent if s >= min(got)]
+    assert set(sent[:-2]) <= got                     # (the last may cross the shutdown)
+    # /attitude, listed too, is the node's own: written once per tick, not also raw
+    counts = {}
+    for m in read_bag(str(bag)).messages:
+        counts[m[0]] = counts.get(m[0], 0) + 1
+    assert counts['/attitude'] == counts['/angular_velocity']
     out = _run(['rigidrot_compare', str(bag), '--json', str(tmp_path / 'e.json')], env)
     assert out.returncode == 0, out.stderr
     topics = {t['topic']: t for t in json.loads((tmp_path / 'e.json').read_text())['topics']}
@@ -201,7 +256,7 @@ def test_replay_into_another_process(tmp_path, rate):
     assert cap.stdout.readline().strip() == 'ready'
     rep = _run(['rigidrot_replay', str(bag), '--rate', str(rate), '--quiet'], env2)
     assert rep.returncode == 0, rep.stderr
-    got = json.loads(cap.communicate(timeout=60)[0])
+    got = _captured(cap)
     q_got = [g for g in got if g[0] == 'q']
     q_orig = [m for m in original if m[0] == '/attitude']
     assert [g[1] for g in q_got] == sorted(g[1] for g in q_got)        # same order
@@ -234,8 +289,8 @@ def test_bad_inputs_get_one_line_and_status_2(tmp_path):
         (['rigidrot_compare', str(empty)], 'no .mcap file'),
         (['rigidrot_compare', str(text)], 'not an MCAP file'),
         (['rigidrot_compare', str(torn)], 'no readable records'),
-        (['rigidrot_compare', str(other), '--topic', '/chatter'], 'not geometry_msgs'),
-        (['rigidrot_compare', str(other)], 'holds no'),
+        (['rigidrot_compare', str(other), '--topic', '/chatter'], 'carries no attitude'),
+        (['rigidrot_compare', str(other)], 'holds no topic that can be scored'),
         (['rigidrot_compare', str(good_bag), '--topic', '/nope'], "no topic '/nope'"),
         (['rigidrot_replay', str(text)], 'not an MCAP file'),
         (['rigidrot_replay', str(good_bag), '--topics', '/nope'], 'no topic'),
@@ -252,7 +307,7 @@ def test_bad_inputs_get_one_line_and_status_2(tmp_path):
                                if m[0] == '/attitude'), 1)
     w2.close()
     out = _run(['rigidrot_compare', w2.path], env)
-    assert out.returncode == 2 and 'no rigidrot_run metadata' in out.stderr
+    assert out.returncode == 2 and 'no rigidrot_run metadata' in out.stderr, out.stderr
     # nothing recorded is overwritten: a second writer gets a new directory
     assert w2.path != w.path and os.path.isdir(w.path)
 
@@ -264,7 +319,7 @@ def test_compare_honours_resets_in_the_log(tmp_path):
     node = start([script('attitude_node'), '--ros-args', '-p', 'record:=true',
                   '-p', f'record_path:={root}'], env)
     try:
-        assert wait_for(lambda: root.exists() and any(root.iterdir()), timeout=30)
+        assert wait_for(lambda: root.exists() and any(root.iterdir()), timeout=60)
         time.sleep(1.0)
         changes = [['sphere', {'inertia': [3.0, 3.0, 3.0], 'torque': [0.1, 0.1, 0.1],
                                'omega0': [0.0, 1.0, 0.0], 'time_scale': 2.0}]]

@@ -1,21 +1,27 @@
-"""rosbag2-compatible MCAP bags: a durable writer and a reader that survives a torn file.
+"""rosbag2-compatible MCAP bags: a durable writer, a reader that survives a torn file, reindex.
 
-A bag is a directory ``<root>/<name>_<UTC timestamp>/`` holding ``<dir>_0.mcap`` and a
-rosbag2 ``metadata.yaml`` (version 9), so ``ros2 bag info`` and ``ros2 bag play`` accept
-it. The MCAP follows the ROS 2 profile: header profile ``ros2``, schemas ``pkg/msg/Type``
-encoded ``ros2msg`` with their dependencies, messages ``cdr``, and every channel carries
-the ``offered_qos_profiles`` metadata rosbag2 writes. Chunks are zstd-compressed and are
-closed at least every ``flush_period`` seconds, so a killed writer loses at most that much.
-Runs are described by MCAP metadata records named ``rigidrot_run``.
+A bag is a directory holding ``<dir>_0.mcap`` and a rosbag2 ``metadata.yaml`` (version 9),
+so ``ros2 bag info`` and ``ros2 bag play`` accept it. The MCAP follows the ROS 2 profile:
+header profile ``ros2``, schemas ``pkg/msg/Type`` encoded ``ros2msg`` with their
+dependencies, messages ``cdr``, and every channel carries the ``offered_qos_profiles``
+metadata rosbag2 writes. Chunks are zstd-compressed and are closed at least every
+``flush_period`` seconds, so a killed writer loses at most that much.
+
+Runs of the node are described twice: by MCAP metadata records named ``rigidrot_run``
+(written by the node's own recorder) and by ``std_msgs/msg/String`` messages whose JSON
+carries ``"rigidrot_run": 1`` (the node's transient-local ``~/run`` topic, which any
+recorder keeps). :func:`read_bag` merges both into :attr:`BagContents.runs`.
 """
 
 from dataclasses import dataclass, field
 import datetime
 import json
 import os
+import re
 import struct
 import time
 
+from mcap.data_stream import RecordBuilder
 from mcap.exceptions import McapError
 from mcap.reader import make_reader, StreamReader
 from mcap.records import Channel, Message, Metadata, Schema
@@ -24,9 +30,12 @@ import yaml
 
 from rigidrot_ros.io.msgdefs import schema_text
 
-__all__ = ['BagWriter', 'BagError', 'read_bag', 'BagContents', 'qos_yaml', 'RUN_RECORD']
+__all__ = ['BagWriter', 'BagError', 'read_bag', 'BagContents', 'qos_yaml', 'RUN_RECORD',
+           'bag_files', 'reindex', 'run_from_string', 'STRING_TYPE']
 
 RUN_RECORD = 'rigidrot_run'
+STRING_TYPE = 'std_msgs/msg/String'
+MAGIC = b'\x89MCAP0\r\n'
 _INFINITE = {'sec': 2147483647, 'nsec': 4294967295}
 
 
@@ -58,55 +67,143 @@ def _unique_dir(root, name):
             n += 1
 
 
+def _exact_dir(path):
+    if os.path.exists(path) and (not os.path.isdir(path) or os.listdir(path)):
+        raise FileExistsError(f'{path} exists and is not an empty directory; nothing is '
+                              f'overwritten: choose another output directory')
+    os.makedirs(path, exist_ok=True)
+    return path
+
+
+class _PackedRecords:
+    """Summary records kept as their bytes, in order (no Python object per record)."""
+
+    __slots__ = ('data',)
+
+    def __init__(self):
+        self.data = bytearray()
+
+    def add(self, record):
+        builder = RecordBuilder()
+        record.write(builder)
+        self.data += builder.end()
+
+    def write(self, builder):
+        builder.write(bytes(self.data))
+
+
 class BagWriter:
     """Write a rosbag2-compatible MCAP bag directory.
 
     Parameters
     ----------
     root : str
-        Directory under which the bag directory is created (made if missing).
+        Directory under which a new bag directory ``<name>_<UTC time>`` is created.
     name : str
         Prefix of the bag directory (the node name).
     flush_period : float
-        Seconds between forced chunk flushes: the most a hard kill can lose.
+        Seconds between forced chunk flushes: the most a hard kill can lose, provided
+        :meth:`maybe_flush` is also called periodically when no message arrives.
+    path : str, optional
+        Write to exactly this directory instead (created; it must not exist or be empty).
+    split_seconds : float
+        Start a new file ``<dir>_<n>.mcap`` after this many seconds (a split bag, as
+        rosbag2's ``--max-bag-duration`` writes it; 0 = never).
+
+    Notes
+    -----
+    Memory: an MCAP file's summary indexes every chunk, so a writer must keep one chunk
+    index per flush until the file is finished (the mcap writer keeps each as an object of
+    0.4 kB per channel). They are kept packed as bytes instead (about 225 bytes per chunk
+    with 10 channels, 20x less; ``test_score.py`` holds it under 300), and a file is
+    finished and a new one begun every ``split_seconds`` (default one hour: at most 9000
+    chunks at the recorders' 0.4 s flush, about 2 MB), so a recording of any length runs
+    in bounded memory.
     """
 
-    def __init__(self, root, name, flush_period=0.5):
-        os.makedirs(root, exist_ok=True)
-        self.path = _unique_dir(root, name.strip('/').replace('/', '_') or 'bag')
-        self.file_name = os.path.basename(self.path) + '_0.mcap'
-        self._fh = open(os.path.join(self.path, self.file_name), 'xb')
-        self._writer = Writer(self._fh, chunk_size=1 << 20, compression=CompressionType.ZSTD)
-        self._writer.start(profile='ros2', library='rigidrot_ros')
+    def __init__(self, root, name, flush_period=0.5, path=None, split_seconds=3600.0):
+        if path is not None:
+            self.path = _exact_dir(os.path.abspath(path))
+        else:
+            os.makedirs(root, exist_ok=True)
+            self.path = _unique_dir(root, name.strip('/').replace('/', '_') or 'bag')
+        self._base = os.path.basename(self.path)
+        self._files = []                  # file names, in order
+        self._per_file = {}               # file name -> [first_ns, last_ns, count]
         self._schemas = {}
         self._channels = {}
-        self._topics = {}
+        self._topics = {}                 # topic -> (type, qos yaml)
+        self._channel_args = {}           # topic -> (type, schema text, metadata)
         self._counts = {}
         self._first = None
         self._last = None
         self._flush_period = float(flush_period)
+        self._split = float(split_seconds)
         self._last_flush = time.monotonic()
+        self._dirty = False
         self._closed = False
+        self._roll_due = False
+        self._open_file()
         self._write_metadata_yaml()
 
-    def add_topic(self, topic, type_name, qos=None, schema=None):
-        """Register ``topic`` of ``pkg/msg/Type``; returns its channel id."""
+    @property
+    def file_name(self):
+        """Name of the .mcap file being written."""
+        return self._files[-1]
+
+    def _open_file(self):
+        name = f'{self._base}_{len(self._files)}.mcap'
+        self._fh = open(os.path.join(self.path, name), 'xb')
+        self._writer = Writer(self._fh, chunk_size=1 << 20, compression=CompressionType.ZSTD)
+        self._writer.start(profile='ros2', library='rigidrot_ros')
+        self._files.append(name)
+        self._per_file[name] = [None, None, 0]
+        self._file_started = time.monotonic()
+        self._schemas = {}
+        self._channels = {}
+        for topic, (type_name, text, meta) in self._channel_args.items():
+            self._register(topic, type_name, text, meta)
+        self._chunk_list = getattr(self._writer, '_Writer__chunk_indices', None)
+
+    def add_topic(self, topic, type_name, qos=None, schema=None, metadata=None):
+        """Register ``topic`` of ``pkg/msg/Type``; returns its channel id.
+
+        ``metadata`` (optional) is the channel's whole metadata map, as read from another
+        bag; otherwise it is ``offered_qos_profiles`` = ``qos`` (default: reliable,
+        volatile, depth 10).
+        """
         if topic in self._channels:
             return self._channels[topic]
+        text = schema if schema is not None else (
+            self._channel_args[topic][1] if topic in self._channel_args
+            else schema_text(type_name))
+        meta = dict(metadata) if metadata else {
+            'offered_qos_profiles': qos or qos_yaml(), 'topic_type_hash': ''}
+        meta.setdefault('offered_qos_profiles', qos or qos_yaml())
+        cid = self._register(topic, type_name, text, meta)
+        self._channel_args[topic] = (type_name, text, meta)
+        self._topics[topic] = (type_name, meta['offered_qos_profiles'])
+        self._counts.setdefault(topic, 0)
+        return cid
+
+    def _register(self, topic, type_name, text, meta):
         if type_name not in self._schemas:
-            text = schema if schema is not None else schema_text(type_name)
             self._schemas[type_name] = self._writer.register_schema(
                 name=type_name, encoding='ros2msg', data=text.encode('utf-8'))
         cid = self._writer.register_channel(
             topic=topic, message_encoding='cdr', schema_id=self._schemas[type_name],
-            metadata={'offered_qos_profiles': qos or qos_yaml(), 'topic_type_hash': ''})
+            metadata=meta)
         self._channels[topic] = cid
-        self._topics[topic] = (type_name, qos or qos_yaml())
-        self._counts[topic] = 0
         return cid
+
+    def has_topic(self, topic):
+        """Whether ``topic`` has a channel in this bag."""
+        return topic in self._channels
 
     def write(self, topic, data, log_time_ns, publish_time_ns=None):
         """Write one serialized (CDR) message."""
+        if self._roll_due:
+            self._roll()
         cid = self._channels[topic]
         self._writer.add_message(channel_id=cid, log_time=int(log_time_ns), data=bytes(data),
                                  publish_time=int(publish_time_ns or log_time_ns),
@@ -114,68 +211,123 @@ class BagWriter:
         self._counts[topic] += 1
         self._first = log_time_ns if self._first is None else min(self._first, log_time_ns)
         self._last = log_time_ns if self._last is None else max(self._last, log_time_ns)
+        f = self._per_file[self._files[-1]]
+        f[0] = log_time_ns if f[0] is None else min(f[0], log_time_ns)
+        f[1] = log_time_ns if f[1] is None else max(f[1], log_time_ns)
+        f[2] += 1
+        self._dirty = True
         self.maybe_flush()
 
     def add_run(self, info):
         """Record a run (scene, start stamp, ...) as a ``rigidrot_run`` metadata record."""
-        self._writer.add_metadata(RUN_RECORD, {k: (v if isinstance(v, str) else json.dumps(v))
-                                               for k, v in info.items()})
+        self.add_metadata(RUN_RECORD, {k: (v if isinstance(v, str) else json.dumps(v))
+                                       for k, v in info.items()})
+
+    def add_metadata(self, name, data):
+        """Write an MCAP metadata record (a string map) and flush it to the file."""
+        self._writer.add_metadata(name, dict(data))
+        self._dirty = True
         self.flush()
 
     def maybe_flush(self):
         """Flush if ``flush_period`` has passed since the last flush."""
-        if time.monotonic() - self._last_flush >= self._flush_period:
+        if self._dirty and time.monotonic() - self._last_flush >= self._flush_period:
             self.flush()
 
     def flush(self):
         """Close the open chunk and push it to the operating system."""
+        if self._closed:
+            return
         self._writer.flush()
         self._fh.flush()
+        self._dirty = False
         self._last_flush = time.monotonic()
+        if self._chunk_list is not None:          # pack the new chunk indexes
+            if not self._chunk_list or not isinstance(self._chunk_list[0], _PackedRecords):
+                self._chunk_list.insert(0, _PackedRecords())
+            packed = self._chunk_list[0]
+            for index in self._chunk_list[1:]:
+                packed.add(index)
+            del self._chunk_list[1:]
+        if (self._split > 0 and self._last_flush - self._file_started >= self._split
+                and self._per_file[self._files[-1]][2]):
+            self._roll_due = True           # the next message starts the next file
+
+    def _roll(self):
+        """Finish the current file and continue in the next one of the split bag."""
+        self._roll_due = False
+        self._writer.finish()
+        self._fh.close()
+        self._open_file()
+        self._write_metadata_yaml()
 
     @property
     def counts(self):
         """Messages written per topic."""
         return dict(self._counts)
 
+    @property
+    def closed(self):
+        """Whether :meth:`close` has run."""
+        return self._closed
+
     def close(self):
         """Finish the MCAP (summary and index) and write the final metadata.yaml."""
         if self._closed:
             return
         self._closed = True
-        self._writer.finish()
-        self._fh.close()
+        try:
+            self._writer.finish()
+        finally:
+            self._fh.close()
         self._write_metadata_yaml()
 
     def _write_metadata_yaml(self):
-        start = self._first or 0
-        duration = (self._last - self._first) if self._first is not None else 0
-        total = sum(self._counts.values())
-        info = {
-            'version': 9,
-            'storage_identifier': 'mcap',
-            'duration': {'nanoseconds': int(duration)},
-            'starting_time': {'nanoseconds_since_epoch': int(start)},
-            'message_count': total,
-            'topics_with_message_count': [
-                {'topic_metadata': {'name': t, 'type': ty, 'serialization_format': 'cdr',
-                                    'offered_qos_profiles': yaml.safe_load(q),
-                                    'type_description_hash': ''},
-                 'message_count': self._counts[t]}
-                for t, (ty, q) in self._topics.items()],
-            'compression_format': '',
-            'compression_mode': '',
-            'relative_file_paths': [self.file_name],
-            'files': [{'path': self.file_name,
-                       'starting_time': {'nanoseconds_since_epoch': int(start)},
-                       'duration': {'nanoseconds': int(duration)}, 'message_count': total}],
-            'custom_data': None,
-            'ros_distro': 'jazzy',
-        }
-        tmp = os.path.join(self.path, 'metadata.yaml.tmp')
-        with open(tmp, 'w', encoding='utf-8') as fh:
-            yaml.safe_dump({'rosbag2_bagfile_information': info}, fh, sort_keys=False)
-        os.replace(tmp, os.path.join(self.path, 'metadata.yaml'))
+        write_metadata_yaml(self.path, list(self._files), self._topics, self._counts,
+                            self._first, self._last,
+                            {f: tuple(v) for f, v in self._per_file.items()})
+
+
+def write_metadata_yaml(path, files, topics, counts, first, last, per_file=None):
+    """Write a rosbag2 (v9) ``metadata.yaml`` into bag directory ``path`` atomically.
+
+    ``topics`` maps topic -> (type, offered_qos_profiles YAML); ``counts`` topic -> count;
+    ``per_file`` optionally maps file name -> (first_ns, last_ns, count).
+    """
+    start = first or 0
+    duration = (last - first) if first is not None else 0
+    total = sum(counts.values())
+    if per_file is None:
+        per_file = {files[0]: (first, last, total)} if files else {}
+    info = {
+        'version': 9,
+        'storage_identifier': 'mcap',
+        'duration': {'nanoseconds': int(duration)},
+        'starting_time': {'nanoseconds_since_epoch': int(start)},
+        'message_count': total,
+        'topics_with_message_count': [
+            {'topic_metadata': {'name': t, 'type': ty, 'serialization_format': 'cdr',
+                                'offered_qos_profiles': yaml.safe_load(q) or [],
+                                'type_description_hash': ''},
+             'message_count': counts.get(t, 0)}
+            for t, (ty, q) in topics.items()],
+        'compression_format': '',
+        'compression_mode': '',
+        'relative_file_paths': list(files),
+        'files': [{'path': f,
+                   'starting_time': {'nanoseconds_since_epoch':
+                                     int(per_file.get(f, (0, 0, 0))[0] or 0)},
+                   'duration': {'nanoseconds': int((per_file.get(f, (0, 0, 0))[1] or 0)
+                                                   - (per_file.get(f, (0, 0, 0))[0] or 0))},
+                   'message_count': int(per_file.get(f, (0, 0, 0))[2])}
+                  for f in files],
+        'custom_data': None,
+        'ros_distro': 'jazzy',
+    }
+    tmp = os.path.join(path, 'metadata.yaml.tmp')
+    with open(tmp, 'w', encoding='utf-8') as fh:
+        yaml.safe_dump({'rosbag2_bagfile_information': info}, fh, sort_keys=False)
+    os.replace(tmp, os.path.join(path, 'metadata.yaml'))
 
 
 @dataclass
@@ -188,17 +340,64 @@ class BagContents:
     runs: list = field(default_factory=list)        # dicts from rigidrot_run records
     truncated: bool = False
     note: str = ''
+    files: list = field(default_factory=list)       # the .mcap files read, in order
+    channel_metadata: dict = field(default_factory=dict)   # topic -> channel metadata map
+    metadata: list = field(default_factory=list)    # every (name, map) metadata record
 
 
-def _mcap_path(path):
-    if os.path.isdir(path):
-        files = sorted(f for f in os.listdir(path) if f.endswith('.mcap'))
-        if not files:
-            raise BagError(f'{path}: a directory with no .mcap file is not a bag')
-        return os.path.join(path, files[0])
+def _file_index(name):
+    m = re.search(r'_(\d+)\.mcap$', name)
+    return (int(m.group(1)) if m else -1, name)
+
+
+def bag_files(path):
+    """Return the .mcap files of a bag directory (in rosbag2 order), or ``[path]``.
+
+    A directory's ``metadata.yaml``, where present, must be a rosbag2 metadata file; its
+    ``relative_file_paths`` give the files and their order (a split bag). Without one, every
+    ``.mcap`` of the directory is read, ordered by its ``_<n>.mcap`` index.
+
+    Raises
+    ------
+    BagError
+        Missing path, corrupt ``metadata.yaml``, a listed file missing, or no .mcap file.
+    """
     if not os.path.exists(path):
         raise BagError(f'{path}: no such file or directory')
-    return path
+    if not os.path.isdir(path):
+        return [path]
+    present = sorted((f for f in os.listdir(path) if f.endswith('.mcap')), key=_file_index)
+    meta_path = os.path.join(path, 'metadata.yaml')
+    if os.path.exists(meta_path):
+        try:
+            with open(meta_path, encoding='utf-8') as fh:
+                meta = yaml.safe_load(fh)
+            info = meta['rosbag2_bagfile_information']
+            listed = info.get('relative_file_paths')
+            if listed is None:
+                listed = [f['path'] for f in info.get('files') or []]
+            if not isinstance(listed, list) or not all(isinstance(f, str) for f in listed):
+                raise TypeError('relative_file_paths is not a list of file names')
+        except (yaml.YAMLError, KeyError, TypeError, AttributeError, UnicodeDecodeError,
+                OSError) as exc:
+            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise BagError(f'{meta_path}: not a valid rosbag2 metadata file '
+                           f'({type(exc).__name__}: {why}); move it away to read the .mcap '
+                           f'files alone') from None
+        listed = [os.path.basename(f) for f in listed]
+        missing = [f for f in listed if f not in present]
+        if missing:
+            raise BagError(f'{meta_path} lists {missing}, which the directory does not hold')
+        unlisted = [f for f in present if f not in listed]
+        if unlisted:
+            raise BagError(f'{path}: holds {unlisted}, which metadata.yaml does not list '
+                           f'(a different bag?); move them away or fix metadata.yaml')
+        files = listed
+    else:
+        files = present
+    if not files:
+        raise BagError(f'{path}: a directory with no .mcap file is not a bag')
+    return [os.path.join(path, f) for f in files]
 
 
 def _decode_run(data):
@@ -211,39 +410,52 @@ def _decode_run(data):
     return out
 
 
-def read_bag(path):
-    """Read a bag directory or .mcap file; a torn file is read up to its last whole record.
+def run_from_string(data):
+    """Return the run dict carried by a CDR ``std_msgs/String``, or None if it is not one."""
+    data = bytes(data)
+    if len(data) < 8:
+        return None
+    endian = '<' if data[1] in (1, 3) else '>'
+    (n,) = struct.unpack(endian + 'I', data[4:8])
+    try:
+        text = data[8:8 + n].rstrip(b'\x00').decode('utf-8')
+        run = json.loads(text)
+    except (UnicodeDecodeError, ValueError):
+        return None
+    if not isinstance(run, dict) or RUN_RECORD not in run:
+        return None
+    return run
 
-    Raises
-    ------
-    BagError
-        The path is missing, not MCAP, or holds no readable records.
-    """
-    fpath = _mcap_path(path)
-    with open(fpath, 'rb') as fh:
-        magic = fh.read(8)
-    if magic != b'\x89MCAP0\r\n':
-        raise BagError(f'{fpath}: not an MCAP file (bad magic {magic[:8]!r})')
-    out = BagContents(path=fpath)
-    schemas, channels = {}, {}
+
+def _read_indexed(fpath, out):
+    """Read a finished file through its summary; False if it has none (torn, unfinished)."""
+    part = BagContents(path=fpath)
     try:
         with open(fpath, 'rb') as fh:
             reader = make_reader(fh)
             summary = reader.get_summary()
             if summary is None:
-                raise McapError('no summary')
+                return False
+            for channel in summary.channels.values():
+                if channel.schema_id in summary.schemas:
+                    _note(part, summary.schemas[channel.schema_id], channel)
             for rec in reader.iter_metadata():
-                if rec.name == RUN_RECORD:
-                    out.runs.append(_decode_run(rec.metadata))
+                part.metadata.append((rec.name, dict(rec.metadata)))
             for schema, channel, msg in reader.iter_messages(log_time_order=True):
-                _note(out, schema, channel)
-                out.messages.append((channel.topic, schema.name, msg.log_time,
-                                     msg.publish_time, msg.data))
-        return out
+                _note(part, schema, channel)
+                part.messages.append((channel.topic, schema.name, msg.log_time,
+                                      msg.publish_time, msg.data))
     except (McapError, struct.error, EOFError, ValueError, KeyError, OSError):
-        pass
-    # unfinished or damaged: stream records up to the tear
-    out = BagContents(path=fpath, truncated=True)
+        return False
+    _merge(out, part)
+    return True
+
+
+def _read_stream(fpath, out):
+    """Read records in file order up to the last complete one; returns a note."""
+    part = BagContents(path=fpath)
+    schemas, channels = {}, {}
+    note = ''
     with open(fpath, 'rb') as fh:
         try:
             for rec in StreamReader(fh, skip_magic=False, emit_chunks=False).records:
@@ -251,24 +463,89 @@ def read_bag(path):
                     schemas[rec.id] = rec
                 elif isinstance(rec, Channel):
                     channels[rec.id] = rec
+                    if rec.schema_id in schemas:
+                        _note(part, schemas[rec.schema_id], rec)
                 elif isinstance(rec, Message):
                     ch = channels.get(rec.channel_id)
                     sc = schemas.get(ch.schema_id) if ch else None
                     if ch is None or sc is None:
                         continue
-                    _note(out, sc, ch)
-                    out.messages.append((ch.topic, sc.name, rec.log_time, rec.publish_time,
-                                         rec.data))
-                elif isinstance(rec, Metadata) and rec.name == RUN_RECORD:
-                    out.runs.append(_decode_run(rec.metadata))
-            out.truncated = False
-            out.note = 'no summary section, but all records read'
+                    _note(part, sc, ch)
+                    part.messages.append((ch.topic, sc.name, rec.log_time, rec.publish_time,
+                                          rec.data))
+                elif isinstance(rec, Metadata):
+                    part.metadata.append((rec.name, dict(rec.metadata)))
+            note = 'no summary section, but all records read'
         except Exception as exc:  # the tear: EndOfFile, struct.error, zstd errors...
-            out.note = f'read up to the last complete record ({type(exc).__name__})'
-    if not out.messages and not out.runs:
-        raise BagError(f'{fpath}: MCAP file with no readable records ({out.note})')
-    out.messages.sort(key=lambda m: m[2])
+            part.truncated = True
+            note = f'read up to the last complete record ({type(exc).__name__})'
+    if not part.messages and not part.metadata and not part.topics:
+        raise BagError(f'{fpath}: MCAP file with no readable records ({note})')
+    part.messages.sort(key=lambda m: m[2])
+    _merge(out, part)
+    return note
+
+
+def _merge(out, part):
+    for t, v in part.topics.items():
+        if t in out.topics and out.topics[t][0] != v[0]:
+            raise BagError(f'{part.path}: topic {t} is {v[0]} here but {out.topics[t][0]} '
+                           f'in an earlier file of the bag')
+        out.topics.setdefault(t, v)
+    for t, v in part.channel_metadata.items():
+        out.channel_metadata.setdefault(t, v)
+    out.messages.extend(part.messages)
+    out.metadata.extend(part.metadata)
+    out.truncated = out.truncated or part.truncated
+
+
+def read_bag(path):
+    """Read a bag directory (every file of a split bag, in order) or one .mcap file.
+
+    A torn file (a killed writer) is read up to its last complete record and the
+    contents are marked ``truncated`` with a ``note``.
+
+    Raises
+    ------
+    BagError
+        The path is missing, not MCAP, has a corrupt metadata.yaml, or holds no records.
+    """
+    files = bag_files(path)
+    for fpath in files:
+        with open(fpath, 'rb') as fh:
+            magic = fh.read(8)
+        if magic != MAGIC:
+            raise BagError(f'{fpath}: not an MCAP file (bad magic {magic[:8]!r})')
+    out = BagContents(path=files[0] if len(files) == 1 else path, files=list(files))
+    notes = []
+    for fpath in files:
+        if not _read_indexed(fpath, out):
+            notes.append((f'{os.path.basename(fpath)}: ' if len(files) > 1 else '')
+                         + _read_stream(fpath, out))
+    out.note = '; '.join(notes)
+    if len(files) > 1:
+        out.messages.sort(key=lambda m: m[2])
+    out.runs = _collect_runs(out)
     return out
+
+
+def _collect_runs(bag):
+    runs, seen = [], set()
+
+    def add(run):
+        key = (str(run.get('node', '')), int(run.get('start_ns', -1)), run.get('run'))
+        if key not in seen:
+            seen.add(key)
+            runs.append(run)
+    for name, data in bag.metadata:
+        if name == RUN_RECORD:
+            add(_decode_run(data))
+    for topic, type_name, _, _, data in bag.messages:
+        if type_name == STRING_TYPE:
+            run = run_from_string(data)
+            if run is not None and 'start_ns' in run:
+                add(run)
+    return runs
 
 
 def _note(out, schema, channel):
@@ -276,3 +553,107 @@ def _note(out, schema, channel):
         out.topics[channel.topic] = (schema.name,
                                      channel.metadata.get('offered_qos_profiles', ''),
                                      schema.data.decode('utf-8', 'replace'))
+        out.channel_metadata[channel.topic] = dict(channel.metadata)
+
+
+def reindex(path, backup=True):
+    """Rewrite a torn bag (killed writer) into a finished one, like ``ros2 bag reindex``.
+
+    Every complete record of every file is kept: schemas, channels with their metadata,
+    metadata records (the run descriptions), messages in their file order. Each file is
+    rewritten in place with a summary, an index and the end magic, and ``metadata.yaml``
+    is rebuilt with the true counts and times. With ``backup`` the original file is kept
+    beside it as ``<file>.orig`` (no ``.mcap`` ending, so it is not read as part of the
+    bag). A finished file is left as it is.
+
+    Parameters
+    ----------
+    path : str
+        A bag directory (or a single .mcap file: then no metadata.yaml is written).
+    backup : bool
+        Keep each rewritten original as ``<file>.orig``.
+
+    Returns
+    -------
+    dict
+        ``{'files': [...], 'rewritten': [...], 'counts': {topic: n}, 'notes': [...]}``.
+
+    Raises
+    ------
+    BagError
+        Not a bag, not MCAP, or nothing readable.
+    """
+    if os.path.isdir(path) and not any(f.endswith('.mcap') for f in os.listdir(path)):
+        raise BagError(f'{path}: a directory with no .mcap file is not a bag')
+    if os.path.isdir(path):
+        meta = os.path.join(path, 'metadata.yaml')
+        try:
+            files = bag_files(path)
+        except BagError:
+            # metadata.yaml is what reindex rebuilds: a broken one is replaced
+            files = [os.path.join(path, f) for f in sorted(
+                (f for f in os.listdir(path) if f.endswith('.mcap')), key=_file_index)]
+            if os.path.exists(meta):
+                os.replace(meta, meta + '.orig')
+    else:
+        files = bag_files(path)
+    topics, counts, per_file, rewritten, notes = {}, {}, {}, [], []
+    first = last = None
+    for fpath in files:
+        with open(fpath, 'rb') as fh:
+            magic = fh.read(8)
+        if magic != MAGIC:
+            raise BagError(f'{fpath}: not an MCAP file (bad magic {magic[:8]!r})')
+        part = BagContents(path=fpath)
+        if not _read_indexed(fpath, part):
+            notes.append(f'{os.path.basename(fpath)}: ' + _read_stream(fpath, part))
+            _rewrite(fpath, part, backup)
+            rewritten.append(fpath)
+        for t, (ty, q, _) in part.topics.items():
+            topics.setdefault(t, (ty, q))
+        n = 0
+        lo = hi = None
+        for m in part.messages:
+            counts[m[0]] = counts.get(m[0], 0) + 1
+            n += 1
+            lo = m[2] if lo is None else min(lo, m[2])
+            hi = m[2] if hi is None else max(hi, m[2])
+        per_file[os.path.basename(fpath)] = (lo, hi, n)
+        if lo is not None:
+            first = lo if first is None else min(first, lo)
+            last = hi if last is None else max(last, hi)
+    if os.path.isdir(path):
+        write_metadata_yaml(path, [os.path.basename(f) for f in files], topics, counts,
+                            first, last, per_file)
+    return {'files': files, 'rewritten': rewritten, 'counts': counts, 'notes': notes}
+
+
+def _rewrite(fpath, part, backup):
+    tmp = fpath + '.reindex.tmp'
+    with open(tmp, 'wb') as fh:
+        w = Writer(fh, chunk_size=1 << 20, compression=CompressionType.ZSTD)
+        w.start(profile='ros2', library='rigidrot_ros reindex')
+        sids, cids, seq = {}, {}, {}
+        for topic, (type_name, _, text) in part.topics.items():
+            if type_name not in sids:
+                sids[type_name] = w.register_schema(name=type_name, encoding='ros2msg',
+                                                    data=text.encode('utf-8'))
+            cids[topic] = w.register_channel(topic=topic, message_encoding='cdr',
+                                             schema_id=sids[type_name],
+                                             metadata=part.channel_metadata.get(topic, {}))
+        for name, data in part.metadata:
+            w.add_metadata(name, data)
+        for topic, _, log_ns, pub_ns, data in part.messages:
+            n = seq.get(topic, 0)
+            w.add_message(channel_id=cids[topic], log_time=log_ns, publish_time=pub_ns,
+                          data=data, sequence=n)
+            seq[topic] = n + 1
+        w.finish()
+    # check the rewrite before it replaces anything
+    check = BagContents(path=tmp)
+    if not _read_indexed(tmp, check) or len(check.messages) != len(part.messages):
+        os.remove(tmp)
+        raise BagError(f'{fpath}: the rewritten file did not read back whole; nothing changed')
+    if backup:
+        os.replace(fpath, fpath + '.orig')
+    os.replace(tmp, fpath)

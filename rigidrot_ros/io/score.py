@@ -1,93 +1,141 @@
 """Score attitude and rate streams from a bag against the exact truth (no rclpy here).
 
 The truth at a message is the exact solution of the run that contains its stamp (the
-latest ``rigidrot_run`` record with ``start_ns <= stamp``), evaluated at scene time
+latest run description with ``start_ns <= stamp``), evaluated at scene time
 ``t = (stamp - start_ns) * 1e-9 * time_scale``; or, with a second bag as truth, that
 bag's own stream interpolated at the same scene time.
+
+Error conventions (quaternions (x, y, z, w), ``q_NB``):
+
+- attitude: the rotation vector ``e`` with ``q_true^-1 ⊗ q_est = exp(e / 2)``, so ``e``
+  is expressed in the body frame B (a right, body-frame perturbation:
+  ``q_est = q_true ⊗ exp(e / 2)``); the scored error is the angle ``|e|``, rad. With
+  ``cov_frame='inertial'`` the covariance is read as that of ``e_N = R_NB e``
+  (``q_est = exp(e_N / 2) ⊗ q_true``) instead.
+- rate: ``omega_est - omega_true`` in B, its norm in rad/s.
+- consistency: ``NEES = e^T P^-1 e`` per sample with an orientation covariance ``P``;
+  ANEES is its mean over the M samples that have one, and its 95 % bounds are
+  ``chi2.ppf([0.025, 0.975], 3 M) / M``. They assume independent samples; the errors of a
+  filter are correlated in time, so read the bounds as a check of the mean (ANEES near
+  3), not as a significance test of the run.
 """
 
-from dataclasses import dataclass
+import math
 
-from mcap.records import Schema
-from mcap_ros2.decoder import DecoderFactory
+import mpmath
 import numpy as np
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.io.bag import BagError
+from rigidrot_ros.io.decode import decode_bag, ORIENTATION, RATE
 
-__all__ = ['ScoreError', 'Stream', 'extract_streams', 'score_against_runs',
-           'score_against_stream', 'ATTITUDE_TYPE', 'RATE_TYPE']
-
-ATTITUDE_TYPE = 'geometry_msgs/msg/QuaternionStamped'
-RATE_TYPE = 'geometry_msgs/msg/Vector3Stamped'
+__all__ = ['ScoreError', 'extract_streams', 'score_against_runs', 'score_against_stream',
+           'rotation_error', 'nees', 'anees_bounds', 'check_bag']
 
 
 class ScoreError(ValueError):
     """The log cannot be scored as asked, with the reason."""
 
 
-@dataclass
-class Stream:
-    """One topic decoded: stamps (int ns) and values (quaternions or vectors)."""
-
-    topic: str
-    type: str
-    stamps: np.ndarray
-    values: np.ndarray
-
-
 def extract_streams(bag, topics=None):
-    """Decode the QuaternionStamped / Vector3Stamped topics of a :class:`BagContents`."""
-    wanted = topics or [t for t, (ty, _, _) in bag.topics.items()
-                        if ty in (ATTITUDE_TYPE, RATE_TYPE)]
-    if not wanted:
-        raise ScoreError(f'{bag.path}: holds no {ATTITUDE_TYPE} or {RATE_TYPE} topic to score '
-                         f'(it has {sorted(bag.topics)})')
-    for t in wanted:
-        if t not in bag.topics:
-            raise ScoreError(f'{bag.path}: no topic {t!r} in the log (it has '
-                             f'{sorted(bag.topics)})')
-        if bag.topics[t][0] not in (ATTITUDE_TYPE, RATE_TYPE):
-            raise ScoreError(f'{bag.path}: topic {t!r} is {bag.topics[t][0]}, not '
-                             f'{ATTITUDE_TYPE} or {RATE_TYPE}')
-    factory = DecoderFactory()
-    out = {}
-    for n, t in enumerate(wanted):
-        type_name, _, schema_text = bag.topics[t]
-        # the factory caches decoders by schema id: one id per topic
-        decode = factory.decoder_for('cdr', Schema(id=n + 1, name=type_name,
-                                                   encoding='ros2msg',
-                                                   data=schema_text.encode('utf-8')))
-        stamps, values = [], []
-        for topic, _, _, _, data in bag.messages:
-            if topic != t:
-                continue
-            m = decode(data)
-            stamps.append(m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)
-            if type_name == ATTITUDE_TYPE:
-                q = m.quaternion
-                values.append((q.x, q.y, q.z, q.w))
-            else:
-                v = m.vector
-                values.append((v.x, v.y, v.z))
-        out[t] = Stream(t, type_name, np.array(stamps, dtype=np.int64),
-                        np.array(values, dtype=float).reshape(len(values), -1))
+    """Decode the scorable topics of a bag: ``(streams, skipped)``; ScoreError if none."""
+    try:
+        streams, skipped = decode_bag(bag, topics)
+    except ValueError as exc:
+        raise ScoreError(str(exc)) from None
+    if not streams:
+        why = '; '.join(f'{s["topic"]}: {s["reason"]}' for s in skipped) or 'no topics'
+        raise ScoreError(f'{bag.path}: holds no topic that can be scored ({why})')
+    return streams, skipped
+
+
+def rotation_error(q_true, q_est):
+    """Rotation vectors ``e`` (in B) with ``q_true^-1 ⊗ q_est = exp(e / 2)``; (N, 3)."""
+    d = quat.multiply(quat.conjugate(np.asarray(q_true)), np.asarray(q_est))
+    d = np.where(d[..., 3:4] < 0, -d, d)              # the shorter way round
+    v = np.linalg.norm(d[..., :3], axis=-1)
+    ang = 2.0 * np.arctan2(v, d[..., 3])
+    with np.errstate(invalid='ignore', divide='ignore'):
+        scale = np.where(v > 0, ang / np.where(v > 0, v, 1.0), 2.0)
+    return d[..., :3] * scale[..., None]
+
+
+def nees(e, cov):
+    """``e^T P^-1 e`` per sample; NaN where ``cov`` is NaN."""
+    out = np.full(len(e), np.nan)
+    ok = np.all(np.isfinite(cov.reshape(len(e), -1)), axis=1) & np.all(np.isfinite(e), axis=1)
+    if ok.any():
+        sol = np.linalg.solve(cov[ok], e[ok][..., None])[..., 0]
+        out[ok] = np.einsum('ij,ij->i', e[ok], sol)
     return out
 
 
-def _runs(bag):
+def _chi2_ppf(p, k):
+    """Quantile of chi-square with ``k`` degrees of freedom (bisection on mpmath's P)."""
+    a = mpmath.mpf(k) / 2
+
+    def cdf(x):
+        return mpmath.gammainc(a, 0, mpmath.mpf(x) / 2, regularized=True)
+    lo, hi = 0.0, max(2.0 * k, 10.0)
+    while cdf(hi) < p:
+        hi *= 2
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if cdf(mid) < p:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-12 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+def anees_bounds(m, dof=3, level=0.95):
+    """Two-sided ``level`` bounds of ANEES over ``m`` independent samples of ``dof``."""
+    alpha = (1.0 - level) / 2
+    with mpmath.workdps(30):
+        lo = _chi2_ppf(alpha, dof * m) / m
+        hi = _chi2_ppf(1 - alpha, dof * m) / m
+    return [float(lo), float(hi)]
+
+
+def _runs(bag, topic=None):
+    """Return the runs that give the truth for ``topic``, sorted by start.
+
+    With runs of one node that is all of them. With several nodes in one bag (namespaces),
+    a topic goes with the node that publishes it (the run's ``topics``), else with the
+    node whose namespace prefixes it (``/sat1/estimator/odom`` -> ``/sat1/...``); a topic
+    that matches no node, or several, cannot be scored against one truth.
+    """
     runs = sorted(bag.runs, key=lambda r: int(r['start_ns']))
     if not runs:
-        raise ScoreError(f'{bag.path}: the log has no rigidrot_run metadata, so the truth '
-                         f'cannot be recomputed; record it with attitude_node, or compare '
+        raise ScoreError(f'{bag.path}: the log has no rigidrot_run metadata and no run '
+                         f'description (the ~/run topic of the node), so the truth cannot be '
+                         f'recomputed; record ~/run with the other topics, or compare '
                          f'against another log with --truth')
-    return runs
+    nodes = {str(r.get('node', '')) for r in runs}
+    if topic is None or len(nodes) == 1:
+        return runs
+    own = {n for n in nodes
+           if any(topic in (r.get('topics') or {}) or topic in (r.get('topics') or {}).values()
+                  for r in runs if str(r.get('node', '')) == n)}
+    if not own:
+        own = {n for n in nodes if n.rsplit('/', 1)[0] and topic.startswith(
+            n.rsplit('/', 1)[0] + '/')}
+        if len(own) > 1:          # the longest namespace wins (/a/b over /a)
+            best = max(len(n.rsplit('/', 1)[0]) for n in own)
+            own = {n for n in own if len(n.rsplit('/', 1)[0]) == best}
+    if len(own) != 1:
+        raise ScoreError(f'{bag.path}: runs of several nodes {sorted(nodes)}: cannot tell '
+                         f'which one is the truth for {topic} (put the estimator in the '
+                         f'namespace of its node, or score each node in its own bag)')
+    return [r for r in runs if str(r.get('node', '')) in own]
 
 
-def scene_times(bag, stamps):
-    """(run index per stamp, scene time t per stamp); index -1 before the first run."""
-    runs = _runs(bag)
+def scene_times(bag, stamps, topic=None):
+    """(run index per stamp, scene time t per stamp, runs); index -1 before the first run."""
+    runs = _runs(bag, topic)
     starts = np.array([int(r['start_ns']) for r in runs], dtype=np.int64)
     idx = np.searchsorted(starts, stamps, side='right') - 1
     t = np.full(len(stamps), np.nan)
@@ -97,78 +145,136 @@ def scene_times(bag, stamps):
     return idx, t, runs
 
 
-def _summary(stream, t, err):
+def _summary(stream, t, err, comp=None, nees_values=None):
     ok = np.isfinite(err)
     e = err[ok]
+    out = {'topic': stream.topic, 'type': stream.type, 'field': stream.field,
+           'label': stream.label, 'count': int(len(e)), 'skipped': int((~ok).sum()),
+           'unit': 'rad' if stream.field == ORIENTATION else 'rad/s'}
+    if stream.invalid:
+        out['invalid_values'] = stream.invalid
     if not len(e):
-        return {'topic': stream.topic, 'type': stream.type, 'count': 0}
-    return {
-        'topic': stream.topic, 'type': stream.type, 'count': int(len(e)),
-        'skipped': int((~ok).sum()), 'max': float(e.max()),
-        'rms': float(np.sqrt(np.mean(e ** 2))), 'p95': float(np.percentile(e, 95)),
-        'unit': 'rad' if stream.type == ATTITUDE_TYPE else 'rad/s',
-        't': t[ok].tolist(), 'error': e.tolist(),
-    }
+        out.update(t=[], error=[])
+        return out
+    out.update({
+        'max': float(e.max()), 'rms': float(np.sqrt(np.mean(e ** 2))),
+        'p95': float(np.percentile(e, 95)), 't': t[ok].tolist(), 'error': e.tolist(),
+    })
+    if nees_values is not None:
+        good = ok & np.isfinite(nees_values)
+        m = int(good.sum())
+        out['nees_count'] = m
+        if stream.cov_unknown:
+            out['cov_unknown'] = stream.cov_unknown
+        if stream.cov_unusable:
+            out['cov_unusable'] = stream.cov_unusable
+        if m:
+            out['anees'] = float(np.mean(nees_values[good]))
+            out['anees_bounds_95'] = anees_bounds(m)
+            out['nees'] = np.where(good, nees_values, np.nan)[ok].tolist()
+            sig = np.sqrt(np.einsum('nii->ni', stream.cov))
+            out['components'] = comp[ok].tolist()
+            out['sigma'] = sig[ok].tolist()
+    return out
 
 
-def score_against_runs(bag, streams):
-    """Score each stream against the exact solution of the log's own runs."""
+def score_against_runs(bag, streams, cov_frame='body'):
+    """Score each stream against the exact solution of the log's own runs.
+
+    Parameters
+    ----------
+    bag : BagContents
+        The log (its runs give the truth).
+    streams : list of Stream
+        From :func:`extract_streams`.
+    cov_frame : {'body', 'inertial'}
+        Frame in which orientation covariances are read (module docstring).
+    """
+    if cov_frame not in ('body', 'inertial'):
+        raise ScoreError(f'cov_frame must be body or inertial, got {cov_frame!r}')
     results = []
     solutions = {}
-    for s in streams.values():
-        idx, t, runs = scene_times(bag, s.stamps)
+    for s in streams:
+        try:
+            idx, t, runs = scene_times(bag, s.stamps, s.topic)
+        except ScoreError as exc:
+            if not bag.runs:
+                raise
+            results.append({'topic': s.topic, 'type': s.type, 'field': s.field,
+                            'label': s.label, 'count': 0, 'unit': '', 't': [], 'error': [],
+                            'reason': str(exc).split(': ', 1)[-1]})
+            continue
         err = np.full(len(t), np.nan)
+        comp = np.full((len(t), 3), np.nan)
         for i, r in enumerate(runs):
-            sel = np.nonzero(idx == i)[0]
+            sel = np.nonzero((idx == i) & np.all(np.isfinite(s.values), axis=1))[0]
             if not len(sel):
                 continue
-            if i not in solutions:
+            key = (str(r.get('node', '')), int(r['start_ns']))
+            if key not in solutions:
                 try:
                     scene = Scene.from_dict(r['scene'])
-                    solutions[i] = solve(scene, tol=float(r.get('tol', 1e-12)),
-                                         backend=r.get('backend'))
-                except (ValueError, KeyError, TypeError) as exc:
+                    solutions[key] = solve(scene, tol=float(r.get('tol', 1e-12)),
+                                           backend=r.get('backend'))
+                except (ValueError, KeyError, TypeError, ArithmeticError) as exc:
                     raise ScoreError(f'{bag.path}: run {r.get("run", i)} has an unusable '
                                      f'scene: {exc}') from None
-            truth = solutions[i].at(t[sel])
-            if s.type == ATTITUDE_TYPE:
-                err[sel] = quat.angle_between(s.values[sel], truth.quaternion)
+            truth = solutions[key].at(t[sel])
+            if s.field == ORIENTATION:
+                e = rotation_error(truth.quaternion, s.values[sel])
+                if cov_frame == 'inertial':
+                    e = np.einsum('nij,nj->ni', quat.to_matrix(truth.quaternion), e)
+                comp[sel] = e
+                err[sel] = np.linalg.norm(e, axis=-1)
             else:
-                err[sel] = np.linalg.norm(s.values[sel] - truth.omega, axis=-1)
-        results.append(_summary(s, t, err))
+                d = s.values[sel] - truth.omega
+                comp[sel] = d
+                err[sel] = np.linalg.norm(d, axis=-1)
+        nv = nees(comp, s.cov) if (s.field == ORIENTATION and s.cov is not None) else None
+        results.append(_summary(s, t, err, comp, nv))
     return results
 
 
+def _slerp(q0, q1, w):
+    d = quat.multiply(quat.conjugate(q0), q1)
+    d = d if d[3] >= 0 else -d
+    ang = 2 * math.atan2(float(np.linalg.norm(d[:3])), float(d[3]))
+    axis = d[:3] / np.linalg.norm(d[:3]) if ang > 0 else np.zeros(3)
+    return quat.multiply(q0, quat.from_rotvec(axis * ang * w))
+
+
 def score_against_stream(bag, streams, truth_bag, truth_streams):
-    """Score streams against a second log's stream of the same type, by scene time."""
+    """Score streams against a second log's stream of the same field, by scene time."""
     results = []
-    for s in streams.values():
-        ref = [r for r in truth_streams.values() if r.type == s.type]
+    for s in streams:
+        ref = [r for r in truth_streams if r.field == s.field]
         if not ref:
-            raise ScoreError(f'{truth_bag.path}: no {s.type} topic to compare {s.topic} with')
-        ref = ref[0]
-        _, t, _ = scene_times(bag, s.stamps)
-        _, tr, _ = scene_times(truth_bag, ref.stamps)
-        order = np.argsort(tr)
-        tr, vals = tr[order], ref.values[order]
+            raise ScoreError(f'{truth_bag.path}: no {s.field} stream to compare {s.label} '
+                             f'with')
+        # the same topic if the truth log has it, else the node's own, else the first
+        own = {t for r in truth_bag.runs for t in (r.get('topics') or {})}
+        ref = sorted(ref, key=lambda r: (r.topic != s.topic, r.topic not in own))[0]
+        _, t, _ = scene_times(bag, s.stamps, s.topic)
+        _, tr, _ = scene_times(truth_bag, ref.stamps, ref.topic)
+        keep = np.isfinite(tr) & np.all(np.isfinite(ref.values), axis=1)
+        order = np.argsort(tr[keep])
+        tr, vals = tr[keep][order], ref.values[keep][order]
         err = np.full(len(t), np.nan)
+        comp = np.full((len(t), 3), np.nan)
         for k, tk in enumerate(t):
-            if not np.isfinite(tk) or not tr[0] <= tk <= tr[-1]:
+            if (not len(tr) or not np.isfinite(tk) or not tr[0] <= tk <= tr[-1]
+                    or not np.all(np.isfinite(s.values[k]))):
                 continue                              # outside the truth log: skipped
             hi = int(min(max(np.searchsorted(tr, tk), 1), len(tr) - 1))
             lo = max(hi - 1, 0)
             w = 0.0 if tr[hi] == tr[lo] else (tk - tr[lo]) / (tr[hi] - tr[lo])
-            if s.type == ATTITUDE_TYPE:
-                q0, q1 = vals[lo], vals[hi]
-                d = quat.multiply(quat.conjugate(q0), q1)
-                d = d if d[3] >= 0 else -d
-                ang = 2 * np.arctan2(np.linalg.norm(d[:3]), d[3])
-                axis = d[:3] / np.linalg.norm(d[:3]) if ang > 0 else np.zeros(3)
-                qi = quat.multiply(q0, quat.from_rotvec(axis * ang * w))
-                err[k] = quat.angle_between(s.values[k], qi)
+            if s.field == ORIENTATION:
+                comp[k] = rotation_error(_slerp(vals[lo], vals[hi], w), s.values[k])
             else:
-                err[k] = np.linalg.norm(s.values[k] - ((1 - w) * vals[lo] + w * vals[hi]))
-        results.append(_summary(s, t, err))
+                comp[k] = s.values[k] - ((1 - w) * vals[lo] + w * vals[hi])
+            err[k] = np.linalg.norm(comp[k])
+        nv = nees(comp, s.cov) if (s.field == ORIENTATION and s.cov is not None) else None
+        results.append(_summary(s, t, err, comp, nv))
     return results
 
 
@@ -176,3 +282,6 @@ def check_bag(bag):
     """Raise BagError when a bag holds nothing to score."""
     if not bag.messages:
         raise BagError(f'{bag.path}: the log holds no messages')
+
+
+__all__ += ['RATE', 'scene_times']

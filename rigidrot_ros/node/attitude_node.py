@@ -14,6 +14,9 @@ Topics (relative names, so namespaces and remapping apply):
   with seeded noise and bias, and the exact increments over each gyro interval.
 - ``star_tracker`` (geometry_msgs/PoseWithCovarianceStamped) with ``star_tracker.enable``.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
+- ``~/run`` (std_msgs/String, transient-local, depth 1): the run description as JSON
+  (scene, model, method, tol, backend, ``start_ns``, ``time_scale``, version, topics),
+  published with the first tick of each run, so a bag of any recorder can be scored.
 Service ``~/reset`` (std_srvs/Trigger): restart at t = 0 from the current parameters.
 
 All messages of a tick carry the same stamp: the clock time that the scene time
@@ -24,7 +27,7 @@ stream bit for bit); each sample's messages share its grid stamp. Messages are b
 """
 
 import difflib
-import importlib
+import json
 import math
 import sys
 import textwrap
@@ -44,16 +47,17 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rclpy.serialization import serialize_message
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from rigidrot_ros import __version__
 from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
 from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.io.bag import BagWriter, qos_yaml
+from rigidrot_ros.io.bag import BagWriter
+from rigidrot_ros.io.recorder import Recorder, type_name_of
 from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.sensors import Gyro, StarTracker
 from rigidrot_ros.settings import (
@@ -93,7 +97,8 @@ _DESCRIPTIONS = {
     'record_path': ('directory under which each run gets a new bag directory (read only)',
                     ParameterType.PARAMETER_STRING),
     'record_topics': ('further topics to record raw as they arrive, e.g. an estimator '
-                      'output (read only)', ParameterType.PARAMETER_STRING_ARRAY),
+                      'output; NAME:pkg/msg/Type subscribes at once, so the first message '
+                      'is kept (read only)', ParameterType.PARAMETER_STRING_ARRAY),
     'imu.enable': ('publish a gyro as sensor_msgs/Imu on imu, and the exact delta_angle and '
                    'delta_rotation (Vector3Stamped, rad, in B) over each sample interval '
                    '(read only)', ParameterType.PARAMETER_BOOL),
@@ -327,12 +332,15 @@ class AttitudeNode(Node):
                                                    qos)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._srv = self.create_service(Trigger, '~/reset', self._on_reset)
-        self._bag = None
+        # the run description: JSON on ~/run, kept for late joiners (see _record_tick)
+        self._pub_run = self.create_publisher(
+            String, '~/run', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self._run_index = 0
-        self._run_recorded = False
-        self._extra = {}
+        self._run_pending = True
+        self._recorder = None
         if self.get_parameter('record').value:
-            self._start_recording(qos.depth)
+            self._start_recording()
         self._timer = None
         self._make_timer(self.get_parameter('publish_rate').value)
         self._imu_timer = self._star_timer = None
@@ -455,7 +463,7 @@ class AttitudeNode(Node):
         """Start the run's clock at the first callback that needs it."""
         if self._t_start is None:
             self._t_start = now
-            self._run_recorded = False
+            self._run_pending = True        # _record_tick announces the run on ~/run
 
     def _scene_time(self, ns):
         return (ns - self._t_start.nanoseconds) * 1e-9 * self._time_scale
@@ -675,96 +683,62 @@ class AttitudeNode(Node):
             return None
         return (count - last[1]) / span
 
-    # -- recording --------------------------------------------------------------------------
-    def _start_recording(self, depth):
+    # -- recording and the run description -------------------------------------------------
+    def _start_recording(self):
         path = self.get_parameter('record_path').value or 'runs'
+        topics = [t for t in (self.get_parameter('record_topics').value or []) if t]
         try:
-            self._bag = BagWriter(path, self.get_name())
-            for pub, type_name in ((self._pub_att, 'geometry_msgs/msg/QuaternionStamped'),
-                                   (self._pub_rate, 'geometry_msgs/msg/Vector3Stamped')):
-                self._bag.add_topic(pub.topic_name, type_name, qos_yaml(depth=depth))
+            writer = BagWriter(path, self.get_name(), flush_period=0.4)
         except OSError as exc:
             raise SceneError(f'cannot record to {path!r}: {exc}') from None
-        self.get_logger().info(f'recording to {self._bag.path}')
-        topics = [t for t in (self.get_parameter('record_topics').value or []) if t]
-        if topics:
-            self._extra = {self.resolve_topic_name(t): None for t in topics}
-            self._discover_timer = self.create_timer(0.5, self._discover_topics)
+        try:
+            self._recorder = Recorder(self, writer, topics=topics, exclude_own=True)
+        except Exception as exc:  # noqa: B902 - ValueError, or rclpy's invalid-name errors
+            writer.close()
+            raise SceneError(f'parameter record_topics: {exc}') from None
+        self.get_logger().info(f'recording to {writer.path}')
 
-    def _discover_topics(self):
-        """Subscribe (raw) to each record_topics entry once its type is known."""
-        types = dict(self.get_topic_names_and_types())
-        for topic, sub in self._extra.items():
-            if sub is not None or topic not in types:
-                continue
-            type_name = types[topic][0]
-            pkg, _, name = type_name.split('/')
-            try:
-                cls = getattr(importlib.import_module(f'{pkg}.msg'), name)
-                self._bag.add_topic(topic, type_name, qos_yaml(depth=100))
-            except (ImportError, AttributeError, OSError) as exc:
-                self.get_logger().error(f'cannot record {topic} ({type_name}): {exc}')
-                self._extra[topic] = False
-                continue
-            self._extra[topic] = self.create_subscription(
-                cls, topic, lambda data, tp=topic: self._record_raw(tp, data), 100, raw=True)
-            self.get_logger().info(f'recording {topic} ({type_name})')
-
-    def _record_raw(self, topic, data):
-        if self._bag is not None:
-            self._guard(lambda: self._bag.write(topic, data,
-                                                self.get_clock().now().nanoseconds))
+    def _run_description(self, start_ns):
+        sol = self._solution
+        return {
+            'rigidrot_run': 1, 'run': self._run_index, 'start_ns': int(start_ns),
+            'time_scale': self._time_scale, 'scene': sol.scene.as_dict(), 'tol': sol.tol,
+            'backend': sol.backend, 'model': sol.model, 'method': sol.method,
+            'package': f'rigidrot_ros {__version__}', 'node': self.get_fully_qualified_name(),
+            'topics': {p.topic_name: type_name_of(p.msg_type) for p in self.publishers},
+        }
 
     def _record_tick(self, now_ns, published):
-        """Record ``published`` = [(resolved topic, msg), ...] of one callback at now_ns."""
-        if self._bag is None:
-            return
-        ns = int(now_ns)
+        """After each publication: announce a new run on ``~/run``, record what was published.
 
-        def write():
-            if not self._run_recorded:
-                self._run_recorded = True
-                self._run_index += 1
-                sol = self._solution
-                self._bag.add_run({
-                    'run': self._run_index, 'start_ns': self._t_start.nanoseconds,
-                    'time_scale': self._time_scale,
-                    'scene': sol.scene.as_dict(), 'tol': sol.tol, 'backend': sol.backend,
-                    'model': sol.model, 'method': sol.method,
-                    'package': f'rigidrot_ros {__version__}',
-                    'node': self.get_fully_qualified_name(),
-                    'topics': {'attitude': self._pub_att.topic_name,
-                               'angular_velocity': self._pub_rate.topic_name},
-                })
-            for topic, msg in published:
-                t = type(msg)
-                self._bag.add_topic(topic, f'{t.__module__.split(".")[0]}/msg/{t.__name__}',
-                                    qos_yaml(depth=self.get_parameter('qos_depth').value))
-                self._bag.write(topic, serialize_message(msg), ns)
-        self._guard(write)
-
-    def _guard(self, fn):
-        try:
-            fn()
-        except OSError as exc:   # disk full, removed directory: stop recording, keep running
-            self.get_logger().error(f'recording stopped: {exc}')
-            try:
-                self._bag.close()
-            except (OSError, ValueError):
-                pass
-            self._bag = None
+        ``published`` lists ``(resolved_topic_name, msg)`` for every message of this call.
+        The first call after start-up or a ``~/reset`` publishes the run description (JSON
+        in std_msgs/String, transient-local, depth 1), so any recorder keeps it.
+        """
+        if self._run_pending:
+            self._run_pending = False
+            self._run_index += 1
+            start = self._t_start.nanoseconds if self._t_start is not None else now_ns
+            info = self._run_description(start)
+            msg = String(data=json.dumps(info))
+            self._pub_run.publish(msg)
+            published = list(published) + [(self._pub_run.topic_name, msg)]
+            if self._recorder is not None:
+                self._recorder.add_run(info)
+        if self._recorder is not None:
+            self._recorder.record_published(now_ns, published)
 
     def destroy_node(self):
         """Finish the bag (summary, index, metadata.yaml), then destroy the node."""
-        if self._bag is not None:
+        if self._recorder is not None:
             try:
-                self._bag.close()
+                path, counts = self._recorder.close()
                 # the context may be shut down already: no rosout logging here
-                print(f'attitude_node: bag finished: {self._bag.path} {self._bag.counts}, '
+                print(f'attitude_node: bag finished: {path} {counts}, '
                       f'published {self._stats.published} ticks', file=sys.stderr)
-            except OSError as exc:
+            except (OSError, ValueError) as exc:
                 print(f'attitude_node: could not finish the bag: {exc}', file=sys.stderr)
-            self._bag = None
+            self._recorder = None
         return super().destroy_node()
 
     # -- reset ------------------------------------------------------------------------------
@@ -785,6 +759,7 @@ class AttitudeNode(Node):
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
         self._last_sample = None
+        self._run_pending = True            # the next tick announces the new run on ~/run
         self._use_sensors(devices)
         self._make_sensor_timers()
         response.success = True

@@ -1,1 +1,1 @@
-"""Command-line tools: echo, record/replay/compare (thin mains over the library)."""
+"""Command-line tools (thin mains): echo, record, reindex, replay, compare, demo estimator."""

@@ -5,7 +5,6 @@ channel's recorded QoS (offered_qos_profiles). With --clock, /clock
 (rosgraph_msgs/Clock) follows the log time so that nodes on use_sim_time run with it.
 """
 
-import argparse
 import importlib
 import sys
 import time
@@ -18,7 +17,8 @@ from rosgraph_msgs.msg import Clock
 import yaml
 
 from rigidrot_ros.io.bag import BagError, read_bag
-from rigidrot_ros.node.spin import spin_until_shutdown
+from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
+from rigidrot_ros.tools.cli import OneLineParser
 
 
 def _qos(text):
@@ -45,14 +45,25 @@ def _msg_class(type_name):
         raise BagError(f'message type {type_name} is not installed here') from None
 
 
+def _wait_for_matching(node, pubs, limit):
+    """Wait until a subscriber has matched and every one in the graph has, ``limit`` at most.
+
+    Discovery on a loaded machine takes up to seconds (1.4 s measured here); a subscriber
+    not yet matched to a publisher would miss the first messages.
+    """
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < limit:
+        rclpy.spin_once(node, timeout_sec=0.05)
+        matched = [p.get_subscription_count() for p in pubs]
+        if any(matched) and all(m >= node.count_subscribers(p.topic_name)
+                                for m, p in zip(matched, pubs)):
+            return
+
+
 def main(argv=None):
     """Entry point of ``rigidrot_replay``; returns the exit status."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    ros_args = []
-    if '--ros-args' in argv:
-        i = argv.index('--ros-args')
-        argv, ros_args = argv[:i], argv[i:]
-    ap = argparse.ArgumentParser(prog='rigidrot_replay', description=__doc__.splitlines()[0])
+    argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
+    ap = OneLineParser(prog='rigidrot_replay', description=__doc__.splitlines()[0])
     ap.add_argument('bag', help='bag directory or .mcap file')
     ap.add_argument('--rate', type=float, default=1.0, help='speed factor (2: twice as fast)')
     ap.add_argument('--loop', action='store_true', help='start again at the end')
@@ -61,9 +72,23 @@ def main(argv=None):
     ap.add_argument('--duration', type=float, help='replay this many seconds')
     ap.add_argument('--clock', action='store_true', help='publish /clock from the log time')
     ap.add_argument('--quiet', action='store_true', help='no progress line')
+    ap.add_argument('--wait', type=float, default=5.0,
+                    help='wait at most this many seconds for subscribers to match before '
+                         'playing (default 5; playing starts as soon as one has)')
     opts = ap.parse_args(argv)
-    if not opts.rate > 0:
-        print('rigidrot_replay: --rate must be positive', file=sys.stderr)
+    if not (opts.rate > 0 and opts.rate < float('inf')):
+        print('rigidrot_replay: --rate must be a positive finite number', file=sys.stderr)
+        return 2
+    if not 0 <= opts.wait < 3600:
+        print('rigidrot_replay: --wait must lie in [0, 3600) s', file=sys.stderr)
+        return 2
+    if not 0 <= opts.start < float('inf'):
+        print('rigidrot_replay: --start must be a finite number of seconds >= 0',
+              file=sys.stderr)
+        return 2
+    if opts.duration is not None and not 0 < opts.duration < float('inf'):
+        print('rigidrot_replay: --duration must be a positive finite number of seconds',
+              file=sys.stderr)
         return 2
     try:
         bag = read_bag(opts.bag)
@@ -84,11 +109,15 @@ def main(argv=None):
     t0 = msgs[0][2] + int(opts.start * 1e9)
     t1 = t0 + int(opts.duration * 1e9) if opts.duration is not None else None
     msgs = [m for m in msgs if m[2] >= t0 and (t1 is None or m[2] <= t1)]
-    rclpy.init(args=['rigidrot_replay'] + ros_args)
+    reason = init_ros('rigidrot_replay', ros_args)
+    if reason is not None:
+        print(f'rigidrot_replay: {reason}', file=sys.stderr)
+        return 2
     node = rclpy.create_node('rigidrot_replay')
     pubs = {t: node.create_publisher(classes[t], t, _qos(bag.topics[t][1])) for t in classes}
     clock_pub = node.create_publisher(Clock, '/clock', 10) if opts.clock else None
-    time.sleep(0.5)                                  # let subscribers match the publishers
+    _wait_for_matching(node, list(pubs.values()) + ([clock_pub] if clock_pub else []),
+                       opts.wait)
     total = (msgs[-1][2] - msgs[0][2]) * 1e-9 if msgs else 0.0
 
     def play(_node):
