@@ -60,6 +60,18 @@ def _deadline(budget):
     return check
 
 
+def _ivp_quaternions(rhs, scene, t_eval, method, rtol, atol):
+    """Integrate ``rhs`` on (omega, q, f) from the scene's start; unit q at ``t_eval``."""
+    y0 = np.concatenate([scene.omega0, scene.attitude0, [0.0]])
+    t_eval = np.atleast_1d(np.asarray(t_eval, dtype=float))
+    r = solve_ivp(rhs, (0.0, float(t_eval[-1])), y0, method=method, rtol=rtol,
+                  atol=rtol if atol is None else atol, t_eval=t_eval)
+    if not r.success:
+        raise ArithmeticError(r.message)
+    q = r.y[3:7].T
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
 def scipy_ivp(scene, t_eval, method='DOP853', rtol=1e-10, atol=None, budget=60.0):
     """Integrate with scipy ``solve_ivp`` on (omega, q, f); q renormalised at output only."""
     dyn = _problem(scene)
@@ -71,14 +83,7 @@ def scipy_ivp(scene, t_eval, method='DOP853', rtol=1e-10, atol=None, budget=60.0
         dq = 0.5 * quat.multiply(y[3:7], np.append(y[:3], 0.0))
         return np.concatenate([dw, dq, [df]])
 
-    y0 = np.concatenate([scene.omega0, scene.attitude0, [0.0]])
-    t_eval = np.atleast_1d(np.asarray(t_eval, dtype=float))
-    r = solve_ivp(rhs, (0.0, float(t_eval[-1])), y0, method=method, rtol=rtol,
-                  atol=rtol if atol is None else atol, t_eval=t_eval)
-    if not r.success:
-        raise ArithmeticError(r.message)
-    q = r.y[3:7].T
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return _ivp_quaternions(rhs, scene, t_eval, method, rtol, atol)
 
 
 def scipy_ivp_lean(scene, t_eval, method='DOP853', rtol=1e-10, atol=None, budget=60.0):
@@ -119,14 +124,7 @@ def scipy_ivp_lean(scene, t_eval, method='DOP853', rtol=1e-10, atol=None, budget
             0.5 * (w * w1 + yq * w3 - z * w2), 0.5 * (w * w2 + z * w1 - x * w3),
             0.5 * (w * w3 + x * w2 - yq * w1), -0.5 * (x * w1 + yq * w2 + z * w3), df])
 
-    y0 = np.concatenate([scene.omega0, scene.attitude0, [0.0]])
-    t_eval = np.atleast_1d(np.asarray(t_eval, dtype=float))
-    r = solve_ivp(rhs, (0.0, float(t_eval[-1])), y0, method=method, rtol=rtol,
-                  atol=rtol if atol is None else atol, t_eval=t_eval)
-    if not r.success:
-        raise ArithmeticError(r.message)
-    q = r.y[3:7].T
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return _ivp_quaternions(rhs, scene, t_eval, method, rtol, atol)
 
 
 def _fixed_grid(t_eval, h):
