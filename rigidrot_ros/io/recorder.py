@@ -46,7 +46,8 @@ import yaml
 from rigidrot_ros.io.bag import qos_yaml, STRING_TYPE
 from rigidrot_ros.io.msgdefs import schema_text
 
-__all__ = ['Recorder', 'type_name_of', 'qos_to_yaml', 'check_type']
+__all__ = ['Recorder', 'type_name_of', 'qos_to_yaml', 'qos_from_yaml', 'keep_last_qos',
+           'msg_class', 'check_type']
 
 _INFINITE = {'sec': 2147483647, 'nsec': 4294967295}
 
@@ -74,6 +75,28 @@ def qos_to_yaml(profiles):
     return yaml.safe_dump([_profile(q) for q in profiles], sort_keys=False)
 
 
+def keep_last_qos(depth, best_effort=False, transient_local=False):
+    """KEEP_LAST QoS of ``depth``: reliable unless best effort, volatile unless transient local."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth,
+        reliability=(ReliabilityPolicy.BEST_EFFORT if best_effort
+                     else ReliabilityPolicy.RELIABLE),
+        durability=(DurabilityPolicy.TRANSIENT_LOCAL if transient_local
+                    else DurabilityPolicy.VOLATILE))
+
+
+def qos_from_yaml(text):
+    """Build a QoS profile from a rosbag2 offered_qos_profiles YAML string (first one)."""
+    try:
+        prof = (yaml.safe_load(text) or [{}])[0]
+    except yaml.YAMLError:
+        prof = {}
+    rel = str(prof.get('reliability', 'reliable')).lower()
+    dur = str(prof.get('durability', 'volatile')).lower()
+    return keep_last_qos(int(prof.get('depth', 10) or 10), rel in ('best_effort', '2'),
+                         dur in ('transient_local', '1'))
+
+
 def _normal_type(type_name):
     """``pkg/msg/Type`` from ``pkg/msg/Type`` or ``pkg/Type``; ValueError otherwise."""
     parts = type_name.split('/')
@@ -87,7 +110,7 @@ def _normal_type(type_name):
 def check_type(type_name):
     """Return ``pkg/msg/Type`` if that type can be recorded here; ValueError saying why not."""
     type_name = _normal_type(type_name)
-    _msg_class(type_name)
+    msg_class(type_name)
     try:
         schema_text(type_name)
     except (OSError, ValueError) as exc:
@@ -95,12 +118,13 @@ def check_type(type_name):
     return type_name
 
 
-def _msg_class(type_name):
+def msg_class(type_name, error=ValueError):
+    """The message class of ``pkg/msg/Type``; ``error`` (a ValueError) if it is not installed."""
     pkg, _, name = type_name.split('/')
     try:
         return getattr(importlib.import_module(f'{pkg}.msg'), name)
     except (ImportError, AttributeError):
-        raise ValueError(f'message type {type_name} is not installed here') from None
+        raise error(f'message type {type_name} is not installed here') from None
 
 
 class Recorder:
@@ -298,14 +322,9 @@ class Recorder:
         transient = bool(offered) and all(
             q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
         depth = max([1000] + [int(q.depth) for q in offered])
-        qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST, depth=depth,
-            reliability=(ReliabilityPolicy.BEST_EFFORT if best_effort
-                         else ReliabilityPolicy.RELIABLE),
-            durability=(DurabilityPolicy.TRANSIENT_LOCAL if transient
-                        else DurabilityPolicy.VOLATILE))
+        qos = keep_last_qos(depth, best_effort, transient)
         try:
-            cls = _msg_class(type_name)
+            cls = msg_class(type_name)
             if infos:
                 self._add_channel(topic, type_name, infos)
             else:

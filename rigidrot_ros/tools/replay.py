@@ -5,44 +5,18 @@ channel's recorded QoS (offered_qos_profiles). With --clock, /clock
 (rosgraph_msgs/Clock) follows the log time so that nodes on use_sim_time run with it.
 """
 
-import importlib
 import sys
 import time
 
 from builtin_interfaces.msg import Time
 import rclpy
 from rclpy.executors import ExternalShutdownException
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-import yaml
 
 from rigidrot_ros.io.bag import BagError, read_bag
+from rigidrot_ros.io.recorder import msg_class, qos_from_yaml
 from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.tools.cli import OneLineParser
-
-
-def _qos(text):
-    """Build a QoS profile from a rosbag2 offered_qos_profiles YAML string (first one)."""
-    try:
-        prof = (yaml.safe_load(text) or [{}])[0]
-    except yaml.YAMLError:
-        prof = {}
-    rel = str(prof.get('reliability', 'reliable')).lower()
-    dur = str(prof.get('durability', 'volatile')).lower()
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=int(prof.get('depth', 10) or 10),
-        reliability=(ReliabilityPolicy.BEST_EFFORT if rel in ('best_effort', '2')
-                     else ReliabilityPolicy.RELIABLE),
-        durability=(DurabilityPolicy.TRANSIENT_LOCAL if dur in ('transient_local', '1')
-                    else DurabilityPolicy.VOLATILE))
-
-
-def _msg_class(type_name):
-    pkg, _, name = type_name.split('/')
-    try:
-        return getattr(importlib.import_module(f'{pkg}.msg'), name)
-    except (ImportError, AttributeError):
-        raise BagError(f'message type {type_name} is not installed here') from None
 
 
 def _wait_for_matching(node, pubs, limit):
@@ -98,7 +72,7 @@ def main(argv=None):
         missing = [t for t in topics if t not in bag.topics]
         if missing:
             raise BagError(f'{bag.path}: no topic(s) {missing}; it has {sorted(bag.topics)}')
-        classes = {t: _msg_class(bag.topics[t][0]) for t in topics}
+        classes = {t: msg_class(bag.topics[t][0], BagError) for t in topics}
     except (BagError, OSError) as exc:
         print(f'rigidrot_replay: {exc}', file=sys.stderr)
         return 2
@@ -114,7 +88,8 @@ def main(argv=None):
         print(f'rigidrot_replay: {reason}', file=sys.stderr)
         return 2
     node = rclpy.create_node('rigidrot_replay')
-    pubs = {t: node.create_publisher(classes[t], t, _qos(bag.topics[t][1])) for t in classes}
+    pubs = {t: node.create_publisher(classes[t], t, qos_from_yaml(bag.topics[t][1]))
+            for t in classes}
     clock_pub = node.create_publisher(Clock, '/clock', 10) if opts.clock else None
     _wait_for_matching(node, list(pubs.values()) + ([clock_pub] if clock_pub else []),
                        opts.wait)
