@@ -81,7 +81,8 @@ def footer():
     }
 
 
-def _timed(fn, repeats):
+def timed(fn, repeats=1):
+    """Call ``fn`` ``repeats`` times; return (median CPU seconds, its last value)."""
     times, out = [], None
     for _ in range(repeats):
         c = time.process_time()
@@ -131,7 +132,7 @@ def work_precision(quick, repeats, budget, log):
             ref = ref_sol.at(t_eval).quaternion
             for name, knob, value, fn in _methods(scene, quick, workload):
                 try:
-                    cpu, q = _timed(lambda: fn(t_eval, budget), repeats)
+                    cpu, q = timed(lambda: fn(t_eval, budget), repeats)
                     err = float(quat.angle_between(q, ref).max())
                     status = 'ok' if np.isfinite(err) else 'nan'
                 except peers.TimeBudget:
@@ -168,7 +169,7 @@ def horizon_scaling(quick, budget, log):
                 if T >= 1e4 and knob == 'h' and value < 0.01:
                     continue                   # millions of Python steps: not worth timing
                 try:
-                    cpu, q = _timed(lambda: fn(t_eval, budget), 1)
+                    cpu, q = timed(lambda: fn(t_eval, budget), 1)
                     err = float(quat.angle_between(q, ref).max())
                 except peers.TimeBudget:
                     continue
@@ -186,6 +187,36 @@ def horizon_scaling(quick, budget, log):
                 log(f'T={T:<8g} target {target:g} {name:16s} cpu {cpu:9.4f} s '
                     f'{knob}={value:<8g} err {err:9.2e}')
     return rows
+
+
+def run_method(fn, scene, t_eval, budget, error):
+    """Run one method once: return (CPU seconds, error in rad, status of the cell).
+
+    ``fn(scene, t_eval, budget)`` returns quaternions; ``error(q)`` their angle to the
+    reference in rad, or ``error`` is None where there is no reference (status 'no
+    reference', error NaN). The status is 'meets 1e-12', 'meets 1e-9', 'loses accuracy',
+    'fail: NaN', 'fail: time-out' (the budget ran out) or 'fail: <exception>'.
+    """
+    c = time.process_time()
+    try:
+        q = fn(scene, t_eval, budget)
+        cpu = time.process_time() - c
+        err = error(q) if error is not None else math.nan
+        if not np.all(np.isfinite(q)):
+            status = 'fail: NaN'
+        elif error is None:
+            status = 'no reference'
+        elif err <= 1e-12:
+            status = 'meets 1e-12'
+        elif err <= 1e-9:
+            status = 'meets 1e-9'
+        else:
+            status = 'loses accuracy'
+    except peers.TimeBudget:
+        cpu, err, status = time.process_time() - c, math.nan, 'fail: time-out'
+    except (PrecisionError, ArithmeticError, ValueError) as exc:
+        cpu, err, status = time.process_time() - c, math.nan, f'fail: {type(exc).__name__}'
+    return cpu, err, status
 
 
 def stability_map(quick, budget, log):
@@ -220,28 +251,11 @@ def stability_map(quick, budget, log):
                                   'status': 'fail: time-out', 'error_rad': math.nan,
                                   'cpu_s': math.nan})
                     continue
-                c = time.process_time()
-                try:
-                    q = fn(scene, t_eval, budget)
-                    cpu = time.process_time() - c
-                    err = float(quat.angle_between(q, ref).max()) if ref is not None else \
-                        math.nan
-                    if not np.all(np.isfinite(q)):
-                        status = 'fail: NaN'
-                    elif ref is None:
-                        status = 'no reference'
-                    elif err <= 1e-12:
-                        status = 'meets 1e-12'
-                    elif err <= 1e-9:
-                        status = 'meets 1e-9'
-                    else:
-                        status = 'loses accuracy'
-                except peers.TimeBudget:
-                    cpu, err, status = time.process_time() - c, math.nan, 'fail: time-out'
+                cpu, err, status = run_method(
+                    fn, scene, t_eval, budget,
+                    None if ref is None else lambda q: float(quat.angle_between(q, ref).max()))
+                if status == 'fail: time-out':
                     timed_out.add(name)
-                except (PrecisionError, ArithmeticError, ValueError) as exc:
-                    cpu, err, status = time.process_time() - c, math.nan, \
-                        f'fail: {type(exc).__name__}'
                 cells.append({'axis': axis, 'value': val, 'T_s': T, 'method': name,
                               'status': status, 'error_rad': err, 'cpu_s': cpu})
                 log(f'{axis}={val:<8g} T={T:<8g} {name:26s} {status:16s} err {err:9.2e} '
@@ -383,13 +397,13 @@ def _check(scene, t, samples, every):
 
 def _versus_dop853(part, name, scene, t, repeats, budget, log, every):
     """Time solve + at(t) and both DOP853 forms at rtol 1e-12 on t; check every answer."""
-    cpu, s = _timed(lambda: solve(scene, tol=1e-12).at(t), repeats)
+    cpu, s = timed(lambda: solve(scene, tol=1e-12).at(t), repeats)
     err, mb, held, pick, ref_q = _check(scene, t, s, every)
     dop = {}
     for key, fn in (('dop853', peers.scipy_ivp), ('lean', peers.scipy_ivp_lean)):
         reps = repeats if t[-1] <= 100.0 else 1          # long DOP853 runs: once
         try:
-            c, q = _timed(lambda: fn(scene, t, 'DOP853', 1e-12, budget=budget), reps)
+            c, q = timed(lambda: fn(scene, t, 'DOP853', 1e-12, budget=budget), reps)
             dop[key] = (c, float(quat.angle_between(q[pick], ref_q).max()))
         except peers.TimeBudget:
             dop[key] = (math.nan, math.nan)
@@ -511,7 +525,8 @@ def ratios_chart(rows, foot, out):
     return paths
 
 
-def _write_csv(path, rows, foot):
+def write_csv(path, rows, foot):
+    """Write ``rows`` (dicts with the same keys) to ``path``, the footer as a last comment."""
     if not rows:
         return
     with open(path, 'w', newline='', encoding='utf-8') as fh:
@@ -630,14 +645,14 @@ def main(argv=None):
         results['footer'] = foot
     if 'wp' in parts:
         results['work_precision'] = work_precision(opts.quick, repeats, budget, log)
-        _write_csv(os.path.join(opts.out, 'work_precision.csv'), results['work_precision'],
-                   foot)
+        write_csv(os.path.join(opts.out, 'work_precision.csv'), results['work_precision'],
+                  foot)
     if 'horizon' in parts:
         results['horizon'] = horizon_scaling(opts.quick, min(budget, 30.0), log)
-        _write_csv(os.path.join(opts.out, 'horizon.csv'), results['horizon'], foot)
+        write_csv(os.path.join(opts.out, 'horizon.csv'), results['horizon'], foot)
     if 'stability' in parts:
         results['stability'] = stability_map(opts.quick, 20.0 if not opts.quick else 1.0, log)
-        _write_csv(os.path.join(opts.out, 'stability.csv'), results['stability'], foot)
+        write_csv(os.path.join(opts.out, 'stability.csv'), results['stability'], foot)
     if 'crosscheck' in parts:
         if not results.get('stability'):
             print(f'rigidrot_bench: --only crosscheck needs the stability map in {merged} '
@@ -646,21 +661,21 @@ def main(argv=None):
         from rigidrot_ros.bench import crosscheck
         results['stability_crosscheck'] = crosscheck.stability_crosscheck(
             results['stability'], log)
-        _write_csv(os.path.join(opts.out, 'stability_crosscheck.csv'),
-                   results['stability_crosscheck'], foot)
+        write_csv(os.path.join(opts.out, 'stability_crosscheck.csv'),
+                  results['stability_crosscheck'], foot)
     if 'ratios' in parts:
         results['ratios'] = ratios(opts.quick, log)
-        _write_csv(os.path.join(opts.out, 'ratios.csv'), results['ratios'], foot)
+        write_csv(os.path.join(opts.out, 'ratios.csv'), results['ratios'], foot)
         for path in ratios_chart(results['ratios'], foot, opts.out):
             log(f'wrote {path}')
     if 'envelope' in parts:
         results['envelope'] = envelope(opts.quick, log)
-        _write_csv(os.path.join(opts.out, 'envelope.csv'), results['envelope'], foot)
+        write_csv(os.path.join(opts.out, 'envelope.csv'), results['envelope'], foot)
     if 'soak' in parts:
         from rigidrot_ros.bench import soak
         results['soak'] = soak.soak(opts.soak_minutes, log)
-        _write_csv(os.path.join(opts.out, 'soak.csv'),
-                   [{'t_s': t, 'rss_mb': m} for t, m in results['soak']['samples']], foot)
+        write_csv(os.path.join(opts.out, 'soak.csv'),
+                  [{'t_s': t, 'rss_mb': m} for t, m in results['soak']['samples']], foot)
     if 'triaxial' in parts:                     # torque-free triaxial rows: bench/triaxial.py
         from rigidrot_ros.bench import triaxial
         results['triaxial'] = triaxial.run(opts.out, opts.quick, foot, log)

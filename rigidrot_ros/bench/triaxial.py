@@ -15,7 +15,6 @@ it would take too long (streams, T > 1e3 s) the exact model itself, whose agreem
 that integration is shown by the query rows and by ``test/test_core_triaxial.py``.
 """
 
-import csv
 import json
 import math
 import os
@@ -25,8 +24,9 @@ import mpmath
 import numpy as np
 
 from rigidrot_ros.bench import peers
-from rigidrot_ros.core import PrecisionError, Scene, solve
+from rigidrot_ros.bench.run import run_method, timed, write_csv
 from rigidrot_ros.core import quaternion as quat
+from rigidrot_ros.core import Scene, solve
 
 __all__ = ['taylor_reference', 'SCENE', 'run', 'draw']
 
@@ -102,15 +102,6 @@ def taylor_reference(scene, times, deg=30):
     return np.array(omegas), np.array(quats)
 
 
-def _cpu(fn, repeats=1):
-    times, out = [], None
-    for _ in range(repeats):
-        c = time.process_time()
-        out = fn()
-        times.append(time.process_time() - c)
-    return float(np.median(times)), out
-
-
 def _peer_methods(quick):
     rtols = [1e-6, 1e-9, 1e-12] if quick else [1e-5, 1e-7, 1e-9, 1e-11, 1e-13]
     steps = [0.05, 0.01] if quick else [0.1, 0.05, 0.02, 0.01, 0.005]
@@ -148,7 +139,7 @@ def work_precision(quick, repeats, budget, log):
         methods = [('exact (triaxial)', 'tol', 1e-12, _exact)] + _peer_methods(quick)
         for name, knob, value, fn in methods:
             try:
-                cpu, q = _cpu(lambda: fn(SCENE, t_eval, budget), repeats)
+                cpu, q = timed(lambda: fn(SCENE, t_eval, budget), repeats)
                 err = float(quat.angle_between(q, ref).max())
                 if name.startswith('exact') and workload == 'stream':
                     err = own_stream                # not against itself: see above
@@ -189,7 +180,7 @@ def horizon_scaling(quick, budget, log):
                 if T >= 1e3 and knob == 'h':
                     continue                      # 1e5+ Python steps: over any budget
                 try:
-                    cpu, q = _cpu(lambda: fn(SCENE, t_eval, budget))
+                    cpu, q = timed(lambda: fn(SCENE, t_eval, budget))
                     err = float(quat.angle_between(q[0], ref))
                 except peers.TimeBudget:
                     continue
@@ -256,25 +247,11 @@ def stability_map(quick, budget, log):
                                   'status': 'fail: time-out', 'error_rad': math.nan,
                                   'cpu_s': math.nan})
                     continue
-                c = time.process_time()
-                try:
-                    q = fn(scene, np.array([T]), budget)
-                    cpu = time.process_time() - c
-                    err = float(quat.angle_between(q[0], ref))
-                    if not np.all(np.isfinite(q)):
-                        status = 'fail: NaN'
-                    elif err <= 1e-12:
-                        status = 'meets 1e-12'
-                    elif err <= 1e-9:
-                        status = 'meets 1e-9'
-                    else:
-                        status = 'loses accuracy'
-                except peers.TimeBudget:
-                    cpu, err, status = time.process_time() - c, math.nan, 'fail: time-out'
+                cpu, err, status = run_method(
+                    fn, scene, np.array([T]), budget,
+                    lambda q, ref=ref: float(quat.angle_between(q[0], ref)))
+                if status == 'fail: time-out':
                     timed_out.add(name)
-                except (PrecisionError, ArithmeticError, ValueError) as exc:
-                    cpu, err, status = time.process_time() - c, math.nan, \
-                        f'fail: {type(exc).__name__}'
                 cells.append({'delta': delta, 'T_s': T, 'method': name, 'status': status,
                               'error_rad': err, 'cpu_s': cpu})
                 log(f'delta={delta:<8g} T={T:<8g} {name:28s} {status:16s} err {err:9.2e} '
@@ -315,16 +292,6 @@ def cost(quick, log):
     return rows
 
 
-def _write_csv(path, rows, foot):
-    if not rows:
-        return
-    with open(path, 'w', newline='', encoding='utf-8') as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-        fh.write('# ' + json.dumps(foot) + '\n')
-
-
 def run(out, quick, foot, log, repeats=None, budget=None):
     """Run every triaxial part; write CSVs and charts into ``out``; return the results."""
     repeats = repeats or (1 if quick else 3)
@@ -336,7 +303,7 @@ def run(out, quick, foot, log, repeats=None, budget=None):
         'stability': stability_map(quick, 10.0 if not quick else 1.0, log),
     }
     for key, rows in res.items():
-        _write_csv(os.path.join(out, f'triaxial_{key}.csv'), rows, foot)
+        write_csv(os.path.join(out, f'triaxial_{key}.csv'), rows, foot)
     with open(os.path.join(out, 'triaxial_results.json'), 'w', encoding='utf-8') as fh:
         json.dump(dict(res, footer=foot), fh, indent=1, default=float)
     for path in draw(res, out, foot):
