@@ -1,4 +1,4 @@
-"""Shared test helpers: seeded scenes per model and an independent DOP853 reference."""
+"""Shared test helpers: seeded scenes per model, an independent DOP853 reference, a ROS domain."""
 
 import numpy as np
 import pytest
@@ -6,6 +6,7 @@ from scipy.integrate import solve_ivp
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene
+from ros_helpers import next_domain_id, ros_env
 
 
 def _sym_axis(inertia):
@@ -107,3 +108,20 @@ def rng(request):
     """Return a generator seeded from the test's name, so each test is repeatable."""
     seed = sum(ord(c) for c in request.node.name)
     return np.random.default_rng(seed)
+
+
+@pytest.fixture
+def ros_context(monkeypatch):
+    """Each test gets its own domain, on this machine only.
+
+    Used by the in-process node tests through ``pytest.mark.usefixtures('ros_context')``;
+    rclpy is imported here, not above, so that the pure tests never load it.
+    """
+    import rclpy
+    domain = next_domain_id()
+    for k, v in ros_env(domain).items():
+        if k.startswith(('ROS_', 'FASTDDS_')):
+            monkeypatch.setenv(k, v)
+    rclpy.init(domain_id=domain)
+    yield
+    rclpy.try_shutdown()

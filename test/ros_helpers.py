@@ -70,3 +70,32 @@ def wait_for(predicate, timeout=20.0, step=0.05):
         time.sleep(step)
         value = predicate()
     return value
+
+
+#: The scene of the in-process node tests: axisymmetric, transverse torque in the virtual frame.
+NODE_SCENE = dict(inertia=[2.0, 2.0, 1.0], torque=[0.1, 0.0, 0.0], torque_frame='virtual',
+                  omega0=[0.3, -0.2, 0.5], attitude0=[0.1, 0.2, 0.3, 0.9])
+
+
+def attitude_node(**params):
+    """An in-process AttitudeNode on :data:`NODE_SCENE` at 100 Hz; ``params`` override any."""
+    from rclpy.parameter import Parameter
+
+    from rigidrot_ros.node.attitude_node import AttitudeNode
+    values = dict(NODE_SCENE, publish_rate=100.0)
+    values.update(params)
+    return AttitudeNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+
+
+def spin_until(executor, cond, timeout=20.0):
+    """Spin ``executor`` until ``cond()`` holds; fail the test if ``timeout`` s pass first."""
+    import rclpy
+    end = rclpy.clock.Clock().now().nanoseconds + timeout * 1e9
+    while not cond() and rclpy.clock.Clock().now().nanoseconds < end:
+        executor.spin_once(timeout_sec=0.05)
+    assert cond(), 'timed out'
+
+
+def stamp_ns(msg):
+    """Stamp as integer nanoseconds (a float64 of ~1.8e9 s resolves only ~2e-7 s)."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec

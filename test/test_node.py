@@ -1,5 +1,6 @@
 """The attitude node in-process: values, parameter rules, reset."""
 
+import functools
 import math
 
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
@@ -13,22 +14,10 @@ from std_srvs.srv import Trigger
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.node.attitude_node import AttitudeNode, SceneError
-from ros_helpers import next_domain_id, ros_env
+from rigidrot_ros.node.attitude_node import SceneError
+from ros_helpers import attitude_node, NODE_SCENE, spin_until, stamp_ns
 
-pytestmark = pytest.mark.ros
-
-
-@pytest.fixture(autouse=True)
-def ros_context(monkeypatch):
-    """Each test gets its own domain, on this machine only."""
-    domain = next_domain_id()
-    for k, v in ros_env(domain).items():
-        if k.startswith(('ROS_', 'FASTDDS_')):
-            monkeypatch.setenv(k, v)
-    rclpy.init(domain_id=domain)
-    yield
-    rclpy.try_shutdown()
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
 
 class Listener:
@@ -43,27 +32,11 @@ class Listener:
         executor.add_node(self.node)
 
 
-def _spin_until(executor, cond, timeout=15.0):
-    end = rclpy.clock.Clock().now().nanoseconds + timeout * 1e9
-    while not cond() and rclpy.clock.Clock().now().nanoseconds < end:
-        executor.spin_once(timeout_sec=0.05)
-    assert cond(), 'timed out'
-
-
-def _stamp_ns(msg):
-    """Stamp as integer nanoseconds (a float64 of ~1.8e9 s resolves only ~2e-7 s)."""
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-
-
-SCENE = dict(inertia=[2.0, 2.0, 1.0], torque=[0.1, 0.0, 0.0], torque_frame='virtual',
-             omega0=[0.3, -0.2, 0.5], attitude0=[0.1, 0.2, 0.3, 0.9])
-
-
 def _node(**params):
-    values = dict(SCENE, publish_rate=100.0, time_scale=3.0)
-    values.update(params)
-    overrides = [Parameter(k, value=v) for k, v in values.items()]
-    return AttitudeNode(parameter_overrides=overrides)
+    return attitude_node(**{'time_scale': 3.0, **params})
+
+
+_spin_until = functools.partial(spin_until, timeout=15.0)
 
 
 def test_published_values_equal_the_core_at_the_stamp_time():
@@ -73,14 +46,14 @@ def test_published_values_equal_the_core_at_the_stamp_time():
     lis = Listener(ex)
     _spin_until(ex, lambda: len(lis.att) >= 30 and len(lis.rate) >= 30)
     sol = solve(Scene(**{k: tuple(v) if isinstance(v, list) else v
-                         for k, v in SCENE.items()}))
+                         for k, v in NODE_SCENE.items()}))
     assert node.solution.model == sol.model == 'transverse-virtual'
-    t0 = _stamp_ns(lis.att[0])                      # the first tick is t = 0
+    t0 = stamp_ns(lis.att[0])                      # the first tick is t = 0
     n = min(len(lis.att), len(lis.rate))
     for a, r in zip(lis.att[:n], lis.rate[:n]):
         assert a.header.stamp == r.header.stamp     # one stamp per tick
         assert a.header.frame_id == 'inertial' and r.header.frame_id == 'body'
-        t = (_stamp_ns(a) - t0) * 1e-9 * 3.0        # time_scale
+        t = (stamp_ns(a) - t0) * 1e-9 * 3.0        # time_scale
         ref = sol.at(t)
         q = np.array([a.quaternion.x, a.quaternion.y, a.quaternion.z, a.quaternion.w])
         assert quat.angle_between(q, ref.quaternion) <= 1e-12
@@ -110,12 +83,12 @@ def test_published_values_equal_the_core_at_the_stamp_time():
 ])
 def test_invalid_parameter_is_rejected_and_state_kept(name, value, words):
     node = _node()
-    before = {n: node.get_parameter(n).value for n in SCENE}
+    before = {n: node.get_parameter(n).value for n in NODE_SCENE}
     sol = node.solution
     result = node.set_parameters([Parameter(name, value=value)])[0]
     assert not result.successful
     assert words in result.reason
-    assert {n: node.get_parameter(n).value for n in SCENE} == before
+    assert {n: node.get_parameter(n).value for n in NODE_SCENE} == before
     assert node.solution is sol
     node.destroy_node()
 
@@ -185,7 +158,7 @@ def test_publish_rate_change_takes_effect_at_once():
     assert node.set_parameters([Parameter('publish_rate', value=20.0)])[0].successful
     n0 = len(lis.att)
     _spin_until(ex, lambda: len(lis.att) >= n0 + 12)
-    stamps = [_stamp_ns(m) for m in lis.att[n0 + 1:]]
+    stamps = [stamp_ns(m) for m in lis.att[n0 + 1:]]
     gaps = np.diff(stamps) * 1e-9
     assert np.median(gaps) == pytest.approx(0.05, abs=0.01)
     node.destroy_node()

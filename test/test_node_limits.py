@@ -9,21 +9,8 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from rigidrot_ros.node.attitude_node import AttitudeNode
-from ros_helpers import next_domain_id, ros_env
 
-pytestmark = pytest.mark.ros
-
-
-@pytest.fixture(autouse=True)
-def ros_context(monkeypatch):
-    """Each test gets its own domain, on this machine only."""
-    domain = next_domain_id()
-    for k, v in ros_env(domain).items():
-        if k.startswith(('ROS_', 'FASTDDS_')):
-            monkeypatch.setenv(k, v)
-    rclpy.init(domain_id=domain)
-    yield
-    rclpy.try_shutdown()
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
 
 def _spin(executor, seconds):

@@ -20,36 +20,22 @@ from sensor_msgs.msg import Imu
 from visualization_msgs.msg import Marker, MarkerArray
 
 from rigidrot_ros.core import quaternion as quat
-from rigidrot_ros.node.attitude_node import AttitudeNode, SceneError
+from rigidrot_ros.node.attitude_node import SceneError
 from rigidrot_ros.sensors import ARCSEC, rotvec_from_quaternion
-from ros_helpers import next_domain_id, ros_env, script, start, stop
+from ros_helpers import (
+    attitude_node, next_domain_id, NODE_SCENE, ros_env, script, spin_until, stamp_ns, start, stop,
+)
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
-SCENE = dict(inertia=[2.0, 2.0, 1.0], torque=[0.1, 0.0, 0.0], torque_frame='virtual',
-             omega0=[0.3, -0.2, 0.5], attitude0=[0.1, 0.2, 0.3, 0.9])
 TOPICS = {'attitude': QuaternionStamped, 'angular_velocity': Vector3Stamped,
           'transform': TransformStamped, 'odom': Odometry, 'markers': MarkerArray,
           'imu': Imu, 'delta_angle': Vector3Stamped, 'delta_rotation': Vector3Stamped,
           'star_tracker': PoseWithCovarianceStamped, '/diagnostics': DiagnosticArray}
 
 
-@pytest.fixture(autouse=True)
-def ros_context(monkeypatch):
-    """Each test gets its own domain, on this machine only."""
-    domain = next_domain_id()
-    for k, v in ros_env(domain).items():
-        if k.startswith(('ROS_', 'FASTDDS_')):
-            monkeypatch.setenv(k, v)
-    rclpy.init(domain_id=domain)
-    yield
-    rclpy.try_shutdown()
-
-
 def _node(**params):
-    values = dict(SCENE, publish_rate=100.0, time_scale=2.0)
-    values.update(params)
-    return AttitudeNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+    return attitude_node(**{'time_scale': 2.0, **params})
 
 
 def _all_on(**params):
@@ -73,17 +59,6 @@ class Listener:
         executor.add_node(self.node)
 
 
-def _spin_until(executor, cond, timeout=20.0):
-    end = rclpy.clock.Clock().now().nanoseconds + timeout * 1e9
-    while not cond() and rclpy.clock.Clock().now().nanoseconds < end:
-        executor.spin_once(timeout_sec=0.05)
-    assert cond(), 'timed out'
-
-
-def _ns(msg):
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-
-
 def _q(m):
     return np.array([m.x, m.y, m.z, m.w])
 
@@ -98,16 +73,16 @@ def test_every_output_arrives_typed_framed_stamped_and_equal_to_the_core():
     ex.add_node(node)
     lis = Listener(ex)
     got = lis.got
-    _spin_until(ex, lambda: len(got['imu']) >= 40 and len(got['star_tracker']) >= 8
-                and len(got['attitude']) >= 40 and len(got['/diagnostics']) >= 2)
+    spin_until(ex, lambda: len(got['imu']) >= 40 and len(got['star_tracker']) >= 8
+               and len(got['attitude']) >= 40 and len(got['/diagnostics']) >= 2)
     sol = node.solution
     t0 = node._t_start.nanoseconds
     scale = 2.0
 
     # the truth: one stamp per tick on every truth topic, values of the core at that t
-    by_stamp = {name: {_ns(m): m for m in got[name]}
+    by_stamp = {name: {stamp_ns(m): m for m in got[name]}
                 for name in ('attitude', 'angular_velocity', 'transform', 'odom')}
-    markers = {_ns(m.markers[0]): m for m in got['markers']}
+    markers = {stamp_ns(m.markers[0]): m for m in got['markers']}
     stamps = sorted(by_stamp['attitude'])[:-2]           # the last may still be in flight
     for st in stamps:
         for name in ('angular_velocity', 'transform', 'odom'):
@@ -134,19 +109,19 @@ def test_every_output_arrives_typed_framed_stamped_and_equal_to_the_core():
         assert all(m.header.frame_id == 'inertial' for m in mk)
         assert_array_equal(_q(mk[0].pose.orientation), _q(att.quaternion))
         size = np.array([mk[0].scale.x, mk[0].scale.y, mk[0].scale.z])
-        assert_allclose(size * np.sqrt(SCENE['inertia']), size[0] * math.sqrt(2.0))
+        assert_allclose(size * np.sqrt(NODE_SCENE['inertia']), size[0] * math.sqrt(2.0))
         for k, arrow in enumerate(mk[1:]):      # each arrow's x axis is body axis k in N
             axis_n = quat.to_matrix(_q(arrow.pose.orientation))[:, 0]
             assert_allclose(axis_n, quat.to_matrix(ref.quaternion)[:, k], atol=1e-12)
 
     # the gyro: a fixed 50 Hz grid from t_start, three topics per sample sharing its stamp
     imu = got['imu']
-    da = {_ns(m): m for m in got['delta_angle']}
-    dr = {_ns(m): m for m in got['delta_rotation']}
-    ks = [(_ns(m) - t0) * 50 / 1e9 for m in imu]
+    da = {stamp_ns(m): m for m in got['delta_angle']}
+    dr = {stamp_ns(m): m for m in got['delta_rotation']}
+    ks = [(stamp_ns(m) - t0) * 50 / 1e9 for m in imu]
     assert_allclose(ks, np.arange(1, len(imu) + 1), rtol=0, atol=1e-6)   # k = 1, 2, ...
     for m in imu[:-2]:
-        st = _ns(m)
+        st = stamp_ns(m)
         assert m.header.frame_id == 'body'
         assert da[st].header.frame_id == 'body' and dr[st].header.frame_id == 'body'
         t1 = (st - t0) * 1e-9 * scale
@@ -173,7 +148,7 @@ def test_every_output_arrives_typed_framed_stamped_and_equal_to_the_core():
 
     # the star tracker: 10 Hz grid from t = 0, error within its stated covariance
     star = got['star_tracker']
-    assert_allclose([(_ns(m) - t0) * 10 / 1e9 for m in star], np.arange(len(star)), atol=1e-6)
+    assert_allclose([(stamp_ns(m) - t0) * 10 / 1e9 for m in star], np.arange(len(star)), atol=1e-6)
     b = np.array([1.0, 0.0, 1.0]) / math.sqrt(2.0)
     p_b = (5 * ARCSEC) ** 2 * (np.eye(3) - np.outer(b, b)) + (35 * ARCSEC) ** 2 * np.outer(b, b)
     for m in star:
@@ -181,7 +156,7 @@ def test_every_output_arrives_typed_framed_stamped_and_equal_to_the_core():
         cov = np.reshape(m.pose.covariance, (6, 6))
         assert_array_equal(np.diag(cov)[:3], [-1.0, -1.0, -1.0])
         assert_allclose(cov[3:, 3:], p_b, rtol=1e-6, atol=1e-20)
-        ref = sol.at((_ns(m) - t0) * 1e-9 * scale).quaternion
+        ref = sol.at((stamp_ns(m) - t0) * 1e-9 * scale).quaternion
         e = rotvec_from_quaternion(quat.multiply(quat.conjugate(ref),
                                                  _q(m.pose.pose.orientation)))
         assert e @ np.linalg.solve(p_b, e) < 30.0        # chi2(3) > 30: p < 2e-6
@@ -202,9 +177,9 @@ def _imu_stream(seed, count=25):
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     lis = Listener(ex, {'imu': Imu})
-    _spin_until(ex, lambda: len(lis.got['imu']) >= count)
+    spin_until(ex, lambda: len(lis.got['imu']) >= count)
     t0 = node._t_start.nanoseconds
-    out = [(_ns(m) - t0, tuple(_v(m.angular_velocity))) for m in lis.got['imu'][:count]]
+    out = [(stamp_ns(m) - t0, tuple(_v(m.angular_velocity))) for m in lis.got['imu'][:count]]
     node.destroy_node()
     lis.node.destroy_node()
     return out
@@ -265,21 +240,21 @@ def test_reset_restarts_the_sensors_with_new_values():
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     lis = Listener(ex, {'imu': Imu, 'delta_angle': Vector3Stamped})
-    _spin_until(ex, lambda: len(lis.got['imu']) >= 5)
+    spin_until(ex, lambda: len(lis.got['imu']) >= 5)
     assert node.set_parameters([Parameter('imu.gyro_bias', value=[0.5, 0.0, 0.0])])[0] \
         .successful
     response = node._on_reset(None, type('R', (), {})())
     assert response.success, response.message
     start = node._t_start
     n0 = len(lis.got['imu'])
-    _spin_until(ex, lambda: len(lis.got['imu']) >= n0 + 5 and node._t_start is not None)
-    new = [m for m in lis.got['imu'][n0:] if _ns(m) > node._t_start.nanoseconds]
+    spin_until(ex, lambda: len(lis.got['imu']) >= n0 + 5 and node._t_start is not None)
+    new = [m for m in lis.got['imu'][n0:] if stamp_ns(m) > node._t_start.nanoseconds]
     assert start is None and new
-    da = {_ns(m): _v(m.vector) for m in lis.got['delta_angle']}
+    da = {stamp_ns(m): _v(m.vector) for m in lis.got['delta_angle']}
     first = new[0]
-    assert _ns(first) - node._t_start.nanoseconds == 10_000_000          # k = 1 at 100 Hz
+    assert stamp_ns(first) - node._t_start.nanoseconds == 10_000_000          # k = 1 at 100 Hz
     dt = 0.01 * 2.0
-    assert_allclose(_v(first.angular_velocity), da[_ns(first)] / dt + [0.5, 0.0, 0.0],
+    assert_allclose(_v(first.angular_velocity), da[stamp_ns(first)] / dt + [0.5, 0.0, 0.0],
                     rtol=1e-13)
     node.destroy_node()
 
