@@ -5,6 +5,7 @@ import os
 from pathlib import Path
 import subprocess
 import sys
+import textwrap
 import time
 
 _counter = itertools.count()
@@ -42,6 +43,56 @@ def script(name):
         raise FileNotFoundError(f'{name} is not installed beside {sys.executable}: '
                                 f'pip install -e .')
     return str(path)
+
+
+#: Runs a console script's main() with some top-level modules made unimportable, as after a
+#: plain ``pip install .`` without an extra: ``python -c BLOCKER mod,mod module:func prog args``.
+BLOCKER = textwrap.dedent('''
+    import importlib, importlib.abc, sys
+    blocked = set(sys.argv[1].split(','))
+
+    class Block(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if name.split('.')[0] in blocked:
+                raise ModuleNotFoundError(f'No module named {name!r}', name=name)
+            return None
+
+    for mod in [m for m in sys.modules if m.split('.')[0] in blocked]:
+        del sys.modules[mod]
+    sys.meta_path.insert(0, Block())
+    module, func = sys.argv[2].split(':')
+    sys.argv = [sys.argv[3]] + sys.argv[4:]
+    sys.exit(getattr(importlib.import_module(module), func)())
+''')
+
+
+def cli_command(prog, args, block=(), entries=None):
+    """Command line of console script ``prog``; with ``block``, ``entries[prog]`` under BLOCKER.
+
+    ``entries`` maps a script's name to its ``module:func``.
+    """
+    if block:
+        return [sys.executable, '-c', BLOCKER, ','.join(block), entries[prog], prog] + args
+    return [script(prog)] + args
+
+
+def check_as_typed(out, prog, code, words, lines=1):
+    """Check a finished command line: status ``code``, ``words`` shown, no traceback.
+
+    Status 0 prints usage on stdout; any other prints exactly ``lines`` lines on stderr,
+    the last one starting with the program name.
+    """
+    both = out.stdout + out.stderr
+    assert out.returncode == code, both[-3000:]
+    assert 'Traceback' not in both, both[-3000:]
+    for w in words:
+        assert w in both, (w, both[-3000:])
+    if code == 0:
+        assert out.stdout.startswith('usage:'), out.stdout[:500]
+    else:
+        err_lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
+        assert len(err_lines) == lines, out.stderr
+        assert err_lines[-1].startswith(f'{prog}:'), out.stderr
 
 
 def start(cmd, env, **kwargs):

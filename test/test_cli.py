@@ -11,12 +11,10 @@ unimportable, as after a plain ``pip install .`` without the ``bench`` extra.
 import json
 from pathlib import Path
 import subprocess
-import sys
-import textwrap
 
 import pytest
 
-from ros_helpers import next_domain_id, ros_env, script
+from ros_helpers import check_as_typed, cli_command, next_domain_id, ros_env
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -95,24 +93,7 @@ CASES = [
         id='rigidrot_bench --charts-from without matplotlib'),
 ]
 
-#: Runs a console script's main() with some top-level modules made unimportable.
-BLOCKER = textwrap.dedent('''
-    import importlib, importlib.abc, sys
-    blocked = set(sys.argv[1].split(','))
-
-    class Block(importlib.abc.MetaPathFinder):
-        def find_spec(self, name, path=None, target=None):
-            if name.split('.')[0] in blocked:
-                raise ModuleNotFoundError(f'No module named {name!r}', name=name)
-            return None
-
-    for mod in [m for m in sys.modules if m.split('.')[0] in blocked]:
-        del sys.modules[mod]
-    sys.meta_path.insert(0, Block())
-    module, func = sys.argv[2].split(':')
-    sys.argv = [sys.argv[3]] + sys.argv[4:]
-    sys.exit(getattr(importlib.import_module(module), func)())
-''')
+#: The ``module:func`` of each script that a row runs with modules blocked.
 ENTRY = {'attitude_node': 'rigidrot_ros.node.attitude_node:main',
          'rigidrot_echo': 'rigidrot_ros.tools.echo:main',
          'rigidrot_bench': 'rigidrot_ros.bench.run:main'}
@@ -127,12 +108,8 @@ def files(tmp_path):
 
 
 def _run(prog, args, block, env, timeout=90):
-    if block:
-        cmd = [sys.executable, '-c', BLOCKER, ','.join(block), ENTRY[prog], prog] + args
-    else:
-        cmd = [script(prog)] + args
-    return subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True,
-                          timeout=timeout)
+    return subprocess.run(cli_command(prog, args, block, ENTRY), env=env, cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
 
 
 @pytest.mark.ros
@@ -140,17 +117,7 @@ def _run(prog, args, block, env, timeout=90):
 def test_command_as_typed(files, prog, args, code, words, lines, block, env):
     args = [a.replace('{tmp}', str(files)) for a in args]
     out = _run(prog, args, block, {**ros_env(next_domain_id()), **env})
-    both = out.stdout + out.stderr
-    assert out.returncode == code, both[-3000:]
-    assert 'Traceback' not in both, both[-3000:]
-    for w in words:
-        assert w in both, (w, both[-3000:])
-    if code == 0:
-        assert out.stdout.startswith('usage:'), out.stdout[:500]
-    else:
-        err_lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
-        assert len(err_lines) == lines, out.stderr
-        assert err_lines[-1].startswith(f'{prog}:'), out.stderr
+    check_as_typed(out, prog, code, words, lines)
 
 
 def test_every_console_script_has_a_row():

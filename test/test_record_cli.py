@@ -20,7 +20,9 @@ from test_score import _make, _truth, _write_bag
 import yaml
 
 from rigidrot_ros.io.bag import read_bag
-from ros_helpers import next_domain_id, ros_env, script, start, stop, wait_for
+from ros_helpers import (
+    check_as_typed, cli_command, next_domain_id, ros_env, script, start, stop, wait_for,
+)
 
 pytestmark = pytest.mark.ros
 
@@ -86,21 +88,6 @@ CASES = [
         id='rigidrot_demo_estimator without ahrs'),
 ]
 
-BLOCKER = textwrap.dedent('''
-    import importlib, importlib.abc, sys
-    blocked = set(sys.argv[1].split(','))
-
-    class Block(importlib.abc.MetaPathFinder):
-        def find_spec(self, name, path=None, target=None):
-            if name.split('.')[0] in blocked:
-                raise ModuleNotFoundError(f'No module named {name!r}', name=name)
-            return None
-
-    sys.meta_path.insert(0, Block())
-    module, func = sys.argv[2].split(':')
-    sys.argv = [sys.argv[3]] + sys.argv[4:]
-    sys.exit(getattr(importlib.import_module(module), func)())
-''')
 ENTRY = {'rigidrot_compare': 'rigidrot_ros.tools.compare:main',
          'rigidrot_demo_estimator': 'rigidrot_ros.tools.demo_estimator:main'}
 
@@ -124,24 +111,14 @@ def files(tmp_path_factory):
 @pytest.mark.parametrize('prog, args, code, words, block', CASES)
 def test_command_as_typed(files, prog, args, code, words, block):
     args = [a.replace('{tmp}', str(files)) for a in args]
-    if block:
-        cmd = [sys.executable, '-c', BLOCKER, ','.join(block), ENTRY[prog], prog] + args
-    else:
-        cmd = [script(prog)] + args
     t0 = time.monotonic()
-    out = subprocess.run(cmd, env=ros_env(next_domain_id()), capture_output=True, text=True,
+    out = subprocess.run(cli_command(prog, args, block, ENTRY),
+                         env=ros_env(next_domain_id()), capture_output=True, text=True,
                          timeout=120)
-    both = out.stdout + out.stderr
-    assert out.returncode == code, both[-3000:]
-    assert 'Traceback' not in both, both[-3000:]
-    for w in words:
-        assert w in both, (w, both[-3000:])
+    check_as_typed(out, prog, code, words)
     if code == 0:
-        assert out.stdout.startswith('usage:'), out.stdout[:500]
-        assert '[INFO]' not in both and time.monotonic() - t0 < 60     # no node started
+        assert '[INFO]' not in out.stdout + out.stderr and time.monotonic() - t0 < 60  # no node
     else:
-        lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
-        assert len(lines) == 1 and lines[0].startswith(f'{prog}:'), out.stderr
         assert not any(files.glob('r[0-9]')), 'a refused record left a directory behind'
 
 
