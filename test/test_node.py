@@ -48,12 +48,12 @@ def test_published_values_equal_the_core_at_the_stamp_time():
     sol = solve(Scene(**{k: tuple(v) if isinstance(v, list) else v
                          for k, v in NODE_SCENE.items()}))
     assert node.solution.model == sol.model == 'transverse-virtual'
-    t0 = stamp_ns(lis.att[0])                      # the first tick is t = 0
+    t0 = stamp_ns(lis.att[0])                       # the first tick is t = 0
     n = min(len(lis.att), len(lis.rate))
     for a, r in zip(lis.att[:n], lis.rate[:n]):
         assert a.header.stamp == r.header.stamp     # one stamp per tick
         assert a.header.frame_id == 'inertial' and r.header.frame_id == 'body'
-        t = (stamp_ns(a) - t0) * 1e-9 * 3.0        # time_scale
+        t = (stamp_ns(a) - t0) * 1e-9 * 3.0         # time_scale
         ref = sol.at(t)
         q = np.array([a.quaternion.x, a.quaternion.y, a.quaternion.z, a.quaternion.w])
         assert quat.angle_between(q, ref.quaternion) <= 1e-12
