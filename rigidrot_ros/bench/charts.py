@@ -62,6 +62,15 @@ def _save(fig, out, name):
     return paths
 
 
+def _finish(fig, foot, out, name):
+    """Caption ``fig`` with the footer, save it as ``name`` (PNG, SVG), close it; the paths."""
+    import matplotlib.pyplot as plt
+    _caption(fig, foot)
+    paths = _save(fig, out, name)
+    plt.close(fig)
+    return paths
+
+
 def draw(results, out):
     """Draw every chart the results allow; return the written paths."""
     import matplotlib
@@ -113,10 +122,7 @@ def _work_precision(rows, workload, foot, out, plt):
                  f'{floored} points) are drawn at {ERROR_FLOOR:g} rad', ha='center',
                  fontsize=8, color='dimgray')
     fig.tight_layout(rect=(0, 0.1, 1, 0.93 if floored else 0.97))
-    _caption(fig, foot)
-    paths = _save(fig, out, f'work_precision_{workload}')
-    plt.close(fig)
-    return paths
+    return _finish(fig, foot, out, f'work_precision_{workload}')
 
 
 def _horizon(hz, foot, out, plt):
@@ -142,10 +148,7 @@ def _horizon(hz, foot, out, plt):
     fig.suptitle('Horizon scaling, axial-torque scene (one colour per method in both panels; '
                  'missing points: not reached)', fontsize=10)
     fig.tight_layout(rect=(0, 0.1, 1, 1))
-    _caption(fig, foot)
-    paths = _save(fig, out, 'horizon')
-    plt.close(fig)
-    return paths
+    return _finish(fig, foot, out, 'horizon')
 
 
 def independent_marks(st, cross=()):
@@ -224,7 +227,4 @@ def _stability(st, foot, out, plt, matplotlib, cross=()):
     fig.suptitle('Where each method meets 1e-12 / 1e-9 rad, loses accuracy, or fails '
                  '(sphere, p0, q0 = 0.3, -0.2 rad/s; r0 = 0.5 or U = 0.01)', fontsize=9)
     fig.tight_layout(rect=(0, 0.16, 1, 1))
-    _caption(fig, foot)
-    paths = _save(fig, out, 'stability')
-    plt.close(fig)
-    return paths
+    return _finish(fig, foot, out, 'stability')

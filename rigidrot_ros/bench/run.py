@@ -495,7 +495,7 @@ def ratios_chart(rows, foot, out):
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    from rigidrot_ros.bench.charts import _caption, _save
+    from rigidrot_ros.bench.charts import _finish
     timed = [r for r in rows if math.isfinite(r['speedup_vs_dop853'])]
     if not timed:
         return []
@@ -519,10 +519,7 @@ def ratios_chart(rows, foot, out):
     fig.suptitle('exact solution (tol 1e-12) against scipy DOP853 (rtol = atol = 1e-12)',
                  fontsize=9)
     fig.tight_layout(rect=(0, 0.03, 1, 0.95))
-    _caption(fig, foot)
-    paths = _save(fig, out, 'ratios')
-    plt.close(fig)
-    return paths
+    return _finish(fig, foot, out, 'ratios')
 
 
 def write_csv(path, rows, foot):

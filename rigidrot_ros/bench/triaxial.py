@@ -316,7 +316,7 @@ def draw(res, out, foot):
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    from rigidrot_ros.bench.charts import _caption, _save, MARKERS, STATUS_COLORS
+    from rigidrot_ros.bench.charts import _finish, MARKERS, STATUS_COLORS
     markers = dict(MARKERS, **{'exact (triaxial)': '*'})
     paths = []
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
@@ -357,9 +357,7 @@ def draw(res, out, foot):
     fig.suptitle('Torque-free triaxial body I = (1, 2, 3), omega0 = (0.3, -0.2, 0.5) rad/s '
                  '(reference: 42-digit Taylor integration)', fontsize=10)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
-    _caption(fig, foot)
-    paths += _save(fig, out, 'triaxial_work_precision')
-    plt.close(fig)
+    paths += _finish(fig, foot, out, 'triaxial_work_precision')
     st = res.get('stability', [])
     if st:
         methods = list(dict.fromkeys(c['method'] for c in st))
@@ -388,7 +386,5 @@ def draw(res, out, foot):
                      '0.05) rad/s; delta < 0 about the largest axis, > 0 the smallest '
                      '(blank: not run)', fontsize=9)
         fig.tight_layout(rect=(0, 0.1, 1, 1))
-        _caption(fig, foot)
-        paths += _save(fig, out, 'triaxial_stability')
-        plt.close(fig)
+        paths += _finish(fig, foot, out, 'triaxial_stability')
     return paths
