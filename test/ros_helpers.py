@@ -129,7 +129,7 @@ NODE_SCENE = dict(inertia=[2.0, 2.0, 1.0], torque=[0.1, 0.0, 0.0], torque_frame=
 
 
 def attitude_node(**params):
-    """An in-process AttitudeNode on :data:`NODE_SCENE` at 100 Hz; ``params`` override any."""
+    """Start an in-process AttitudeNode on :data:`NODE_SCENE` at 100 Hz; ``params`` override."""
     from rclpy.parameter import Parameter
 
     from rigidrot_ros.node.attitude_node import AttitudeNode

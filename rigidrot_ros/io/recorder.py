@@ -119,7 +119,7 @@ def check_type(type_name):
 
 
 def msg_class(type_name, error=ValueError):
-    """The message class of ``pkg/msg/Type``; ``error`` (a ValueError) if it is not installed."""
+    """Return the message class of ``pkg/msg/Type``; raise ``error`` if it is not installed."""
     pkg, _, name = type_name.split('/')
     try:
         return getattr(importlib.import_module(f'{pkg}.msg'), name)
