@@ -44,8 +44,10 @@ _EPS = 2.0 ** -52
 #: Window size in radians turned: ``R h <= RT``. Measured here: 2 gives about 1e-14
 #: per window with 20-term series; 4 would need 30 terms and give 5e-14.
 RT = 2.0
-#: Windows kept for scalar calls (about 1 kB each).
-CACHE = 4096
+#: Windows kept between calls (about 2 kB each, so at most about 0.5 MB: a long-running
+#: node's stream must not grow without bound). A batch keeps every window it builds until
+#: it ends, then trims back to this.
+CACHE = 256
 #: A window whose predecessor is uncached walks back this many windows to chain.
 WALK = 8
 #: Batches build runs of at least this many consecutive windows at once (numpy).
@@ -84,6 +86,7 @@ class DenseSpinor:
         self.chain_limit = 0.9 * self.tol
         self._octaves = {}
         self._cache = OrderedDict()
+        self._batch = False             # inside many(): defer trimming the cache
         self.exact_anchors = 0
         self.windows_built = 0
 
@@ -176,7 +179,7 @@ class DenseSpinor:
             self.exact_anchors += 1
         win = self._series(a, sign * h, c1, c2, err_a)
         self._cache[key] = win
-        if len(self._cache) > CACHE:
+        if len(self._cache) > CACHE and not self._batch:
             self._cache.popitem(last=False)
         self.windows_built += 1
         return win
@@ -377,8 +380,12 @@ class DenseSpinor:
                 win.end = None
             self._cache[key] = win
             self.windows_built += 1
-        while len(self._cache) > CACHE:
-            self._cache.popitem(last=False)
+        self._trim()
+
+    def _trim(self):
+        if not self._batch:
+            while len(self._cache) > CACHE:
+                self._cache.popitem(last=False)
 
     # -- evaluation -----------------------------------------------------------------------
     def at(self, t):
@@ -398,10 +405,15 @@ class DenseSpinor:
         if n == 0:
             return
         neg = int(np.searchsorted(t, 0.0, side='left'))
-        if neg:                                   # negative times: away from 0, reversed
-            self._many_dir(t[:neg][::-1], out_q[:neg][::-1], out_err[:neg][::-1], -1)
-        if neg < n:
-            self._many_dir(t[neg:], out_q[neg:], out_err[neg:], 1)
+        self._batch = True                        # every window of this call stays cached
+        try:
+            if neg:                               # negative times: away from 0, reversed
+                self._many_dir(t[:neg][::-1], out_q[:neg][::-1], out_err[:neg][::-1], -1)
+            if neg < n:
+                self._many_dir(t[neg:], out_q[neg:], out_err[neg:], 1)
+        finally:
+            self._batch = False
+            self._trim()
 
     def _many_dir(self, t, out_q, out_err, sign):
         at = np.abs(t)
