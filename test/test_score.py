@@ -192,6 +192,13 @@ def test_anees_bounds_match_chi_square():
     assert_allclose(anees_bounds(1), [0.216, 9.348], atol=1e-3)   # ESTIMATOR-NOTES
 
 
+def test_anees_bounds_of_long_runs():
+    """Past about 4900 samples mpmath's lower incomplete gamma did not converge."""
+    for m in (4900, 5000, 100_000, 1_000_000):
+        lo, hi = anees_bounds(m)
+        assert_allclose([lo, hi], np.array(chi2.ppf([0.025, 0.975], 3 * m)) / m, rtol=1e-9)
+
+
 @pytest.mark.parametrize('frame', ['body', 'inertial'])
 def test_nees_consistent_inside_overconfident_outside(tmp_path, frame):
     n = 400
