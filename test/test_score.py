@@ -31,7 +31,9 @@ import yaml
 
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.io.bag import BagError, BagWriter, read_bag
-from rigidrot_ros.io.score import anees_bounds, extract_streams, score_against_runs
+from rigidrot_ros.io.score import (
+    anees_bounds, extract_streams, score_against_runs, score_against_stream, ScoreError,
+)
 from rigidrot_ros.tools import compare
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5),
@@ -474,14 +476,17 @@ def test_two_nodes_in_one_bag_each_topic_scored_against_its_own(tmp_path):
     assert 'cannot tell which one is the truth' in res['/estimator/attitude']['reason']
 
 
-def test_truth_from_a_second_log_gives_the_same_nees(tmp_path):
+@pytest.mark.parametrize('frame', ['body', 'inertial'])
+def test_truth_from_a_second_log_gives_the_same_nees(tmp_path, frame):
     """--truth OTHER_BAG: the node's logged attitude as truth, NEES as against the exact."""
     n = 300
     rng = np.random.default_rng(5)
     _, stamps, q_true, _ = _truth(n)
     p = np.diag([2e-6, 1e-6, 3e-6])
     e = rng.multivariate_normal(np.zeros(3), p, size=n)
-    q_est = (Rotation.from_quat(q_true) * Rotation.from_rotvec(e)).as_quat()
+    r_true = Rotation.from_quat(q_true)
+    r_err = Rotation.from_rotvec(e)
+    q_est = (r_true * r_err if frame == 'body' else r_err * r_true).as_quat()
     est = _write_bag(tmp_path, {'/est': ('geometry_msgs/msg/PoseWithCovarianceStamped',
                                          lambda i: _make('PoseWithCovarianceStamped',
                                                          stamps[i], q_est[i], None, p))},
@@ -491,13 +496,59 @@ def test_truth_from_a_second_log_gives_the_same_nees(tmp_path):
                                                                 q_true[i], None))},
                        n=n, name='truth')
     a, b = tmp_path / 'a.json', tmp_path / 'b.json'
-    assert compare.main([str(est), '--json', str(a)]) == 0
-    assert compare.main([str(est), '--truth', str(truth), '--json', str(b)]) == 0
+    assert compare.main([str(est), '--json', str(a), '--cov-frame', frame]) == 0
+    assert compare.main([str(est), '--truth', str(truth), '--json', str(b),
+                         '--cov-frame', frame]) == 0
     exact = json.loads(a.read_text())['topics'][0]
     logged = json.loads(b.read_text())['topics'][0]
     assert logged['count'] == exact['count'] == n
     assert_allclose(logged['anees'], exact['anees'], rtol=1e-9)
     assert_allclose(logged['max'], exact['max'], rtol=1e-9)
+    # the same NEES as scipy's rotation vectors in the frame asked for
+    ref = np.einsum('ni,ij,nj->n', e, np.linalg.inv(p), e).mean()
+    assert_allclose(logged['anees'], ref, rtol=1e-6)
+
+
+def test_truth_log_reference_is_a_truth_topic_and_gaps_are_skipped(tmp_path):
+    """--truth: never a noisy sensor topic as the reference; no slerp across a gap."""
+    n = 300
+    _, stamps, q_true, _ = _truth(n)
+    noisy = (Rotation.from_quat(q_true) * Rotation.from_rotvec(
+        np.random.default_rng(2).normal(scale=1e-3, size=(n, 3)))).as_quat()
+    q_est = (Rotation.from_quat(q_true) * Rotation.from_rotvec(0.01 * AXIS)).as_quat()
+
+    def pose(q):
+        return ('geometry_msgs/msg/PoseWithCovarianceStamped',
+                lambda i: _make('PoseWithCovarianceStamped', stamps[i], q[i], None,
+                                np.eye(3) * 1e-4))
+    # the estimator bag carries a star_tracker topic too, as a node with sensors records it
+    est = _write_bag(tmp_path, {'/star_tracker': pose(q_est)}, n=n, name='est')
+    truth = _write_bag(tmp_path, {
+        '/attitude': ('geometry_msgs/msg/QuaternionStamped',
+                      lambda i: _make('QuaternionStamped', stamps[i], q_true[i], None)),
+        '/star_tracker': pose(noisy)}, n=n, name='truth')
+    out = tmp_path / 'r.json'
+    assert compare.main([str(est), '--truth', str(truth), '--json', str(out)]) == 0
+    r = json.loads(out.read_text())['topics'][0]
+    assert r['truth_topic'] == '/attitude' and r['count'] == n
+    assert_allclose(r['max'], 0.01, rtol=0, atol=1e-9)
+    # only sensor topics in the truth log: refused, with the reason
+    sensors = _write_bag(tmp_path, {'/star_tracker': pose(noisy)}, n=n, name='sensors')
+    with pytest.raises(ScoreError, match='not used as the truth'):
+        c, t = read_bag(str(est)), read_bag(str(sensors))
+        score_against_stream(c, extract_streams(c)[0], t, extract_streams(t)[0])
+    # a truth log that misses 0.5 s (samples 100..149): the messages inside are skipped
+    kept = np.r_[0:100, 150:n]
+    gap = _write_bag(tmp_path, {'/attitude': (
+        'geometry_msgs/msg/QuaternionStamped',
+        lambda i: _make('QuaternionStamped', stamps[kept[i]], q_true[kept[i]], None))},
+        n=len(kept), name='gap')
+    c, t = read_bag(str(est)), read_bag(str(gap))
+    r = score_against_stream(c, extract_streams(c)[0], t, extract_streams(t)[0])[0]
+    assert r['truth_gaps'] == 50 and r['count'] == n - 50
+    assert_allclose(r['max'], 0.01, rtol=0, atol=1e-9)
+    lines = compare._table([r], [])
+    assert '50 message(s) inside gaps of the truth log (/attitude) not scored' in lines
 
 
 def test_reindex_a_torn_split_bag(tmp_path):

@@ -46,6 +46,9 @@ def _table(results, skipped):
             nees_txt = 'no usable covariance'
         lines.append(f'{r["label"]:36s} {kind:26s} {r["count"]:6d} {r["max"]:10.3e} '
                      f'{r["rms"]:10.3e} {r["p95"]:10.3e}  {r["unit"]:5s} {nees_txt}')
+        if r.get('truth_gaps'):
+            lines.append(f'{"":36s} {r["truth_gaps"]} message(s) inside gaps of the truth '
+                         f'log ({r["truth_topic"]}) not scored')
     for s in skipped:
         lines.append(f'{s["topic"]:36s} {s["type"].split("/")[-1]:26s}  not scored: '
                      f'{s["reason"]}')
@@ -166,7 +169,8 @@ def main(argv=None):
         if opts.truth:
             tbag = read_bag(opts.truth)
             check_bag(tbag)
-            results = score_against_stream(bag, streams, tbag, extract_streams(tbag)[0])
+            results = score_against_stream(bag, streams, tbag, extract_streams(tbag)[0],
+                                           cov_frame=opts.cov_frame)
             title = f'{opts.bag} against {opts.truth}'
         else:
             results = score_against_runs(bag, streams, cov_frame=opts.cov_frame)
