@@ -577,3 +577,46 @@ def test_reindex_a_torn_split_bag(tmp_path):
     assert got == [f'{k}' for k in range(5)]
     info = yaml.safe_load((torn / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert info['message_count'] == 6 and len(info['files']) == 5
+
+
+def test_a_channel_without_schema_is_skipped_with_a_note(tmp_path):
+    """Schema id 0 is legal MCAP: read, compare and reindex skip that channel and say so."""
+    from mcap.writer import Writer
+    from rigidrot_ros.io.bag import reindex
+    from rigidrot_ros.io.msgdefs import schema_text
+    n = 50
+    _, stamps, q, _ = _truth(n)
+    path = tmp_path / 'mixed.mcap'
+    with open(path, 'wb') as fh:
+        w = Writer(fh, use_chunking=False)
+        w.start(profile='ros2', library='test')
+        ids = {}
+        for topic, ty in (('/attitude_node/run', 'std_msgs/msg/String'),
+                          ('/attitude', 'geometry_msgs/msg/QuaternionStamped')):
+            sid = w.register_schema(name=ty, encoding='ros2msg',
+                                    data=schema_text(ty).encode())
+            ids[topic] = w.register_channel(topic=topic, message_encoding='cdr',
+                                            schema_id=sid)
+        raw = w.register_channel(topic='/j', message_encoding='json', schema_id=0)
+        w.add_message(ids['/attitude_node/run'], START, serialize_message(_run_msg()), START)
+        for k in range(n):
+            w.add_message(ids['/attitude'], int(stamps[k]), serialize_message(
+                _make('QuaternionStamped', stamps[k], q[k], None)), int(stamps[k]))
+            w.add_message(raw, int(stamps[k]), b'{"k": 1}', int(stamps[k]))
+        w.finish()
+    torn = tmp_path / 'torn.mcap'
+    torn.write_bytes(path.read_bytes()[:-40])          # the footer cut off
+    for p in (path, torn):
+        c = read_bag(str(p))
+        assert c.schemaless == ['/j'] and '/j' not in c.topics
+        assert "channel(s) ['/j'] have no schema" in c.note
+        assert sum(m[0] == '/attitude' for m in c.messages) == n
+        out = subprocess.run([sys.executable, '-m', 'rigidrot_ros.tools.compare', str(p)],
+                             capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0 and 'Traceback' not in out.stderr, out.stderr
+        assert 'have no schema' in out.stderr
+    assert 'unfinished file' in read_bag(str(torn)).note
+    assert reindex(str(path))['rewritten'] == []
+    done = reindex(str(torn))
+    assert done['rewritten'] == [str(torn)] and done['counts']['/attitude'] == n
+    assert any('have no schema' in note for note in done['notes'])

@@ -343,6 +343,7 @@ class BagContents:
     files: list = field(default_factory=list)       # the .mcap files read, in order
     channel_metadata: dict = field(default_factory=dict)   # topic -> channel metadata map
     metadata: list = field(default_factory=list)    # every (name, map) metadata record
+    schemaless: list = field(default_factory=list)  # topics of channels with no schema
 
 
 def _file_index(name):
@@ -437,12 +438,12 @@ def _read_indexed(fpath, out):
             if summary is None:
                 return False
             for channel in summary.channels.values():
-                if channel.schema_id in summary.schemas:
-                    _note(part, summary.schemas[channel.schema_id], channel)
+                _note(part, summary.schemas.get(channel.schema_id), channel)
             for rec in reader.iter_metadata():
                 part.metadata.append((rec.name, dict(rec.metadata)))
             for schema, channel, msg in reader.iter_messages(log_time_order=True):
-                _note(part, schema, channel)
+                if schema is None:
+                    continue                  # no schema: noted above, not read
                 part.messages.append((channel.topic, schema.name, msg.log_time,
                                       msg.publish_time, msg.data))
     except (McapError, struct.error, EOFError, ValueError, KeyError, OSError):
@@ -463,13 +464,12 @@ def _read_stream(fpath, out):
                     schemas[rec.id] = rec
                 elif isinstance(rec, Channel):
                     channels[rec.id] = rec
-                    if rec.schema_id in schemas:
-                        _note(part, schemas[rec.schema_id], rec)
+                    _note(part, schemas.get(rec.schema_id), rec)
                 elif isinstance(rec, Message):
                     ch = channels.get(rec.channel_id)
                     sc = schemas.get(ch.schema_id) if ch else None
                     if ch is None or sc is None:
-                        continue
+                        continue              # unknown channel, or one with no schema
                     _note(part, sc, ch)
                     part.messages.append((ch.topic, sc.name, rec.log_time, rec.publish_time,
                                           rec.data))
@@ -496,6 +496,7 @@ def _merge(out, part):
         out.channel_metadata.setdefault(t, v)
     out.messages.extend(part.messages)
     out.metadata.extend(part.metadata)
+    out.schemaless.extend(t for t in part.schemaless if t not in out.schemaless)
     out.truncated = out.truncated or part.truncated
 
 
@@ -521,7 +522,9 @@ def read_bag(path):
     for fpath in files:
         if not _read_indexed(fpath, out):
             notes.append((f'{os.path.basename(fpath)}: ' if len(files) > 1 else '')
-                         + _read_stream(fpath, out))
+                         + 'unfinished file, ' + _read_stream(fpath, out))
+    if out.schemaless:
+        notes.append(_schemaless_note(out.schemaless))
     out.note = '; '.join(notes)
     if len(files) > 1:
         out.messages.sort(key=lambda m: m[2])
@@ -548,7 +551,17 @@ def _collect_runs(bag):
     return runs
 
 
+def _schemaless_note(topics):
+    return (f'channel(s) {sorted(topics)} have no schema (legal MCAP, but no type to decode '
+            f'them with): skipped')
+
+
 def _note(out, schema, channel):
+    """Note the topic of ``channel``; a channel with no schema (id 0) is listed apart."""
+    if schema is None:
+        if channel.topic not in out.schemaless:
+            out.schemaless.append(channel.topic)
+        return
     if channel.topic not in out.topics:
         out.topics[channel.topic] = (schema.name,
                                      channel.metadata.get('offered_qos_profiles', ''),
@@ -609,6 +622,11 @@ def reindex(path, backup=True):
             notes.append(f'{os.path.basename(fpath)}: ' + _read_stream(fpath, part))
             _rewrite(fpath, part, backup)
             rewritten.append(fpath)
+        if part.schemaless:
+            notes.append(f'{os.path.basename(fpath)}: ' + _schemaless_note(part.schemaless)
+                         + (' (not kept in the rewrite; the original is '
+                            + ('kept as .orig)' if backup else 'gone: --no-backup)')
+                            if fpath in rewritten else ''))
         for t, (ty, q, _) in part.topics.items():
             topics.setdefault(t, (ty, q))
         n = 0

@@ -162,9 +162,9 @@ def main(argv=None):
     try:
         plt = _import_pyplot() if opts.plot else None
         bag = read_bag(opts.bag)
+        if bag.note:
+            print(f'note: {bag.path}: {bag.note}', file=sys.stderr)
         check_bag(bag)
-        if bag.truncated or bag.note:
-            print(f'note: {bag.path}: unfinished file, {bag.note}', file=sys.stderr)
         streams, skipped = extract_streams(bag, opts.topic)
         if opts.truth:
             tbag = read_bag(opts.truth)

@@ -66,8 +66,8 @@ def main(argv=None):
         return 2
     try:
         bag = read_bag(opts.bag)
-        if bag.truncated or bag.note:
-            print(f'note: {bag.path}: unfinished file, {bag.note}', file=sys.stderr)
+        if bag.note:
+            print(f'note: {bag.path}: {bag.note}', file=sys.stderr)
         topics = opts.topics or sorted(bag.topics)
         missing = [t for t in topics if t not in bag.topics]
         if missing:
