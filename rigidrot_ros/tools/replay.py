@@ -82,7 +82,12 @@ def main(argv=None):
         return 2
     t0 = msgs[0][2] + int(opts.start * 1e9)
     t1 = t0 + int(opts.duration * 1e9) if opts.duration is not None else None
+    length = (msgs[-1][2] - msgs[0][2]) * 1e-9
     msgs = [m for m in msgs if m[2] >= t0 and (t1 is None or m[2] <= t1)]
+    if not msgs:
+        print(f'rigidrot_replay: {bag.path}: nothing to replay: --start {opts.start:g} s is '
+              f'past the end of the log ({length:.3f} s long)', file=sys.stderr)
+        return 2
     reason = init_ros('rigidrot_replay', ros_args)
     if reason is not None:
         print(f'rigidrot_replay: {reason}', file=sys.stderr)
