@@ -620,3 +620,30 @@ def test_a_channel_without_schema_is_skipped_with_a_note(tmp_path):
     done = reindex(str(torn))
     assert done['rewritten'] == [str(torn)] and done['counts']['/attitude'] == n
     assert any('have no schema' in note for note in done['notes'])
+
+
+def test_reindex_never_merges_a_foreign_mcap(tmp_path):
+    """An unlisted .mcap in a bag directory is another bag's, not part of this one."""
+    from rigidrot_ros.io.bag import reindex
+    bag = _simple_bag(tmp_path, 'own', START, 30)
+    other = _simple_bag(tmp_path, 'other', START, 20)
+    shutil.copy(next(other.glob('*.mcap')), bag / 'other.mcap')
+    meta = (bag / 'metadata.yaml').read_text()
+    with pytest.raises(BagError, match=r"\['other.mcap'\], which metadata.yaml does not"):
+        reindex(str(bag))
+    assert (bag / 'metadata.yaml').read_text() == meta
+    # metadata.yaml unreadable: only <dir>_<n>.mcap is the bag; the stranger is left alone
+    (bag / 'metadata.yaml').write_text('{{{ not yaml')
+    out = reindex(str(bag))
+    assert [os.path.basename(f) for f in out['files']] == [f'{bag.name}_0.mcap']
+    assert out['counts'] == {'/attitude_node/run': 1, '/attitude': 30}
+    assert any("['other.mcap']: not named" in n for n in out['notes'])
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['relative_file_paths'] == [f'{bag.name}_0.mcap']
+    assert (bag / 'metadata.yaml.orig').read_text() == '{{{ not yaml'
+    # no file of the bag's own name: refused, nothing renamed or rebuilt
+    os.rename(bag / f'{bag.name}_0.mcap', bag / 'renamed.mcap')
+    os.remove(bag / 'metadata.yaml')
+    with pytest.raises(BagError, match='no file named'):
+        reindex(str(bag))
+    assert not (bag / 'metadata.yaml').exists()

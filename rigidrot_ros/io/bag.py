@@ -370,22 +370,7 @@ def bag_files(path):
     present = sorted((f for f in os.listdir(path) if f.endswith('.mcap')), key=_file_index)
     meta_path = os.path.join(path, 'metadata.yaml')
     if os.path.exists(meta_path):
-        try:
-            with open(meta_path, encoding='utf-8') as fh:
-                meta = yaml.safe_load(fh)
-            info = meta['rosbag2_bagfile_information']
-            listed = info.get('relative_file_paths')
-            if listed is None:
-                listed = [f['path'] for f in info.get('files') or []]
-            if not isinstance(listed, list) or not all(isinstance(f, str) for f in listed):
-                raise TypeError('relative_file_paths is not a list of file names')
-        except (yaml.YAMLError, KeyError, TypeError, AttributeError, UnicodeDecodeError,
-                OSError) as exc:
-            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise BagError(f'{meta_path}: not a valid rosbag2 metadata file '
-                           f'({type(exc).__name__}: {why}); move it away to read the .mcap '
-                           f'files alone') from None
-        listed = [os.path.basename(f) for f in listed]
+        listed = _listed_files(meta_path)
         missing = [f for f in listed if f not in present]
         if missing:
             raise BagError(f'{meta_path} lists {missing}, which the directory does not hold')
@@ -399,6 +384,26 @@ def bag_files(path):
     if not files:
         raise BagError(f'{path}: a directory with no .mcap file is not a bag')
     return [os.path.join(path, f) for f in files]
+
+
+def _listed_files(meta_path):
+    """The file names a rosbag2 ``metadata.yaml`` lists; BagError if it is not one."""
+    try:
+        with open(meta_path, encoding='utf-8') as fh:
+            meta = yaml.safe_load(fh)
+        info = meta['rosbag2_bagfile_information']
+        listed = info.get('relative_file_paths')
+        if listed is None:
+            listed = [f['path'] for f in info.get('files') or []]
+        if not isinstance(listed, list) or not all(isinstance(f, str) for f in listed):
+            raise TypeError('relative_file_paths is not a list of file names')
+    except (yaml.YAMLError, KeyError, TypeError, AttributeError, UnicodeDecodeError,
+            OSError) as exc:
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise BagError(f'{meta_path}: not a valid rosbag2 metadata file '
+                       f'({type(exc).__name__}: {why}); move it away to read the .mcap '
+                       f'files alone') from None
+    return [os.path.basename(f) for f in listed]
 
 
 def _decode_run(data):
@@ -577,7 +582,9 @@ def reindex(path, backup=True):
     rewritten in place with a summary, an index and the end magic, and ``metadata.yaml``
     is rebuilt with the true counts and times. With ``backup`` the original file is kept
     beside it as ``<file>.orig`` (no ``.mcap`` ending, so it is not read as part of the
-    bag). A finished file is left as it is.
+    bag). A finished file is left as it is. The files are those ``metadata.yaml`` lists;
+    only when it is missing or unreadable are they the directory's ``<dir>_<n>.mcap``
+    (any other ``.mcap`` there is left alone, with a note).
 
     Parameters
     ----------
@@ -598,19 +605,12 @@ def reindex(path, backup=True):
     """
     if os.path.isdir(path) and not any(f.endswith('.mcap') for f in os.listdir(path)):
         raise BagError(f'{path}: a directory with no .mcap file is not a bag')
+    notes = []
     if os.path.isdir(path):
-        meta = os.path.join(path, 'metadata.yaml')
-        try:
-            files = bag_files(path)
-        except BagError:
-            # metadata.yaml is what reindex rebuilds: a broken one is replaced
-            files = [os.path.join(path, f) for f in sorted(
-                (f for f in os.listdir(path) if f.endswith('.mcap')), key=_file_index)]
-            if os.path.exists(meta):
-                os.replace(meta, meta + '.orig')
+        files = _reindex_files(path, notes)
     else:
         files = bag_files(path)
-    topics, counts, per_file, rewritten, notes = {}, {}, {}, [], []
+    topics, counts, per_file, rewritten = {}, {}, {}, []
     first = last = None
     for fpath in files:
         with open(fpath, 'rb') as fh:
@@ -644,6 +644,40 @@ def reindex(path, backup=True):
         write_metadata_yaml(path, [os.path.basename(f) for f in files], topics, counts,
                             first, last, per_file)
     return {'files': files, 'rewritten': rewritten, 'counts': counts, 'notes': notes}
+
+
+def _reindex_files(path, notes):
+    """The files of bag directory ``path`` to reindex.
+
+    A readable ``metadata.yaml`` gives them (as for reading: a listed file missing, or an
+    unlisted ``.mcap``, is refused). Only when it is missing or unreadable (it is what
+    reindex rebuilds; a broken one is kept as ``metadata.yaml.orig``) are the files taken
+    from the directory, and then only those named ``<dir>_<n>.mcap``, as rosbag2 names
+    them: another ``.mcap`` lying there is no part of the bag and is left alone.
+    """
+    meta = os.path.join(path, 'metadata.yaml')
+    if os.path.exists(meta):
+        try:
+            _listed_files(meta)
+        except BagError as exc:
+            notes.append(f'{exc}; rebuilt from the files named <dir>_<n>.mcap')
+        else:
+            return bag_files(path)
+    base = os.path.basename(os.path.normpath(path))
+    own = re.compile(re.escape(base) + r'_\d+\.mcap')
+    present = sorted((f for f in os.listdir(path) if f.endswith('.mcap')), key=_file_index)
+    names = [f for f in present if own.fullmatch(f)]
+    if not names:
+        raise BagError(f'{path}: no readable metadata.yaml and no file named {base}_<n>.mcap '
+                       f'(it holds {present}); rename its files to {base}_0.mcap, ... '
+                       f'or restore its metadata.yaml')
+    others = [f for f in present if f not in names]
+    if others:
+        notes.append(f'{others}: not named {base}_<n>.mcap, so no part of the bag: left '
+                     f'as they are (move them away to read the bag)')
+    if os.path.exists(meta):
+        os.replace(meta, meta + '.orig')
+    return [os.path.join(path, f) for f in names]
 
 
 def _rewrite(fpath, part, backup):
