@@ -387,7 +387,7 @@ def bag_files(path):
 
 
 def _listed_files(meta_path):
-    """The file names a rosbag2 ``metadata.yaml`` lists; BagError if it is not one."""
+    """Return the file names a rosbag2 ``metadata.yaml`` lists; BagError if it is not one."""
     try:
         with open(meta_path, encoding='utf-8') as fh:
             meta = yaml.safe_load(fh)
@@ -647,7 +647,7 @@ def reindex(path, backup=True):
 
 
 def _reindex_files(path, notes):
-    """The files of bag directory ``path`` to reindex.
+    """Return the files of bag directory ``path`` to reindex.
 
     A readable ``metadata.yaml`` gives them (as for reading: a listed file missing, or an
     unlisted ``.mcap``, is refused). Only when it is missing or unreadable (it is what

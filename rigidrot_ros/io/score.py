@@ -269,7 +269,7 @@ GAP_FACTOR = 2.0
 
 
 def _reference(s, truth_bag, truth_streams):
-    """The truth log's stream to compare ``s`` with: a node truth topic of the same field."""
+    """Return the truth log's stream for ``s``: a node truth topic of the same field."""
     names = {r.topic: r.topic.rsplit('/', 1)[-1] for r in truth_streams}
     ref = [r for r in truth_streams if r.field == s.field and names[r.topic] in TRUTH_NAMES]
     if not ref:

@@ -144,8 +144,8 @@ def _parser():
     ap.add_argument('--truth', help='compare with this second log instead of the exact truth')
     ap.add_argument('--json', help='write a JSON summary here')
     ap.add_argument('--csv', help='write time, error and NEES of every sample here')
-    ap.add_argument('--plot', help='draw the errors over time into this .png, .svg or .pdf '
-                                       '(matplotlib)')
+    ap.add_argument('--plot',
+                    help='draw the errors over time into this .png, .svg or .pdf (matplotlib)')
     ap.add_argument('--plot-topic', action='append',
                     help='plot this topic (repeatable; default: every scored topic that the '
                          'node did not publish, i.e. the estimators)')
