@@ -526,11 +526,17 @@ def test_truth_log_reference_is_a_truth_topic_and_gaps_are_skipped(tmp_path):
     truth = _write_bag(tmp_path, {
         '/attitude': ('geometry_msgs/msg/QuaternionStamped',
                       lambda i: _make('QuaternionStamped', stamps[i], q_true[i], None)),
-        '/star_tracker': pose(noisy)}, n=n, name='truth')
+        '/star_tracker': pose(noisy), '/estimator/odom': pose(noisy)}, n=n, name='truth')
     out = tmp_path / 'r.json'
     assert compare.main([str(est), '--truth', str(truth), '--json', str(out)]) == 0
     r = json.loads(out.read_text())['topics'][0]
     assert r['truth_topic'] == '/attitude' and r['count'] == n
+    assert_allclose(r['max'], 0.01, rtol=0, atol=1e-9)
+    # nor another estimator's odom of the same name, when the runs name the node's topics
+    est2 = _write_bag(tmp_path, {'/estimator/odom': pose(q_est)}, n=n, name='est2')
+    c, t = read_bag(str(est2)), read_bag(str(truth))
+    r = score_against_stream(c, extract_streams(c)[0], t, extract_streams(t)[0])[0]
+    assert r['truth_topic'] == '/attitude'
     assert_allclose(r['max'], 0.01, rtol=0, atol=1e-9)
     # only sensor topics in the truth log: refused, with the reason
     sensors = _write_bag(tmp_path, {'/star_tracker': pose(noisy)}, n=n, name='sensors')

@@ -279,9 +279,11 @@ def _reference(s, truth_bag, truth_streams):
                          f'{have} (sensor topics such as imu or star_tracker carry noise '
                          f'and are not used as the truth)')
     own = {t for r in truth_bag.runs for t in (r.get('topics') or {})}
-    # the same topic if the truth log has it, else the node's own, else by name
-    return sorted(ref, key=lambda r: (r.topic != s.topic, r.topic not in own,
-                                      TRUTH_NAMES.index(names[r.topic]), r.topic))[0]
+    # the node's own where the runs list them (an estimator's /estimator/odom is no truth),
+    # and among those the same topic if the truth log has it, else by name
+    ref = [r for r in ref if r.topic in own] or ref
+    return sorted(ref, key=lambda r: (r.topic != s.topic, TRUTH_NAMES.index(names[r.topic]),
+                                      r.topic))[0]
 
 
 def score_against_stream(bag, streams, truth_bag, truth_streams, cov_frame='body'):
