@@ -37,3 +37,25 @@ def test_bad_params_files_are_named(tmp_path):
         load_defaults(str(bad))
     with pytest.raises(FileNotFoundError, match='nothing.yaml'):
         find_config('nothing.yaml')
+
+
+def test_package_xml_declares_every_ros_package_the_code_imports():
+    """Each ROS package imported (ast, not grep) is an exec_depend of package.xml."""
+    import ast
+    from pathlib import Path
+    import xml.etree.ElementTree as ET
+    root = Path(__file__).resolve().parents[1]
+    deps = {e.text for e in ET.parse(root / 'package.xml').getroot().iter('exec_depend')}
+    ros = ('rclpy', 'builtin_interfaces', 'rcl_interfaces', 'rosgraph_msgs')
+    imported = set()
+    for path in (root / 'rigidrot_ros').rglob('*.py'):
+        for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ''] if isinstance(node, ast.ImportFrom) and not node.level
+                     else [])
+            for name in names:
+                top = name.split('.')[0]
+                if top.endswith(('_msgs', '_srvs')) or top in ros:
+                    imported.add(top)
+    assert {'nav_msgs', 'sensor_msgs', 'std_msgs', 'visualization_msgs'} <= imported
+    assert imported - deps == set()

@@ -375,3 +375,35 @@ def test_replay_publishes_clock_from_the_log(tmp_path):
     assert set(clock) <= set(log_times)               # the log's own times
     assert clock == sorted(clock)
     assert (clock[-1] - clock[0]) * 1e-9 <= 0.5 + 1e-9
+
+
+@pytest.mark.usefixtures('ros_context')
+def test_replay_waits_for_the_subscribers_to_settle():
+    """The first match may be a recorder: play only once no new subscriber has matched."""
+    import threading
+
+    import rclpy
+    from std_msgs.msg import String
+
+    from rigidrot_ros.tools.replay import _wait_for_matching, SETTLE
+    node = rclpy.create_node('replay_wait')
+    pub = node.create_publisher(String, '/wait_topic', 10)
+    subs = [rclpy.create_node(f'late_{k}') for k in range(2)]
+    subs[0].create_subscription(String, '/wait_topic', lambda m: None, 10)
+    late = threading.Timer(0.3, lambda: subs[1].create_subscription(
+        String, '/wait_topic', lambda m: None, 10))
+    late.start()
+    try:
+        t0 = time.monotonic()
+        assert _wait_for_matching(node, [pub], 10.0)
+        assert pub.get_subscription_count() == 2       # the late subscriber too
+        assert time.monotonic() - t0 >= 0.3 + SETTLE
+        # nobody there: False after the limit, not a hang
+        lone = node.create_publisher(String, '/nobody_here', 10)
+        t0 = time.monotonic()
+        assert not _wait_for_matching(node, [lone], 0.5)
+        assert 0.5 <= time.monotonic() - t0 < 2.0
+    finally:
+        late.cancel()
+        for n in subs + [node]:
+            n.destroy_node()

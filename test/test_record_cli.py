@@ -14,6 +14,7 @@ import sys
 import textwrap
 import time
 
+from mcap.writer import Writer
 import pytest
 from rosbags.highlevel import AnyReader
 from test_score import _make, _truth, _write_bag
@@ -47,6 +48,8 @@ CASES = [
     row('rigidrot_compare', ['{tmp}/good', '--cov-frame', 'x'], 2, ['invalid choice']),
     row('rigidrot_compare', ['{tmp}/good', '--topic', '/nope'], 2, ["no topic '/nope'"]),
     row('rigidrot_compare', ['{tmp}/good', '--csv', '/proc/no/such/x.csv'], 2, ['x.csv']),
+    row('rigidrot_compare', ['{tmp}/good', '--plot', '{tmp}/out.txt'], 2,
+        ['--plot', 'out.txt', 'must end in .png, .svg, .pdf']),
     row('rigidrot_compare', ['{tmp}/good', '--plot', '{tmp}/x.png'], 2,
         ['pip install matplotlib'], block=('matplotlib',),
         id='rigidrot_compare --plot without matplotlib'),
@@ -54,6 +57,9 @@ CASES = [
     row('rigidrot_replay', ['{tmp}/good', '--rate', '0'], 2, ['--rate']),
     row('rigidrot_replay', ['{tmp}/good', '--rate', 'nan'], 2, ['--rate']),
     row('rigidrot_replay', ['{tmp}/good', '--start', '-1'], 2, ['--start']),
+    row('rigidrot_replay', ['{tmp}/good', '--start', '1000'], 2,
+        ['past the end of the log (0.190 s long)']),
+    row('rigidrot_replay', ['{tmp}/proto.mcap'], 2, ["'foo.Bar' is not a ROS 2 message type"]),
     row('rigidrot_replay', ['{tmp}/good', '--duration', 'inf'], 2, ['--duration']),
     row('rigidrot_replay', ['{tmp}/missing'], 2, ['no such file']),
     row('rigidrot_replay', ['{tmp}/notes.mcap'], 2, ['not an MCAP file']),
@@ -103,6 +109,13 @@ def files(tmp_path_factory):
     (tmp / 'notes.mcap').write_text('hello, not a bag')
     (tmp / 'torn.mcap').write_bytes(next(bag.glob('*.mcap')).read_bytes()[:40])
     (tmp / 'empty').mkdir()
+    with open(tmp / 'proto.mcap', 'wb') as fh:          # legal MCAP, not ROS 2
+        w = Writer(fh)
+        w.start(profile='', library='test')
+        sid = w.register_schema(name='foo.Bar', encoding='protobuf', data=b'\x0a\x00')
+        cid = w.register_channel(topic='/p', message_encoding='protobuf', schema_id=sid)
+        w.add_message(cid, 1, b'\x08\x01', 1)
+        w.finish()
     shutil.copytree(bag, tmp / 'badmeta')
     (tmp / 'badmeta' / 'metadata.yaml').write_text('rosbag2_bagfile_information: [{{')
     return tmp

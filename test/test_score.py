@@ -31,7 +31,9 @@ import yaml
 
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.io.bag import BagError, BagWriter, read_bag
-from rigidrot_ros.io.score import anees_bounds, extract_streams, score_against_runs
+from rigidrot_ros.io.score import (
+    anees_bounds, extract_streams, score_against_runs, score_against_stream, ScoreError,
+)
 from rigidrot_ros.tools import compare
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5),
@@ -190,6 +192,13 @@ def test_anees_bounds_match_chi_square():
         lo, hi = anees_bounds(m)
         assert_allclose([lo, hi], np.array(chi2.ppf([0.025, 0.975], 3 * m)) / m, rtol=1e-9)
     assert_allclose(anees_bounds(1), [0.216, 9.348], atol=1e-3)   # ESTIMATOR-NOTES
+
+
+def test_anees_bounds_of_long_runs():
+    """Past about 4900 samples mpmath's lower incomplete gamma did not converge."""
+    for m in (4900, 5000, 100_000, 1_000_000):
+        lo, hi = anees_bounds(m)
+        assert_allclose([lo, hi], np.array(chi2.ppf([0.025, 0.975], 3 * m)) / m, rtol=1e-9)
 
 
 @pytest.mark.parametrize('frame', ['body', 'inertial'])
@@ -467,14 +476,17 @@ def test_two_nodes_in_one_bag_each_topic_scored_against_its_own(tmp_path):
     assert 'cannot tell which one is the truth' in res['/estimator/attitude']['reason']
 
 
-def test_truth_from_a_second_log_gives_the_same_nees(tmp_path):
+@pytest.mark.parametrize('frame', ['body', 'inertial'])
+def test_truth_from_a_second_log_gives_the_same_nees(tmp_path, frame):
     """--truth OTHER_BAG: the node's logged attitude as truth, NEES as against the exact."""
     n = 300
     rng = np.random.default_rng(5)
     _, stamps, q_true, _ = _truth(n)
     p = np.diag([2e-6, 1e-6, 3e-6])
     e = rng.multivariate_normal(np.zeros(3), p, size=n)
-    q_est = (Rotation.from_quat(q_true) * Rotation.from_rotvec(e)).as_quat()
+    r_true = Rotation.from_quat(q_true)
+    r_err = Rotation.from_rotvec(e)
+    q_est = (r_true * r_err if frame == 'body' else r_err * r_true).as_quat()
     est = _write_bag(tmp_path, {'/est': ('geometry_msgs/msg/PoseWithCovarianceStamped',
                                          lambda i: _make('PoseWithCovarianceStamped',
                                                          stamps[i], q_est[i], None, p))},
@@ -484,13 +496,65 @@ def test_truth_from_a_second_log_gives_the_same_nees(tmp_path):
                                                                 q_true[i], None))},
                        n=n, name='truth')
     a, b = tmp_path / 'a.json', tmp_path / 'b.json'
-    assert compare.main([str(est), '--json', str(a)]) == 0
-    assert compare.main([str(est), '--truth', str(truth), '--json', str(b)]) == 0
+    assert compare.main([str(est), '--json', str(a), '--cov-frame', frame]) == 0
+    assert compare.main([str(est), '--truth', str(truth), '--json', str(b),
+                         '--cov-frame', frame]) == 0
     exact = json.loads(a.read_text())['topics'][0]
     logged = json.loads(b.read_text())['topics'][0]
     assert logged['count'] == exact['count'] == n
     assert_allclose(logged['anees'], exact['anees'], rtol=1e-9)
     assert_allclose(logged['max'], exact['max'], rtol=1e-9)
+    # the same NEES as scipy's rotation vectors in the frame asked for
+    ref = np.einsum('ni,ij,nj->n', e, np.linalg.inv(p), e).mean()
+    assert_allclose(logged['anees'], ref, rtol=1e-6)
+
+
+def test_truth_log_reference_is_a_truth_topic_and_gaps_are_skipped(tmp_path):
+    """--truth: never a noisy sensor topic as the reference; no slerp across a gap."""
+    n = 300
+    _, stamps, q_true, _ = _truth(n)
+    noisy = (Rotation.from_quat(q_true) * Rotation.from_rotvec(
+        np.random.default_rng(2).normal(scale=1e-3, size=(n, 3)))).as_quat()
+    q_est = (Rotation.from_quat(q_true) * Rotation.from_rotvec(0.01 * AXIS)).as_quat()
+
+    def pose(q):
+        return ('geometry_msgs/msg/PoseWithCovarianceStamped',
+                lambda i: _make('PoseWithCovarianceStamped', stamps[i], q[i], None,
+                                np.eye(3) * 1e-4))
+    # the estimator bag carries a star_tracker topic too, as a node with sensors records it
+    est = _write_bag(tmp_path, {'/star_tracker': pose(q_est)}, n=n, name='est')
+    truth = _write_bag(tmp_path, {
+        '/attitude': ('geometry_msgs/msg/QuaternionStamped',
+                      lambda i: _make('QuaternionStamped', stamps[i], q_true[i], None)),
+        '/star_tracker': pose(noisy), '/estimator/odom': pose(noisy)}, n=n, name='truth')
+    out = tmp_path / 'r.json'
+    assert compare.main([str(est), '--truth', str(truth), '--json', str(out)]) == 0
+    r = json.loads(out.read_text())['topics'][0]
+    assert r['truth_topic'] == '/attitude' and r['count'] == n
+    assert_allclose(r['max'], 0.01, rtol=0, atol=1e-9)
+    # nor another estimator's odom of the same name, when the runs name the node's topics
+    est2 = _write_bag(tmp_path, {'/estimator/odom': pose(q_est)}, n=n, name='est2')
+    c, t = read_bag(str(est2)), read_bag(str(truth))
+    r = score_against_stream(c, extract_streams(c)[0], t, extract_streams(t)[0])[0]
+    assert r['truth_topic'] == '/attitude'
+    assert_allclose(r['max'], 0.01, rtol=0, atol=1e-9)
+    # only sensor topics in the truth log: refused, with the reason
+    sensors = _write_bag(tmp_path, {'/star_tracker': pose(noisy)}, n=n, name='sensors')
+    with pytest.raises(ScoreError, match='not used as the truth'):
+        c, t = read_bag(str(est)), read_bag(str(sensors))
+        score_against_stream(c, extract_streams(c)[0], t, extract_streams(t)[0])
+    # a truth log that misses 0.5 s (samples 100..149): the messages inside are skipped
+    kept = np.r_[0:100, 150:n]
+    gap = _write_bag(tmp_path, {'/attitude': (
+        'geometry_msgs/msg/QuaternionStamped',
+        lambda i: _make('QuaternionStamped', stamps[kept[i]], q_true[kept[i]], None))},
+        n=len(kept), name='gap')
+    c, t = read_bag(str(est)), read_bag(str(gap))
+    r = score_against_stream(c, extract_streams(c)[0], t, extract_streams(t)[0])[0]
+    assert r['truth_gaps'] == 50 and r['count'] == n - 50
+    assert_allclose(r['max'], 0.01, rtol=0, atol=1e-9)
+    lines = compare._table([r], [])
+    assert '50 message(s) inside gaps of the truth log (/attitude) not scored' in lines
 
 
 def test_reindex_a_torn_split_bag(tmp_path):
@@ -519,3 +583,73 @@ def test_reindex_a_torn_split_bag(tmp_path):
     assert got == [f'{k}' for k in range(5)]
     info = yaml.safe_load((torn / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert info['message_count'] == 6 and len(info['files']) == 5
+
+
+def test_a_channel_without_schema_is_skipped_with_a_note(tmp_path):
+    """Schema id 0 is legal MCAP: read, compare and reindex skip that channel and say so."""
+    from mcap.writer import Writer
+    from rigidrot_ros.io.bag import reindex
+    from rigidrot_ros.io.msgdefs import schema_text
+    n = 50
+    _, stamps, q, _ = _truth(n)
+    path = tmp_path / 'mixed.mcap'
+    with open(path, 'wb') as fh:
+        w = Writer(fh, use_chunking=False)
+        w.start(profile='ros2', library='test')
+        ids = {}
+        for topic, ty in (('/attitude_node/run', 'std_msgs/msg/String'),
+                          ('/attitude', 'geometry_msgs/msg/QuaternionStamped')):
+            sid = w.register_schema(name=ty, encoding='ros2msg',
+                                    data=schema_text(ty).encode())
+            ids[topic] = w.register_channel(topic=topic, message_encoding='cdr',
+                                            schema_id=sid)
+        raw = w.register_channel(topic='/j', message_encoding='json', schema_id=0)
+        w.add_message(ids['/attitude_node/run'], START, serialize_message(_run_msg()), START)
+        for k in range(n):
+            w.add_message(ids['/attitude'], int(stamps[k]), serialize_message(
+                _make('QuaternionStamped', stamps[k], q[k], None)), int(stamps[k]))
+            w.add_message(raw, int(stamps[k]), b'{"k": 1}', int(stamps[k]))
+        w.finish()
+    torn = tmp_path / 'torn.mcap'
+    torn.write_bytes(path.read_bytes()[:-40])          # the footer cut off
+    for p in (path, torn):
+        c = read_bag(str(p))
+        assert c.schemaless == ['/j'] and '/j' not in c.topics
+        assert "channel(s) ['/j'] have no schema" in c.note
+        assert sum(m[0] == '/attitude' for m in c.messages) == n
+        out = subprocess.run([sys.executable, '-m', 'rigidrot_ros.tools.compare', str(p)],
+                             capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0 and 'Traceback' not in out.stderr, out.stderr
+        assert 'have no schema' in out.stderr
+    assert 'unfinished file' in read_bag(str(torn)).note
+    assert reindex(str(path))['rewritten'] == []
+    done = reindex(str(torn))
+    assert done['rewritten'] == [str(torn)] and done['counts']['/attitude'] == n
+    assert any('have no schema' in note for note in done['notes'])
+
+
+def test_reindex_never_merges_a_foreign_mcap(tmp_path):
+    """An unlisted .mcap in a bag directory is another bag's, not part of this one."""
+    from rigidrot_ros.io.bag import reindex
+    bag = _simple_bag(tmp_path, 'own', START, 30)
+    other = _simple_bag(tmp_path, 'other', START, 20)
+    shutil.copy(next(other.glob('*.mcap')), bag / 'other.mcap')
+    meta = (bag / 'metadata.yaml').read_text()
+    with pytest.raises(BagError, match=r"\['other.mcap'\], which metadata.yaml does not"):
+        reindex(str(bag))
+    assert (bag / 'metadata.yaml').read_text() == meta
+    # metadata.yaml unreadable: only <dir>_<n>.mcap is the bag; the stranger is left alone
+    (bag / 'metadata.yaml').write_text('{{{ not yaml')
+    out = reindex(str(bag))
+    assert [os.path.basename(f) for f in out['files']] == [f'{bag.name}_0.mcap']
+    assert out['counts'] == {'/attitude_node/run': 1, '/attitude': 30}
+    assert any("['other.mcap']: not named" in n for n in out['notes'])
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['relative_file_paths'] == [f'{bag.name}_0.mcap']
+    assert (bag / 'metadata.yaml.orig').read_text() == '{{{ not yaml'
+    # no file of the bag's own name: refused, nothing renamed or rebuilt
+    os.rename(bag / f'{bag.name}_0.mcap', bag / 'renamed.mcap')
+    os.remove(bag / 'metadata.yaml')
+    with pytest.raises(BagError, match='no file named'):
+        reindex(str(bag))
+    assert not (bag / 'metadata.yaml').exists()

@@ -343,6 +343,7 @@ class BagContents:
     files: list = field(default_factory=list)       # the .mcap files read, in order
     channel_metadata: dict = field(default_factory=dict)   # topic -> channel metadata map
     metadata: list = field(default_factory=list)    # every (name, map) metadata record
+    schemaless: list = field(default_factory=list)  # topics of channels with no schema
 
 
 def _file_index(name):
@@ -369,22 +370,7 @@ def bag_files(path):
     present = sorted((f for f in os.listdir(path) if f.endswith('.mcap')), key=_file_index)
     meta_path = os.path.join(path, 'metadata.yaml')
     if os.path.exists(meta_path):
-        try:
-            with open(meta_path, encoding='utf-8') as fh:
-                meta = yaml.safe_load(fh)
-            info = meta['rosbag2_bagfile_information']
-            listed = info.get('relative_file_paths')
-            if listed is None:
-                listed = [f['path'] for f in info.get('files') or []]
-            if not isinstance(listed, list) or not all(isinstance(f, str) for f in listed):
-                raise TypeError('relative_file_paths is not a list of file names')
-        except (yaml.YAMLError, KeyError, TypeError, AttributeError, UnicodeDecodeError,
-                OSError) as exc:
-            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise BagError(f'{meta_path}: not a valid rosbag2 metadata file '
-                           f'({type(exc).__name__}: {why}); move it away to read the .mcap '
-                           f'files alone') from None
-        listed = [os.path.basename(f) for f in listed]
+        listed = _listed_files(meta_path)
         missing = [f for f in listed if f not in present]
         if missing:
             raise BagError(f'{meta_path} lists {missing}, which the directory does not hold')
@@ -398,6 +384,26 @@ def bag_files(path):
     if not files:
         raise BagError(f'{path}: a directory with no .mcap file is not a bag')
     return [os.path.join(path, f) for f in files]
+
+
+def _listed_files(meta_path):
+    """Return the file names a rosbag2 ``metadata.yaml`` lists; BagError if it is not one."""
+    try:
+        with open(meta_path, encoding='utf-8') as fh:
+            meta = yaml.safe_load(fh)
+        info = meta['rosbag2_bagfile_information']
+        listed = info.get('relative_file_paths')
+        if listed is None:
+            listed = [f['path'] for f in info.get('files') or []]
+        if not isinstance(listed, list) or not all(isinstance(f, str) for f in listed):
+            raise TypeError('relative_file_paths is not a list of file names')
+    except (yaml.YAMLError, KeyError, TypeError, AttributeError, UnicodeDecodeError,
+            OSError) as exc:
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise BagError(f'{meta_path}: not a valid rosbag2 metadata file '
+                       f'({type(exc).__name__}: {why}); move it away to read the .mcap '
+                       f'files alone') from None
+    return [os.path.basename(f) for f in listed]
 
 
 def _decode_run(data):
@@ -437,12 +443,12 @@ def _read_indexed(fpath, out):
             if summary is None:
                 return False
             for channel in summary.channels.values():
-                if channel.schema_id in summary.schemas:
-                    _note(part, summary.schemas[channel.schema_id], channel)
+                _note(part, summary.schemas.get(channel.schema_id), channel)
             for rec in reader.iter_metadata():
                 part.metadata.append((rec.name, dict(rec.metadata)))
             for schema, channel, msg in reader.iter_messages(log_time_order=True):
-                _note(part, schema, channel)
+                if schema is None:
+                    continue                  # no schema: noted above, not read
                 part.messages.append((channel.topic, schema.name, msg.log_time,
                                       msg.publish_time, msg.data))
     except (McapError, struct.error, EOFError, ValueError, KeyError, OSError):
@@ -463,13 +469,12 @@ def _read_stream(fpath, out):
                     schemas[rec.id] = rec
                 elif isinstance(rec, Channel):
                     channels[rec.id] = rec
-                    if rec.schema_id in schemas:
-                        _note(part, schemas[rec.schema_id], rec)
+                    _note(part, schemas.get(rec.schema_id), rec)
                 elif isinstance(rec, Message):
                     ch = channels.get(rec.channel_id)
                     sc = schemas.get(ch.schema_id) if ch else None
                     if ch is None or sc is None:
-                        continue
+                        continue              # unknown channel, or one with no schema
                     _note(part, sc, ch)
                     part.messages.append((ch.topic, sc.name, rec.log_time, rec.publish_time,
                                           rec.data))
@@ -496,6 +501,7 @@ def _merge(out, part):
         out.channel_metadata.setdefault(t, v)
     out.messages.extend(part.messages)
     out.metadata.extend(part.metadata)
+    out.schemaless.extend(t for t in part.schemaless if t not in out.schemaless)
     out.truncated = out.truncated or part.truncated
 
 
@@ -521,7 +527,9 @@ def read_bag(path):
     for fpath in files:
         if not _read_indexed(fpath, out):
             notes.append((f'{os.path.basename(fpath)}: ' if len(files) > 1 else '')
-                         + _read_stream(fpath, out))
+                         + 'unfinished file, ' + _read_stream(fpath, out))
+    if out.schemaless:
+        notes.append(_schemaless_note(out.schemaless))
     out.note = '; '.join(notes)
     if len(files) > 1:
         out.messages.sort(key=lambda m: m[2])
@@ -548,7 +556,17 @@ def _collect_runs(bag):
     return runs
 
 
+def _schemaless_note(topics):
+    return (f'channel(s) {sorted(topics)} have no schema (legal MCAP, but no type to decode '
+            f'them with): skipped')
+
+
 def _note(out, schema, channel):
+    """Note the topic of ``channel``; a channel with no schema (id 0) is listed apart."""
+    if schema is None:
+        if channel.topic not in out.schemaless:
+            out.schemaless.append(channel.topic)
+        return
     if channel.topic not in out.topics:
         out.topics[channel.topic] = (schema.name,
                                      channel.metadata.get('offered_qos_profiles', ''),
@@ -564,7 +582,9 @@ def reindex(path, backup=True):
     rewritten in place with a summary, an index and the end magic, and ``metadata.yaml``
     is rebuilt with the true counts and times. With ``backup`` the original file is kept
     beside it as ``<file>.orig`` (no ``.mcap`` ending, so it is not read as part of the
-    bag). A finished file is left as it is.
+    bag). A finished file is left as it is. The files are those ``metadata.yaml`` lists;
+    only when it is missing or unreadable are they the directory's ``<dir>_<n>.mcap``
+    (any other ``.mcap`` there is left alone, with a note).
 
     Parameters
     ----------
@@ -585,19 +605,12 @@ def reindex(path, backup=True):
     """
     if os.path.isdir(path) and not any(f.endswith('.mcap') for f in os.listdir(path)):
         raise BagError(f'{path}: a directory with no .mcap file is not a bag')
+    notes = []
     if os.path.isdir(path):
-        meta = os.path.join(path, 'metadata.yaml')
-        try:
-            files = bag_files(path)
-        except BagError:
-            # metadata.yaml is what reindex rebuilds: a broken one is replaced
-            files = [os.path.join(path, f) for f in sorted(
-                (f for f in os.listdir(path) if f.endswith('.mcap')), key=_file_index)]
-            if os.path.exists(meta):
-                os.replace(meta, meta + '.orig')
+        files = _reindex_files(path, notes)
     else:
         files = bag_files(path)
-    topics, counts, per_file, rewritten, notes = {}, {}, {}, [], []
+    topics, counts, per_file, rewritten = {}, {}, {}, []
     first = last = None
     for fpath in files:
         with open(fpath, 'rb') as fh:
@@ -609,6 +622,11 @@ def reindex(path, backup=True):
             notes.append(f'{os.path.basename(fpath)}: ' + _read_stream(fpath, part))
             _rewrite(fpath, part, backup)
             rewritten.append(fpath)
+        if part.schemaless:
+            notes.append(f'{os.path.basename(fpath)}: ' + _schemaless_note(part.schemaless)
+                         + (' (not kept in the rewrite; the original is '
+                            + ('kept as .orig)' if backup else 'gone: --no-backup)')
+                            if fpath in rewritten else ''))
         for t, (ty, q, _) in part.topics.items():
             topics.setdefault(t, (ty, q))
         n = 0
@@ -626,6 +644,40 @@ def reindex(path, backup=True):
         write_metadata_yaml(path, [os.path.basename(f) for f in files], topics, counts,
                             first, last, per_file)
     return {'files': files, 'rewritten': rewritten, 'counts': counts, 'notes': notes}
+
+
+def _reindex_files(path, notes):
+    """Return the files of bag directory ``path`` to reindex.
+
+    A readable ``metadata.yaml`` gives them (as for reading: a listed file missing, or an
+    unlisted ``.mcap``, is refused). Only when it is missing or unreadable (it is what
+    reindex rebuilds; a broken one is kept as ``metadata.yaml.orig``) are the files taken
+    from the directory, and then only those named ``<dir>_<n>.mcap``, as rosbag2 names
+    them: another ``.mcap`` lying there is no part of the bag and is left alone.
+    """
+    meta = os.path.join(path, 'metadata.yaml')
+    if os.path.exists(meta):
+        try:
+            _listed_files(meta)
+        except BagError as exc:
+            notes.append(f'{exc}; rebuilt from the files named <dir>_<n>.mcap')
+        else:
+            return bag_files(path)
+    base = os.path.basename(os.path.normpath(path))
+    own = re.compile(re.escape(base) + r'_\d+\.mcap')
+    present = sorted((f for f in os.listdir(path) if f.endswith('.mcap')), key=_file_index)
+    names = [f for f in present if own.fullmatch(f)]
+    if not names:
+        raise BagError(f'{path}: no readable metadata.yaml and no file named {base}_<n>.mcap '
+                       f'(it holds {present}); rename its files to {base}_0.mcap, ... '
+                       f'or restore its metadata.yaml')
+    others = [f for f in present if f not in names]
+    if others:
+        notes.append(f'{others}: not named {base}_<n>.mcap, so no part of the bag: left '
+                     f'as they are (move them away to read the bag)')
+    if os.path.exists(meta):
+        os.replace(meta, meta + '.orig')
+    return [os.path.join(path, f) for f in names]
 
 
 def _rewrite(fpath, part, backup):

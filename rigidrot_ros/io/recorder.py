@@ -37,6 +37,7 @@ Discovery and what it guarantees:
 """
 
 import importlib
+import re
 import time
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -50,6 +51,7 @@ __all__ = ['Recorder', 'type_name_of', 'qos_to_yaml', 'qos_from_yaml', 'keep_las
            'msg_class', 'check_type']
 
 _INFINITE = {'sec': 2147483647, 'nsec': 4294967295}
+_ROS_TYPE = re.compile(r'[A-Za-z_][A-Za-z0-9_]*/msg/[A-Za-z_][A-Za-z0-9_]*')
 
 
 def type_name_of(msg_or_class):
@@ -119,7 +121,14 @@ def check_type(type_name):
 
 
 def msg_class(type_name, error=ValueError):
-    """Return the message class of ``pkg/msg/Type``; raise ``error`` if it is not installed."""
+    """Return the message class of ``pkg/msg/Type``; raise ``error`` if it is not installed.
+
+    A name of another form (a protobuf ``foo.Bar``, a JSON schema) is not a ROS 2 message
+    type: ``error`` too, with that reason.
+    """
+    if not _ROS_TYPE.fullmatch(str(type_name)):
+        raise error(f'{type_name!r} is not a ROS 2 message type (pkg/msg/Type): a channel of '
+                    f'another encoding cannot be published here')
     pkg, _, name = type_name.split('/')
     try:
         return getattr(importlib.import_module(f'{pkg}.msg'), name)

@@ -72,23 +72,40 @@ def nees(e, cov):
 
 
 def _chi2_ppf(p, k):
-    """Quantile of chi-square with ``k`` degrees of freedom (bisection on mpmath's P)."""
+    """Quantile of chi-square with ``k`` degrees of freedom (safeguarded Newton on the CDF).
+
+    The CDF is ``1 - Q(k/2, x/2)`` with ``Q`` mpmath's regularized upper incomplete gamma:
+    its series for the lower ``P(a, 0, x)`` stops converging for ``k`` above about 15000
+    (5000 samples of 3 degrees of freedom), the upper one does not. Newton starts at the
+    Wilson-Hilferty approximation and falls back to bisection when a step leaves the
+    bracket, so a million samples take milliseconds, not a bisection from zero.
+    """
     a = mpmath.mpf(k) / 2
+    log_norm = mpmath.loggamma(a) + mpmath.log(2)
 
     def cdf(x):
-        return mpmath.gammainc(a, 0, mpmath.mpf(x) / 2, regularized=True)
-    lo, hi = 0.0, max(2.0 * k, 10.0)
-    while cdf(hi) < p:
-        hi *= 2
+        return 1 - mpmath.gammainc(a, x / 2, mpmath.inf, regularized=True)
+
+    def pdf(x):
+        return mpmath.exp((a - 1) * mpmath.log(x / 2) - x / 2 - log_norm)
+    z = mpmath.sqrt(2) * mpmath.erfinv(2 * mpmath.mpf(p) - 1)
+    c = mpmath.mpf(2) / (9 * k)
+    x = max(k * (1 - c + z * mpmath.sqrt(c)) ** 3, mpmath.mpf(k) * 1e-3)
+    lo, hi = mpmath.mpf(0), mpmath.inf
     for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if cdf(mid) < p:
-            lo = mid
+        f = cdf(x) - p
+        if f < 0:
+            lo = x
         else:
-            hi = mid
-        if hi - lo <= 1e-12 * hi:
-            break
-    return 0.5 * (lo + hi)
+            hi = x
+        nxt = x - f / pdf(x)
+        if not lo < nxt < hi:
+            nxt = 2 * x if hi == mpmath.inf else (lo + hi) / 2
+        if abs(nxt - x) <= 1e-15 * nxt:
+            return nxt
+        x = nxt
+    raise ArithmeticError(f'chi-square quantile {p} with {k} degrees of freedom did not '
+                          f'converge in 200 steps (last bracket [{lo}, {hi}])')
 
 
 def anees_bounds(m, dof=3, level=0.95):
@@ -243,38 +260,82 @@ def _slerp(q0, q1, w):
     return quat.multiply(q0, quat.from_rotvec(axis * ang * w))
 
 
-def score_against_stream(bag, streams, truth_bag, truth_streams):
-    """Score streams against a second log's stream of the same field, by scene time."""
+#: The node's exact topics, by name (last component), in order of preference; its sensor
+#: topics (imu, star_tracker, delta_angle, delta_rotation) carry noise and are never a truth.
+TRUTH_NAMES = ('attitude', 'angular_velocity', 'odom', 'transform')
+#: A stream sample is interpolated only between truth samples at most this many median
+#: spacings apart; across a longer gap it is skipped and counted (``truth_gaps``).
+GAP_FACTOR = 2.0
+
+
+def _reference(s, truth_bag, truth_streams):
+    """Return the truth log's stream for ``s``: a node truth topic of the same field."""
+    names = {r.topic: r.topic.rsplit('/', 1)[-1] for r in truth_streams}
+    ref = [r for r in truth_streams if r.field == s.field and names[r.topic] in TRUTH_NAMES]
+    if not ref:
+        have = sorted({r.topic for r in truth_streams})
+        raise ScoreError(f'{truth_bag.path}: no {s.field} stream on a truth topic '
+                         f'({", ".join(TRUTH_NAMES)}) to compare {s.label} with; it has '
+                         f'{have} (sensor topics such as imu or star_tracker carry noise '
+                         f'and are not used as the truth)')
+    own = {t for r in truth_bag.runs for t in (r.get('topics') or {})}
+    # the node's own where the runs list them (an estimator's /estimator/odom is no truth),
+    # and among those the same topic if the truth log has it, else by name
+    ref = [r for r in ref if r.topic in own] or ref
+    return sorted(ref, key=lambda r: (r.topic != s.topic, TRUTH_NAMES.index(names[r.topic]),
+                                      r.topic))[0]
+
+
+def score_against_stream(bag, streams, truth_bag, truth_streams, cov_frame='body'):
+    """Score streams against a second log's stream of the same field, by scene time.
+
+    The truth is the truth log's stream on one of the node's exact topics
+    (:data:`TRUTH_NAMES`) of the same field, slerped (attitude) or interpolated linearly
+    (rate) between the two truth samples that bracket each message. Messages outside the
+    truth log, or inside a gap of it longer than :data:`GAP_FACTOR` times its median
+    spacing, are skipped; the latter are counted in ``truth_gaps``. With
+    ``cov_frame='inertial'`` the attitude error is rotated into N by the interpolated
+    truth's ``R_NB``, as :func:`score_against_runs` does.
+    """
+    if cov_frame not in ('body', 'inertial'):
+        raise ScoreError(f'cov_frame must be body or inertial, got {cov_frame!r}')
     results = []
     for s in streams:
-        ref = [r for r in truth_streams if r.field == s.field]
-        if not ref:
-            raise ScoreError(f'{truth_bag.path}: no {s.field} stream to compare {s.label} '
-                             f'with')
-        # the same topic if the truth log has it, else the node's own, else the first
-        own = {t for r in truth_bag.runs for t in (r.get('topics') or {})}
-        ref = sorted(ref, key=lambda r: (r.topic != s.topic, r.topic not in own))[0]
+        ref = _reference(s, truth_bag, truth_streams)
         _, t, _ = scene_times(bag, s.stamps, s.topic)
         _, tr, _ = scene_times(truth_bag, ref.stamps, ref.topic)
         keep = np.isfinite(tr) & np.all(np.isfinite(ref.values), axis=1)
         order = np.argsort(tr[keep])
         tr, vals = tr[keep][order], ref.values[keep][order]
+        steps = np.diff(tr)
+        steps = steps[steps > 0]
+        max_gap = GAP_FACTOR * float(np.median(steps)) if len(steps) else math.inf
         err = np.full(len(t), np.nan)
         comp = np.full((len(t), 3), np.nan)
+        gaps = 0
         for k, tk in enumerate(t):
             if (not len(tr) or not np.isfinite(tk) or not tr[0] <= tk <= tr[-1]
                     or not np.all(np.isfinite(s.values[k]))):
                 continue                              # outside the truth log: skipped
             hi = int(min(max(np.searchsorted(tr, tk), 1), len(tr) - 1))
             lo = max(hi - 1, 0)
+            if tr[hi] - tr[lo] > max_gap and tk not in (tr[lo], tr[hi]):
+                gaps += 1                             # inside a gap of the truth: skipped
+                continue
             w = 0.0 if tr[hi] == tr[lo] else (tk - tr[lo]) / (tr[hi] - tr[lo])
             if s.field == ORIENTATION:
-                comp[k] = rotation_error(_slerp(vals[lo], vals[hi], w), s.values[k])
+                q_ref = _slerp(vals[lo], vals[hi], w)
+                comp[k] = rotation_error(q_ref, s.values[k])
+                if cov_frame == 'inertial':
+                    comp[k] = quat.to_matrix(q_ref) @ comp[k]
             else:
                 comp[k] = s.values[k] - ((1 - w) * vals[lo] + w * vals[hi])
             err[k] = np.linalg.norm(comp[k])
         nv = nees(comp, s.cov) if (s.field == ORIENTATION and s.cov is not None) else None
-        results.append(_summary(s, t, err, comp, nv))
+        out = _summary(s, t, err, comp, nv)
+        out['truth_topic'] = ref.topic
+        out['truth_gaps'] = gaps
+        results.append(out)
     return results
 
 
@@ -284,4 +345,4 @@ def check_bag(bag):
         raise BagError(f'{bag.path}: the log holds no messages')
 
 
-__all__ += ['RATE', 'scene_times']
+__all__ += ['RATE', 'scene_times', 'TRUTH_NAMES', 'GAP_FACTOR']

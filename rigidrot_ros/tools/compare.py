@@ -12,6 +12,7 @@ ANEES with its 95 % chi-square bounds. Topics it cannot score are listed with th
 import csv
 import json
 import math
+import os
 import sys
 
 from rigidrot_ros.io.bag import BagError, read_bag
@@ -25,6 +26,7 @@ CONVENTION = ('attitude error e: q_true^-1 * q_est = exp(e/2), e in the body fra
               'NEES = e^T P^-1 e with P the orientation covariance')
 _ARRAYS = ('t', 'error', 'nees', 'components', 'sigma')
 _FLOOR = 1e-17
+PLOT_SUFFIXES = ('.png', '.svg', '.pdf')
 
 
 def _table(results, skipped):
@@ -46,6 +48,9 @@ def _table(results, skipped):
             nees_txt = 'no usable covariance'
         lines.append(f'{r["label"]:36s} {kind:26s} {r["count"]:6d} {r["max"]:10.3e} '
                      f'{r["rms"]:10.3e} {r["p95"]:10.3e}  {r["unit"]:5s} {nees_txt}')
+        if r.get('truth_gaps'):
+            lines.append(f'{"":36s} {r["truth_gaps"]} message(s) inside gaps of the truth '
+                         f'log ({r["truth_topic"]}) not scored')
     for s in skipped:
         lines.append(f'{s["topic"]:36s} {s["type"].split("/")[-1]:26s}  not scored: '
                      f'{s["reason"]}')
@@ -139,7 +144,8 @@ def _parser():
     ap.add_argument('--truth', help='compare with this second log instead of the exact truth')
     ap.add_argument('--json', help='write a JSON summary here')
     ap.add_argument('--csv', help='write time, error and NEES of every sample here')
-    ap.add_argument('--plot', help='draw the errors over time into this PNG (matplotlib)')
+    ap.add_argument('--plot',
+                    help='draw the errors over time into this .png, .svg or .pdf (matplotlib)')
     ap.add_argument('--plot-topic', action='append',
                     help='plot this topic (repeatable; default: every scored topic that the '
                          'node did not publish, i.e. the estimators)')
@@ -157,16 +163,20 @@ def main(argv=None):
     """Entry point of ``rigidrot_compare``; returns the exit status."""
     opts = _parser().parse_args(argv)
     try:
+        if opts.plot and os.path.splitext(opts.plot)[1].lower() not in PLOT_SUFFIXES:
+            raise ScoreError(f'--plot {opts.plot}: the file name must end in '
+                             f'{", ".join(PLOT_SUFFIXES)} (the format is taken from it)')
         plt = _import_pyplot() if opts.plot else None
         bag = read_bag(opts.bag)
+        if bag.note:
+            print(f'note: {bag.path}: {bag.note}', file=sys.stderr)
         check_bag(bag)
-        if bag.truncated or bag.note:
-            print(f'note: {bag.path}: unfinished file, {bag.note}', file=sys.stderr)
         streams, skipped = extract_streams(bag, opts.topic)
         if opts.truth:
             tbag = read_bag(opts.truth)
             check_bag(tbag)
-            results = score_against_stream(bag, streams, tbag, extract_streams(tbag)[0])
+            results = score_against_stream(bag, streams, tbag, extract_streams(tbag)[0],
+                                           cov_frame=opts.cov_frame)
             title = f'{opts.bag} against {opts.truth}'
         else:
             results = score_against_runs(bag, streams, cov_frame=opts.cov_frame)

@@ -19,19 +19,32 @@ from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.tools.cli import OneLineParser
 
 
-def _wait_for_matching(node, pubs, limit):
-    """Wait until a subscriber has matched and every one in the graph has, ``limit`` at most.
+#: Seconds the matched-subscriber counts must hold still before playing starts.
+SETTLE = 0.5
 
-    Discovery on a loaded machine takes up to seconds (1.4 s measured here); a subscriber
-    not yet matched to a publisher would miss the first messages.
+
+def _wait_for_matching(node, pubs, limit, settle=SETTLE):
+    """Wait until subscribers have matched and stopped arriving; ``limit`` seconds at most.
+
+    Discovery on a loaded machine takes up to seconds (1.4 s measured here), and the
+    first subscriber to match may be a recorder, not the node under test: a subscriber not
+    yet matched would miss the first messages. Playing starts once some subscriber has
+    matched, every subscriber the graph shows has matched, and these counts have not
+    changed for ``settle`` seconds. Returns whether that happened within ``limit``.
     """
     t0 = time.monotonic()
+    state, since = None, t0
     while time.monotonic() - t0 < limit:
         rclpy.spin_once(node, timeout_sec=0.05)
         matched = [p.get_subscription_count() for p in pubs]
-        if any(matched) and all(m >= node.count_subscribers(p.topic_name)
-                                for m, p in zip(matched, pubs)):
-            return
+        graph = [node.count_subscribers(p.topic_name) for p in pubs]
+        now = time.monotonic()
+        if (matched, graph) != state:
+            state, since = (matched, graph), now
+        if (any(matched) and all(m >= g for m, g in zip(matched, graph))
+                and now - since >= settle):
+            return True
+    return False
 
 
 def main(argv=None):
@@ -48,7 +61,8 @@ def main(argv=None):
     ap.add_argument('--quiet', action='store_true', help='no progress line')
     ap.add_argument('--wait', type=float, default=5.0,
                     help='wait at most this many seconds for subscribers to match before '
-                         'playing (default 5; playing starts as soon as one has)')
+                         'playing (default 5; playing starts once one has and no other has '
+                         f'matched for {SETTLE:g} s)')
     opts = ap.parse_args(argv)
     if not (opts.rate > 0 and opts.rate < float('inf')):
         print('rigidrot_replay: --rate must be a positive finite number', file=sys.stderr)
@@ -66,8 +80,8 @@ def main(argv=None):
         return 2
     try:
         bag = read_bag(opts.bag)
-        if bag.truncated or bag.note:
-            print(f'note: {bag.path}: unfinished file, {bag.note}', file=sys.stderr)
+        if bag.note:
+            print(f'note: {bag.path}: {bag.note}', file=sys.stderr)
         topics = opts.topics or sorted(bag.topics)
         missing = [t for t in topics if t not in bag.topics]
         if missing:
@@ -82,7 +96,12 @@ def main(argv=None):
         return 2
     t0 = msgs[0][2] + int(opts.start * 1e9)
     t1 = t0 + int(opts.duration * 1e9) if opts.duration is not None else None
+    length = (msgs[-1][2] - msgs[0][2]) * 1e-9
     msgs = [m for m in msgs if m[2] >= t0 and (t1 is None or m[2] <= t1)]
+    if not msgs:
+        print(f'rigidrot_replay: {bag.path}: nothing to replay: --start {opts.start:g} s is '
+              f'past the end of the log ({length:.3f} s long)', file=sys.stderr)
+        return 2
     reason = init_ros('rigidrot_replay', ros_args)
     if reason is not None:
         print(f'rigidrot_replay: {reason}', file=sys.stderr)
