@@ -13,18 +13,14 @@ import yaml
 from rigidrot_ros.core import MIN_TOL, Scene
 from rigidrot_ros.sensors import AttitudeNoise, GyroNoise
 
-__all__ = ['PACKAGE', 'SCENE_KEYS', 'SENSOR_KEYS', 'OUTPUT_KEYS', 'BACKENDS', 'find_config',
+__all__ = ['PACKAGE', 'SCENE_KEYS', 'OUTPUT_KEYS', 'BACKENDS', 'find_config',
            'load_defaults', 'scene_from_params', 'solver_options', 'sensor_settings',
            'SensorSettings']
 
 PACKAGE = 'rigidrot_ros'
 SCENE_KEYS = ('inertia', 'torque', 'torque_frame', 'omega0', 'attitude0')
 BACKENDS = ('auto', 'flint', 'mpmath')
-#: Sensor parameters (applied at the next ~/reset) and output switches (read only).
-SENSOR_KEYS = ('imu.rate', 'imu.gyro_noise_density', 'imu.gyro_random_walk',
-               'imu.gyro_bias', 'imu.seed', 'star_tracker.rate',
-               'star_tracker.cross_boresight_arcsec', 'star_tracker.about_boresight_arcsec',
-               'star_tracker.boresight', 'star_tracker.seed')
+#: Output switches (read only).
 OUTPUT_KEYS = ('imu.enable', 'star_tracker.enable', 'odom.enable', 'transform.enable',
                'markers.enable')
 #: Highest sensor rate, Hz (the node's publish_rate has the same ceiling).
