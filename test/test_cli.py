@@ -44,6 +44,8 @@ CASES = [
     row('attitude_node', ['--ros-args', '-p', 'inertia:=[2e-300, 2e-300, 1e-300]'], 2,
         ['invalid parameters', 'inertia', 't = 0.01 s']),
     row('attitude_node', ['--ros-args', '-p', 'tol:=1e-20'], 2, ['tol']),
+    row('attitude_node', ['--ros-args', '-p', 'tol:=5'], 2, ['invalid parameters', 'tol',
+                                                             '[2e-14, 1]']),
     row('attitude_node', ['--ros-args', '-p', 'torque:=[0.0, 0.0, 1e300]'], 2,
         ['invalid parameters', 'torque']),
     row('attitude_node', ['--ros-args', '-p', 'torque:=[1e300, 0.0, 0.0]', '-p',

@@ -54,14 +54,15 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from rigidrot_ros import __version__
-from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
+from rigidrot_ros.core import MIN_TOL, NoExactSolution, PrecisionError, solve
 from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter
 from rigidrot_ros.io.recorder import Recorder, type_name_of
 from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.sensors import Gyro, StarTracker
 from rigidrot_ros.settings import (
-    load_defaults, OUTPUT_KEYS, scene_from_params, SCENE_KEYS, sensor_settings, solver_options,
+    load_defaults, MAX_TOL, OUTPUT_KEYS, scene_from_params, SCENE_KEYS, sensor_settings,
+    solver_options,
 )
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
@@ -138,7 +139,7 @@ _DESCRIPTIONS = {
 }
 _READ_ONLY = ('qos_depth', 'record', 'record_path', 'record_topics') + OUTPUT_KEYS
 _RANGES = {
-    'tol': FloatingPointRange(from_value=2e-14, to_value=1.0),
+    'tol': FloatingPointRange(from_value=MIN_TOL, to_value=MAX_TOL),
     'publish_rate': FloatingPointRange(from_value=1e-3, to_value=1e4),
     'time_scale': FloatingPointRange(from_value=0.0, to_value=1e9),
     'imu.rate': FloatingPointRange(from_value=0.0, to_value=1e4),
