@@ -263,6 +263,9 @@ def test_unknown_override_is_named_not_dropped_in_silence():
     node = _node(**{'imu.enabel': True, 'publish_rat': 5.0})
     assert node.unknown_overrides == ['imu.enabel', 'publish_rat']
     node.destroy_node()
+    node = _node(use_sim_time=False, start_type_description_service=False)   # rclpy's own
+    assert node.unknown_overrides == []
+    node.destroy_node()
     env = ros_env(next_domain_id())
     proc = start([script('attitude_node'), '--ros-args', '-p', 'imu.enabel:=true'], env)
     try:

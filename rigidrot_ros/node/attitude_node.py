@@ -150,8 +150,8 @@ _RANGES = {
     'star_tracker.about_boresight_arcsec': FloatingPointRange(from_value=0.0, to_value=3600.0),
 }
 _SEEDS = ('imu.seed', 'star_tracker.seed')
-#: Parameters rclpy declares by itself.
-_BUILTIN = ('use_sim_time',)
+#: Parameters rclpy declares by itself (rclpy.time_source, rclpy.type_description_service).
+_BUILTIN = ('use_sim_time', 'start_type_description_service')
 _EPS = float(np.finfo(float).eps)
 #: Work one sensor callback may do before it leaves due samples to the next one, s.
 _BUDGET_S = 0.02
@@ -355,7 +355,7 @@ class AttitudeNode(Node):
         """Warn about ``-p name:=value`` overrides that name no parameter of this node."""
         known = set(_DESCRIPTIONS) | set(_BUILTIN)
         unknown = sorted(n for n in getattr(self, '_parameter_overrides', {})
-                         if n not in known)
+                         if n not in known and not self.has_parameter(n))
         for name in unknown:
             close = difflib.get_close_matches(name, sorted(known), n=1)
             hint = f' (did you mean {close[0]}?)' if close else ''
