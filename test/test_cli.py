@@ -28,7 +28,8 @@ def row(prog, args, code, words=(), lines=1, block=(), env=None, id=None):
 CASES = [
     # attitude_node
     row('attitude_node', ['--help'], 0, ['usage: attitude_node', 'publish_rate', 'inertia',
-                                         '~/reset', '/diagnostics', 'angular_velocity']),
+                                         '~/reset', '/diagnostics', 'angular_velocity',
+                                         '~/run', 'std_msgs/String']),
     row('attitude_node', ['-h'], 0, ['usage: attitude_node']),
     row('attitude_node', ['--bogus'], 2, ['unrecognized arguments: --bogus']),
     row('attitude_node', ['--ros-args', '--params-file', 'config/nope.yaml'], 2,

@@ -796,6 +796,8 @@ def usage():
         'timing, delivered rate',
         '  ~/reset             std_srvs/srv/Trigger             restart at t = 0 from the '
         'current parameters',
+        '  ~/run               std_msgs/String                  run description as JSON '
+        '(transient-local)',
         '  with imu.enable: imu (sensor_msgs/Imu), delta_angle, delta_rotation '
         '(Vector3Stamped);',
         '  with star_tracker.enable: star_tracker (PoseWithCovarianceStamped); with '
