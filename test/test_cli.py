@@ -54,6 +54,13 @@ CASES = [
     row('attitude_node', ['--ros-args', '-p', 'publish_rate:=abc'], 2, ['publish_rate']),
     row('attitude_node', ['--ros-args', '-p', 'publish_rate:=1e5'], 2, ['publish_rate']),
     row('attitude_node', ['--ros-args', '-p', 'backend:=gpu'], 2, ['backend']),
+    # (record:=yes is YAML 1.1 true to rcl, as in any ROS 2 node: it does record)
+    row('attitude_node', ['--ros-args', '-p', 'record:=1'], 2,
+        ['invalid parameters', 'parameter record must be true or false']),
+    row('attitude_node', ['--ros-args', '-p', 'record:=true', '-p', 'record_topics:=5'], 2,
+        ['invalid parameters', 'parameter record_topics must be a list of strings']),
+    row('attitude_node', ['--ros-args', '-p', 'record:=true', '-p', 'record_path:=5'], 2,
+        ['invalid parameters', 'parameter record_path must be a string']),
     row('attitude_node', ['--ros-args', '-p', 'record:=true', '-p',
                           'record_path:=/proc/no/such/dir'], 2, ['cannot record']),
     row('attitude_node', [], 2, ['invalid environment', 'ROS_DOMAIN_ID'],

@@ -191,6 +191,16 @@ def _check_run_params(p):
     d = p['qos_depth']
     if isinstance(d, bool) or not isinstance(d, int) or not 1 <= d <= 10000:
         raise ValueError(f'parameter qos_depth must be an integer in [1, 10000], got {d!r}')
+    if not isinstance(p['record'], bool):
+        raise ValueError(f'parameter record must be true or false, got {p["record"]!r}')
+    if not isinstance(p['record_path'], str):
+        raise ValueError(f'parameter record_path must be a string (a directory), '
+                         f'got {p["record_path"]!r}')
+    topics = p['record_topics']
+    if isinstance(topics, (str, bytes)) or not isinstance(topics, (list, tuple)) or \
+            not all(isinstance(t, str) for t in topics):
+        raise ValueError(f'parameter record_topics must be a list of strings '
+                         f"(['NAME:pkg/msg/Type', ...]), got {topics!r}")
 
 
 def build_solution(p):
