@@ -634,22 +634,25 @@ class AttitudeNode(Node):
         imu_mean, imu_max = st.imu_window()
         sol = self._solution
         bound = float(self._last_sample[1].error_bound) if self._last_sample else 0.0
-        level, msg = DiagnosticStatus.OK, f'exact solution: {sol.model}'
+        warns = []                  # every reason of this window, not only the last
         if mx > self._period:
-            level, msg = DiagnosticStatus.WARN, 'evaluation slower than the timer period'
+            warns.append('evaluation slower than the timer period')
         delivered = self._delivered_rate()
         if delivered is not None and delivered < 0.9 * self._period_hz:
-            level, msg = DiagnosticStatus.WARN, (
-                f'delivering {delivered:.4g} Hz of the {self._period_hz:g} Hz asked '
-                '(publish_rate beyond what this machine and executor deliver)')
+            warns.append(f'delivering {delivered:.4g} Hz of the {self._period_hz:g} Hz asked '
+                         '(publish_rate beyond what this machine and executor deliver)')
         if bound > sol.tol:
-            level, msg = DiagnosticStatus.WARN, 'error bound above tol'
+            warns.append('error bound above tol')
         if st.skipped > st.skipped_reported:
             st.skipped_reported = st.skipped
-            level, msg = DiagnosticStatus.WARN, ('sensor samples skipped (a clock jump, or '
-                                                 'sensor rates above what this CPU keeps up)')
+            warns.append('sensor samples skipped (a clock jump, or sensor rates above what '
+                         'this CPU keeps up)')
+        level, msg = DiagnosticStatus.OK, f'exact solution: {sol.model}'
+        if warns:
+            level, msg = DiagnosticStatus.WARN, '; '.join(warns)
         if st.errors:
-            level, msg = DiagnosticStatus.ERROR, f'evaluation failed: {st.last_error}'
+            level = DiagnosticStatus.ERROR
+            msg = '; '.join([f'evaluation failed: {st.last_error}'] + warns)
             st.errors = 0
         values = {
             'model': sol.model, 'method': sol.method, 'backend': sol.backend,
