@@ -153,7 +153,8 @@ _SEEDS = ('imu.seed', 'star_tracker.seed')
 #: Parameters rclpy declares by itself (rclpy.time_source, rclpy.type_description_service).
 _BUILTIN = ('use_sim_time', 'start_type_description_service')
 _EPS = float(np.finfo(float).eps)
-#: Work one sensor callback may do before it leaves due samples to the next one, s.
+#: Work one sensor callback may do before it leaves due samples to the next one, s; also
+#: the most one gyro sample's quadrature may take (past it the sample fails, reported).
 _BUDGET_S = 0.02
 
 
@@ -220,12 +221,16 @@ def build_solution(p):
                          f'{list(scene.omega0)})') from None
 
 
-def _trial(sol, p):
+def _trial(sol, p, cfg=None):
     """Evaluate the first two ticks of a candidate scene; return None or why it fails.
 
     A scene whose first tick (t = 0) or second (one period in, scaled by ``time_scale``)
     cannot be evaluated, or costs more than :data:`_TRIAL_LIMIT_S`, would leave the node
-    publishing nothing, or blocking its services; it is refused instead.
+    publishing nothing, or blocking its services; it is refused instead. With the sensor
+    settings ``cfg`` (:func:`sensor_settings`), the first gyro sample (one interval,
+    ``time_scale / imu_rate`` s of scene time, its quadrature within :data:`_BUDGET_S` as
+    in the node) and the first star tracker sample are tried the same way, and a gyro
+    sample whose increment bound is not finite refuses the scene too.
     """
     t1 = float(p['time_scale']) / float(p['publish_rate'])
     for t in (0.0, t1):
@@ -240,6 +245,40 @@ def _trial(sol, p):
             return (f'one sample of this scene takes {cost:.3g} s to evaluate ({sol.model}, '
                     f"{sol.method}), beyond the node's limit of {_TRIAL_LIMIT_S:g} s; try "
                     "backend 'auto' or a larger tol")
+    if cfg is None:
+        return None
+    if cfg.imu:
+        dt = float(p['time_scale']) / cfg.imu_rate
+        c0 = time.perf_counter()
+        try:                        # an ideal gyro: the run's own noise stream stays fresh
+            r = Gyro(sol).read(0.0, dt, budget=_BUDGET_S)
+        except Exception as exc:
+            return (f'the first gyro sample (imu.rate {cfg.imu_rate:g} Hz, time_scale '
+                    f'{float(p["time_scale"]):g}: {dt:g} s of scene time) cannot be '
+                    f'evaluated: {type(exc).__name__}: {exc}; lower time_scale or raise '
+                    'imu.rate')
+        cost = time.perf_counter() - c0
+        if cost > _TRIAL_LIMIT_S:
+            return (f'the first gyro sample ({dt:g} s of scene time) takes {cost:.3g} s, '
+                    f"beyond the node's limit of {_TRIAL_LIMIT_S:g} s; lower time_scale or "
+                    'raise imu.rate')
+        bound = max(r.delta_angle_bound, r.delta_rotation_bound)
+        if not math.isfinite(bound):
+            return (f'the gyro increments of this scene have no finite error bound '
+                    f'({bound!r} rad over the first {dt:g} s; omega0 or torque too large '
+                    'for float64); turn imu.enable off or choose a smaller scene')
+    if cfg.star_tracker:
+        t = float(p['time_scale']) / cfg.star_tracker_rate
+        c0 = time.perf_counter()
+        try:
+            StarTracker(sol).read(t)
+        except Exception as exc:
+            return (f'the first star tracker sample (t = {t:g} s) cannot be evaluated: '
+                    f'{type(exc).__name__}: {exc}')
+        cost = time.perf_counter() - c0
+        if cost > _TRIAL_LIMIT_S:
+            return (f'the first star tracker sample takes {cost:.3g} s, beyond the '
+                    f"node's limit of {_TRIAL_LIMIT_S:g} s")
     return None
 
 
@@ -311,10 +350,10 @@ class AttitudeNode(Node):
         self._warn_unknown_overrides()
         try:
             self._solution = build_solution(self._values())
-            trial = _trial(self._solution, self._values())
+            self._sensors = sensor_settings(self._values())
+            trial = _trial(self._solution, self._values(), self._sensors)
             if trial is not None:
                 raise ValueError(f'scene {self._scene_summary()}: {trial}')
-            self._sensors = sensor_settings(self._values())
             self._use_sensors(_make_sensors(self._solution, self._sensors))
         except ValueError as exc:
             raise SceneError(str(exc)) from None
@@ -450,14 +489,16 @@ class AttitudeNode(Node):
             return None                 # rclpy's own (use_sim_time, ...): rclpy checks them
         candidate = self._values(params)
         try:
-            if any(n in SCENE_KEYS or n in ('tol', 'backend', 'time_scale') for n in names):
+            if any(n in SCENE_KEYS or n in ('tol', 'backend', 'time_scale', 'publish_rate')
+                   or n.startswith(('imu.', 'star_tracker.')) for n in names):
                 sol = build_solution(candidate)    # validate the whole scene, keep running
-                reason = _trial(sol, candidate)
+                cfg = sensor_settings(candidate)   # the sensors, and time_scale against them
+                reason = _trial(sol, candidate, cfg)
                 if reason is not None:
                     return f'parameter(s) {", ".join(names)}: {reason}'
             else:
                 _check_run_params(candidate)
-            sensor_settings(candidate)             # the sensors, and time_scale against them
+                sensor_settings(candidate)
         except ValueError as exc:
             return str(exc)
         return None
@@ -585,7 +626,7 @@ class AttitudeNode(Node):
             ns1 = self._stamp_ns(rate, k)
             t0, t1 = self._scene_time(self._stamp_ns(rate, k - 1)), self._scene_time(ns1)
             try:
-                r = self._gyro.read(t0, t1)
+                r = self._gyro.read(t0, t1, budget=_BUDGET_S)
             except Exception as exc:    # PrecisionError or anything else: report it
                 self._failed(t1, exc)
                 continue
@@ -643,6 +684,8 @@ class AttitudeNode(Node):
                          '(publish_rate beyond what this machine and executor deliver)')
         if bound > sol.tol:
             warns.append('error bound above tol')
+        if not st.increment_bound <= sol.tol:      # also NaN and inf
+            warns.append(f'gyro increment error bound {st.increment_bound:.3g} rad above tol')
         if st.skipped > st.skipped_reported:
             st.skipped_reported = st.skipped
             warns.append('sensor samples skipped (a clock jump, or sensor rates above what '
@@ -759,10 +802,10 @@ class AttitudeNode(Node):
     def _on_reset(self, request, response):
         try:
             solution = build_solution(self._values())
-            trial = _trial(solution, self._values())
+            sensors = sensor_settings(self._values())
+            trial = _trial(solution, self._values(), sensors)
             if trial is not None:
                 raise ValueError(trial)
-            sensors = sensor_settings(self._values())
             devices = _make_sensors(solution, sensors)
         except ValueError as exc:
             response.success = False
@@ -773,6 +816,7 @@ class AttitudeNode(Node):
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
         self._last_sample = None
+        self._stats.increment_bound = 0.0   # the bound of this run's increments only
         self._run_pending = True            # the next tick announces the new run on ~/run
         self._use_sensors(devices)
         self._make_sensor_timers()
