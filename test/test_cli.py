@@ -51,6 +51,11 @@ CASES = [
         ['invalid parameters', 'torque']),
     row('attitude_node', ['--ros-args', '-p', 'torque:=[1e300, 0.0, 0.0]', '-p',
                           'torque_frame:=virtual'], 2, ['invalid parameters', 'torque']),
+    row('attitude_node', ['--ros-args', '-p', 'imu.enable:=true', '-p', 'time_scale:=1e9'], 2,
+        ['invalid parameters', 'first gyro sample', 'time_scale']),
+    row('attitude_node', ['--ros-args', '-p', 'imu.enable:=true', '-p',
+                          'omega0:=[1e300, -0.2, 0.5]'], 2,
+        ['invalid parameters', 'gyro']),    # no finite bound (or, under load, its budget)
     row('attitude_node', ['--ros-args', '-p', 'publish_rate:=abc'], 2, ['publish_rate']),
     row('attitude_node', ['--ros-args', '-p', 'publish_rate:=1e5'], 2, ['publish_rate']),
     row('attitude_node', ['--ros-args', '-p', 'backend:=gpu'], 2, ['backend']),

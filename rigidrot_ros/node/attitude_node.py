@@ -251,7 +251,8 @@ def _trial(sol, p, cfg=None):
         dt = float(p['time_scale']) / cfg.imu_rate
         c0 = time.perf_counter()
         try:                        # an ideal gyro: the run's own noise stream stays fresh
-            r = Gyro(sol).read(0.0, dt, budget=_BUDGET_S)
+            with np.errstate(over='ignore', invalid='ignore'):  # judged below, not warned
+                r = Gyro(sol).read(0.0, dt, budget=_BUDGET_S)
         except Exception as exc:
             return (f'the first gyro sample (imu.rate {cfg.imu_rate:g} Hz, time_scale '
                     f'{float(p["time_scale"]):g}: {dt:g} s of scene time) cannot be '
@@ -262,7 +263,7 @@ def _trial(sol, p, cfg=None):
             return (f'the first gyro sample ({dt:g} s of scene time) takes {cost:.3g} s, '
                     f"beyond the node's limit of {_TRIAL_LIMIT_S:g} s; lower time_scale or "
                     'raise imu.rate')
-        bound = max(r.delta_angle_bound, r.delta_rotation_bound)
+        bound = float(max(r.delta_angle_bound, r.delta_rotation_bound))
         if not math.isfinite(bound):
             return (f'the gyro increments of this scene have no finite error bound '
                     f'({bound!r} rad over the first {dt:g} s; omega0 or torque too large '

@@ -133,7 +133,8 @@ class RateBound:
                     phase = math.sqrt(self.mu * self.c) * r + math.atan(w / s)
                     y = np.where(phase < 0.5 * math.pi, s * np.tan(phase), np.inf)
                 log_err = math.log(math.sqrt(3.0) * hh) + np.log(y) + log_scale
-        err = np.exp(np.min(log_err[~np.isnan(log_err)], initial=np.inf))
+        with np.errstate(over='ignore'):          # a bound beyond float64 is inf, no warning
+            err = np.exp(np.min(log_err[~np.isnan(log_err)], initial=np.inf))
         return float(err)
 
     def rounding(self, t0, t1, n, w):
