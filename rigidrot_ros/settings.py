@@ -13,20 +13,18 @@ import yaml
 from rigidrot_ros.core import MIN_TOL, Scene
 from rigidrot_ros.sensors import AttitudeNoise, GyroNoise
 
-__all__ = ['PACKAGE', 'SCENE_KEYS', 'SENSOR_KEYS', 'OUTPUT_KEYS', 'BACKENDS', 'find_config',
+__all__ = ['PACKAGE', 'SCENE_KEYS', 'OUTPUT_KEYS', 'BACKENDS', 'find_config',
            'load_defaults', 'scene_from_params', 'solver_options', 'sensor_settings',
            'SensorSettings']
 
 PACKAGE = 'rigidrot_ros'
 SCENE_KEYS = ('inertia', 'torque', 'torque_frame', 'omega0', 'attitude0')
 BACKENDS = ('auto', 'flint', 'mpmath')
-#: Sensor parameters (applied at the next ~/reset) and output switches (read only).
-SENSOR_KEYS = ('imu.rate', 'imu.gyro_noise_density', 'imu.gyro_random_walk',
-               'imu.gyro_bias', 'imu.seed', 'star_tracker.rate',
-               'star_tracker.cross_boresight_arcsec', 'star_tracker.about_boresight_arcsec',
-               'star_tracker.boresight', 'star_tracker.seed')
+#: Output switches (read only).
 OUTPUT_KEYS = ('imu.enable', 'star_tracker.enable', 'odom.enable', 'transform.enable',
                'markers.enable')
+#: Loosest attitude accuracy the node accepts, rad (the lowest is core.MIN_TOL).
+MAX_TOL = 1.0
 #: Highest sensor rate, Hz (the node's publish_rate has the same ceiling).
 MAX_RATE = 1e4
 
@@ -114,11 +112,11 @@ def scene_from_params(params):
 def solver_options(params):
     """Return ``(tol, backend)`` for :func:`solve`, validated, backend None for 'auto'."""
     tol = params.get('tol', 1e-12)
-    if isinstance(tol, int) and not isinstance(tol, bool) and abs(tol) > 1e308:
-        tol = math.inf                                          # an int beyond the float range
-    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not math.isfinite(tol) \
-            or tol < MIN_TOL:
-        raise ValueError(f'parameter tol must be a finite number >= {MIN_TOL} rad, got {tol!r}')
+    # the declared range [MIN_TOL, MAX_TOL] binds rclpy only for doubles: check any number
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or \
+            not (MIN_TOL <= tol <= MAX_TOL):                    # NaN fails, ints compare exactly
+        raise ValueError(f'parameter tol must be a number in [{MIN_TOL:g}, {MAX_TOL:g}] rad, '
+                         f'got {tol!r}')
     backend = params.get('backend', 'auto')
     if backend not in BACKENDS:
         raise ValueError(f'parameter backend must be one of {BACKENDS}, got {backend!r}')

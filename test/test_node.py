@@ -76,6 +76,8 @@ def test_published_values_equal_the_core_at_the_stamp_time():
     ('inertia', [1.0, 2.0, 2.5], 'no exact solution'),
     ('tol', math.nan, 'tol'),
     ('tol', 1e-20, 'tol'),
+    ('tol', 0, 'tol must be a number in [2e-14, 1]'),          # an int: rclpy's range skips it
+    ('tol', 2, 'tol must be a number in [2e-14, 1]'),
     ('backend', 'numpy', 'backend must be one of'),
     ('publish_rate', -5.0, 'publish_rate'),
     ('time_scale', math.inf, 'time_scale'),

@@ -130,3 +130,33 @@ def test_a_scene_too_slow_to_evaluate_is_refused(monkeypatch):
     assert not res.successful
     assert 'omega0' in res.reason and 'to evaluate' in res.reason, res.reason
     assert omega0 == [0.3, -0.2, 0.5]
+
+
+def _diagnostics_of(node):
+    """Publish one diagnostics array of ``node`` and return its status (captured, not sent)."""
+    sent = []
+    node._pub_diag.publish = sent.append
+    node._publish_diagnostics()
+    return sent[0].status[0]
+
+
+def test_diagnostics_keep_every_warn_reason():
+    """A starved truth stream, skipped sensor samples and a loose bound: all three named."""
+    import time
+    from types import SimpleNamespace
+    node = AttitudeNode()
+    try:
+        node._rate_window = (time.monotonic() - 1.0, node._stats.published, node._period_hz)
+        node._stats.skipped = 7
+        node._last_sample = (0.0, SimpleNamespace(error_bound=1.0))
+        st = _diagnostics_of(node)
+        assert st.level == DiagnosticStatus.WARN
+        for words in ('delivering 0 Hz', 'sensor samples skipped', 'error bound above tol'):
+            assert words in st.message, st.message
+        node._stats.errors, node._stats.last_error = 1, 'boom'
+        node._stats.skipped = 8
+        st = _diagnostics_of(node)
+        assert st.level == DiagnosticStatus.ERROR
+        assert 'evaluation failed: boom' in st.message and 'skipped' in st.message, st.message
+    finally:
+        node.destroy_node()

@@ -5,7 +5,7 @@ import math
 import signal
 import sys
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import (
     PoseWithCovarianceStamped, QuaternionStamped, TransformStamped, Vector3Stamped,
 )
@@ -263,6 +263,9 @@ def test_unknown_override_is_named_not_dropped_in_silence():
     node = _node(**{'imu.enabel': True, 'publish_rat': 5.0})
     assert node.unknown_overrides == ['imu.enabel', 'publish_rat']
     node.destroy_node()
+    node = _node(use_sim_time=False, start_type_description_service=False)   # rclpy's own
+    assert node.unknown_overrides == []
+    node.destroy_node()
     env = ros_env(next_domain_id())
     proc = start([script('attitude_node'), '--ros-args', '-p', 'imu.enabel:=true'], env)
     try:
@@ -330,3 +333,57 @@ def test_imu_from_a_nested_params_file_reaches_another_process(tmp_path):
     assert all(m[1] == 'body' and m[3] == -1.0 for m in imu)
     assert all(m[2] == pytest.approx(1e-6 / 0.02, rel=1e-9) for m in imu)   # sigma_v^2 / dt
     assert 'unknown parameter' not in node_err
+
+
+#: The default scene (axial torque): a gyro interval of 2000 s costs it ~2 s of quadrature.
+AXIAL = {'inertia': [2.0, 2.0, 1.0], 'torque': [0.0, 0.0, 0.05], 'torque_frame': 'body'}
+
+
+def test_a_gyro_interval_too_long_to_integrate_is_refused():
+    """A huge time_scale or a tiny imu.rate: refused with a reason, quickly, state kept."""
+    import time
+    node = _node(**{'imu.enable': True, 'imu.rate': 100.0, **AXIAL})
+    try:
+        c0 = time.perf_counter()
+        result = node.set_parameters([Parameter('time_scale', value=1e9)])[0]
+        assert time.perf_counter() - c0 < 1.0
+        assert not result.successful
+        assert 'time_scale' in result.reason and 'first gyro sample' in result.reason, \
+            result.reason
+        assert node.get_parameter('time_scale').value == 2.0
+        c0 = time.perf_counter()
+        result = node.set_parameters([Parameter('imu.rate', value=0.001)])[0]   # 2000 s
+        assert time.perf_counter() - c0 < 1.0
+        assert not result.successful and 'imu.rate' in result.reason, result.reason
+    finally:
+        node.destroy_node()
+    with pytest.raises(SceneError, match='first gyro sample'):
+        _node(**{'imu.enable': True, 'time_scale': 1e9})
+
+
+def test_an_infinite_gyro_bound_is_refused_and_the_bound_is_per_run(monkeypatch):
+    """omega0 = [1e300, ...] gives an infinite increment bound: refused with the imu on."""
+    import rigidrot_ros.node.attitude_node as mod
+    monkeypatch.setattr(mod, '_BUDGET_S', 10.0)     # let the quadrature end (bound = inf)
+    node = _node(**{'imu.enable': True, 'time_scale': 1.0})
+    huge = {**AXIAL, 'omega0': [1e300, -0.2, 0.5]}     # the truth itself is sound
+    try:
+        result = node.set_parameters_atomically(
+            [Parameter(k, value=v) for k, v in huge.items()])
+        assert not result.successful
+        assert 'omega0' in result.reason and 'no finite error bound' in result.reason, \
+            result.reason
+        # a bound seen in one run is reported (WARN) and forgotten at ~/reset
+        node._stats.increment_bound = math.inf
+        sent = []
+        node._pub_diag.publish = sent.append
+        node._publish_diagnostics()
+        st = sent[0].status[0]
+        assert st.level == DiagnosticStatus.WARN and 'gyro increment' in st.message, st.message
+        response = node._on_reset(None, type('R', (), {})())
+        assert response.success, response.message
+        assert node._stats.increment_bound == 0.0
+    finally:
+        node.destroy_node()
+    with pytest.raises(SceneError, match='no finite error bound'):
+        _node(**{'imu.enable': True, 'time_scale': 1.0, **huge})

@@ -336,3 +336,20 @@ def test_gyro_reading_is_consistent():
     assert 0 < r.variance < 1e-18           # ideal: only the exact rate's own bound
     with pytest.raises(ValueError, match='t0 < t1'):
         gyro.read(1.0, 1.0)
+
+
+def test_a_time_budget_bounds_one_gyro_sample_and_keeps_the_noise_stream():
+    """An interval far too long for the quadrature fails within its budget, not seconds later."""
+    import time
+    sol = solve(Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05),
+                      omega0=(0.3, -0.2, 0.5)))
+    gyro = Gyro(sol, GyroNoise(1.7e-4, 2e-5, (0.0, 0.0, 0.0), seed=3))
+    c0 = time.perf_counter()
+    with pytest.raises(ValueError, match='time budget'):
+        gyro.read(0.0, 1e7, budget=0.02)
+    assert time.perf_counter() - c0 < 0.5           # not the ~3 s the quadrature would take
+    with pytest.raises(ValueError, match='time budget'):
+        delta_angle(sol, 0.0, 1e7, deadline=time.perf_counter())
+    # the failed read drew no noise: the stream goes on as a fresh gyro's
+    fresh = Gyro(sol, GyroNoise(1.7e-4, 2e-5, (0.0, 0.0, 0.0), seed=3))
+    assert_array_equal(gyro.read(0.0, 0.01, budget=0.02).omega, fresh.read(0.0, 0.01).omega)

@@ -54,14 +54,15 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from rigidrot_ros import __version__
-from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
+from rigidrot_ros.core import MIN_TOL, NoExactSolution, PrecisionError, solve
 from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter
 from rigidrot_ros.io.recorder import Recorder, type_name_of
 from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.sensors import Gyro, StarTracker
 from rigidrot_ros.settings import (
-    load_defaults, OUTPUT_KEYS, scene_from_params, SCENE_KEYS, sensor_settings, solver_options,
+    load_defaults, MAX_TOL, OUTPUT_KEYS, scene_from_params, SCENE_KEYS, sensor_settings,
+    solver_options,
 )
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
@@ -138,7 +139,7 @@ _DESCRIPTIONS = {
 }
 _READ_ONLY = ('qos_depth', 'record', 'record_path', 'record_topics') + OUTPUT_KEYS
 _RANGES = {
-    'tol': FloatingPointRange(from_value=2e-14, to_value=1.0),
+    'tol': FloatingPointRange(from_value=MIN_TOL, to_value=MAX_TOL),
     'publish_rate': FloatingPointRange(from_value=1e-3, to_value=1e4),
     'time_scale': FloatingPointRange(from_value=0.0, to_value=1e9),
     'imu.rate': FloatingPointRange(from_value=0.0, to_value=1e4),
@@ -149,10 +150,11 @@ _RANGES = {
     'star_tracker.about_boresight_arcsec': FloatingPointRange(from_value=0.0, to_value=3600.0),
 }
 _SEEDS = ('imu.seed', 'star_tracker.seed')
-#: Parameters rclpy declares by itself.
-_BUILTIN = ('use_sim_time',)
+#: Parameters rclpy declares by itself (rclpy.time_source, rclpy.type_description_service).
+_BUILTIN = ('use_sim_time', 'start_type_description_service')
 _EPS = float(np.finfo(float).eps)
-#: Work one sensor callback may do before it leaves due samples to the next one, s.
+#: Work one sensor callback may do before it leaves due samples to the next one, s; also
+#: the most one gyro sample's quadrature may take (past it the sample fails, reported).
 _BUDGET_S = 0.02
 
 
@@ -190,6 +192,16 @@ def _check_run_params(p):
     d = p['qos_depth']
     if isinstance(d, bool) or not isinstance(d, int) or not 1 <= d <= 10000:
         raise ValueError(f'parameter qos_depth must be an integer in [1, 10000], got {d!r}')
+    if not isinstance(p['record'], bool):
+        raise ValueError(f'parameter record must be true or false, got {p["record"]!r}')
+    if not isinstance(p['record_path'], str):
+        raise ValueError(f'parameter record_path must be a string (a directory), '
+                         f'got {p["record_path"]!r}')
+    topics = p['record_topics']
+    if isinstance(topics, (str, bytes)) or not isinstance(topics, (list, tuple)) or \
+            not all(isinstance(t, str) for t in topics):
+        raise ValueError(f'parameter record_topics must be a list of strings '
+                         f"(['NAME:pkg/msg/Type', ...]), got {topics!r}")
 
 
 def build_solution(p):
@@ -209,12 +221,16 @@ def build_solution(p):
                          f'{list(scene.omega0)})') from None
 
 
-def _trial(sol, p):
+def _trial(sol, p, cfg=None):
     """Evaluate the first two ticks of a candidate scene; return None or why it fails.
 
     A scene whose first tick (t = 0) or second (one period in, scaled by ``time_scale``)
     cannot be evaluated, or costs more than :data:`_TRIAL_LIMIT_S`, would leave the node
-    publishing nothing, or blocking its services; it is refused instead.
+    publishing nothing, or blocking its services; it is refused instead. With the sensor
+    settings ``cfg`` (:func:`sensor_settings`), the first gyro sample (one interval,
+    ``time_scale / imu_rate`` s of scene time, its quadrature within :data:`_BUDGET_S` as
+    in the node) and the first star tracker sample are tried the same way, and a gyro
+    sample whose increment bound is not finite refuses the scene too.
     """
     t1 = float(p['time_scale']) / float(p['publish_rate'])
     for t in (0.0, t1):
@@ -229,6 +245,41 @@ def _trial(sol, p):
             return (f'one sample of this scene takes {cost:.3g} s to evaluate ({sol.model}, '
                     f"{sol.method}), beyond the node's limit of {_TRIAL_LIMIT_S:g} s; try "
                     "backend 'auto' or a larger tol")
+    if cfg is None:
+        return None
+    if cfg.imu:
+        dt = float(p['time_scale']) / cfg.imu_rate
+        c0 = time.perf_counter()
+        try:                        # an ideal gyro: the run's own noise stream stays fresh
+            with np.errstate(over='ignore', invalid='ignore'):  # judged below, not warned
+                r = Gyro(sol).read(0.0, dt, budget=_BUDGET_S)
+        except Exception as exc:
+            return (f'the first gyro sample (imu.rate {cfg.imu_rate:g} Hz, time_scale '
+                    f'{float(p["time_scale"]):g}: {dt:g} s of scene time) cannot be '
+                    f'evaluated: {type(exc).__name__}: {exc}; lower time_scale or raise '
+                    'imu.rate')
+        cost = time.perf_counter() - c0
+        if cost > _TRIAL_LIMIT_S:
+            return (f'the first gyro sample ({dt:g} s of scene time) takes {cost:.3g} s, '
+                    f"beyond the node's limit of {_TRIAL_LIMIT_S:g} s; lower time_scale or "
+                    'raise imu.rate')
+        bound = float(max(r.delta_angle_bound, r.delta_rotation_bound))
+        if not math.isfinite(bound):
+            return (f'the gyro increments of this scene have no finite error bound '
+                    f'({bound!r} rad over the first {dt:g} s; omega0 or torque too large '
+                    'for float64); turn imu.enable off or choose a smaller scene')
+    if cfg.star_tracker:
+        t = float(p['time_scale']) / cfg.star_tracker_rate
+        c0 = time.perf_counter()
+        try:
+            StarTracker(sol).read(t)
+        except Exception as exc:
+            return (f'the first star tracker sample (t = {t:g} s) cannot be evaluated: '
+                    f'{type(exc).__name__}: {exc}')
+        cost = time.perf_counter() - c0
+        if cost > _TRIAL_LIMIT_S:
+            return (f'the first star tracker sample takes {cost:.3g} s, beyond the '
+                    f"node's limit of {_TRIAL_LIMIT_S:g} s")
     return None
 
 
@@ -300,10 +351,10 @@ class AttitudeNode(Node):
         self._warn_unknown_overrides()
         try:
             self._solution = build_solution(self._values())
-            trial = _trial(self._solution, self._values())
+            self._sensors = sensor_settings(self._values())
+            trial = _trial(self._solution, self._values(), self._sensors)
             if trial is not None:
                 raise ValueError(f'scene {self._scene_summary()}: {trial}')
-            self._sensors = sensor_settings(self._values())
             self._use_sensors(_make_sensors(self._solution, self._sensors))
         except ValueError as exc:
             raise SceneError(str(exc)) from None
@@ -354,7 +405,7 @@ class AttitudeNode(Node):
         """Warn about ``-p name:=value`` overrides that name no parameter of this node."""
         known = set(_DESCRIPTIONS) | set(_BUILTIN)
         unknown = sorted(n for n in getattr(self, '_parameter_overrides', {})
-                         if n not in known)
+                         if n not in known and not self.has_parameter(n))
         for name in unknown:
             close = difflib.get_close_matches(name, sorted(known), n=1)
             hint = f' (did you mean {close[0]}?)' if close else ''
@@ -439,14 +490,16 @@ class AttitudeNode(Node):
             return None                 # rclpy's own (use_sim_time, ...): rclpy checks them
         candidate = self._values(params)
         try:
-            if any(n in SCENE_KEYS or n in ('tol', 'backend', 'time_scale') for n in names):
+            if any(n in SCENE_KEYS or n in ('tol', 'backend', 'time_scale', 'publish_rate')
+                   or n.startswith(('imu.', 'star_tracker.')) for n in names):
                 sol = build_solution(candidate)    # validate the whole scene, keep running
-                reason = _trial(sol, candidate)
+                cfg = sensor_settings(candidate)   # the sensors, and time_scale against them
+                reason = _trial(sol, candidate, cfg)
                 if reason is not None:
                     return f'parameter(s) {", ".join(names)}: {reason}'
             else:
                 _check_run_params(candidate)
-            sensor_settings(candidate)             # the sensors, and time_scale against them
+                sensor_settings(candidate)
         except ValueError as exc:
             return str(exc)
         return None
@@ -574,7 +627,7 @@ class AttitudeNode(Node):
             ns1 = self._stamp_ns(rate, k)
             t0, t1 = self._scene_time(self._stamp_ns(rate, k - 1)), self._scene_time(ns1)
             try:
-                r = self._gyro.read(t0, t1)
+                r = self._gyro.read(t0, t1, budget=_BUDGET_S)
             except Exception as exc:    # PrecisionError or anything else: report it
                 self._failed(t1, exc)
                 continue
@@ -623,22 +676,27 @@ class AttitudeNode(Node):
         imu_mean, imu_max = st.imu_window()
         sol = self._solution
         bound = float(self._last_sample[1].error_bound) if self._last_sample else 0.0
-        level, msg = DiagnosticStatus.OK, f'exact solution: {sol.model}'
+        warns = []                  # every reason of this window, not only the last
         if mx > self._period:
-            level, msg = DiagnosticStatus.WARN, 'evaluation slower than the timer period'
+            warns.append('evaluation slower than the timer period')
         delivered = self._delivered_rate()
         if delivered is not None and delivered < 0.9 * self._period_hz:
-            level, msg = DiagnosticStatus.WARN, (
-                f'delivering {delivered:.4g} Hz of the {self._period_hz:g} Hz asked '
-                '(publish_rate beyond what this machine and executor deliver)')
+            warns.append(f'delivering {delivered:.4g} Hz of the {self._period_hz:g} Hz asked '
+                         '(publish_rate beyond what this machine and executor deliver)')
         if bound > sol.tol:
-            level, msg = DiagnosticStatus.WARN, 'error bound above tol'
+            warns.append('error bound above tol')
+        if not st.increment_bound <= sol.tol:      # also NaN and inf
+            warns.append(f'gyro increment error bound {st.increment_bound:.3g} rad above tol')
         if st.skipped > st.skipped_reported:
             st.skipped_reported = st.skipped
-            level, msg = DiagnosticStatus.WARN, ('sensor samples skipped (a clock jump, or '
-                                                 'sensor rates above what this CPU keeps up)')
+            warns.append('sensor samples skipped (a clock jump, or sensor rates above what '
+                         'this CPU keeps up)')
+        level, msg = DiagnosticStatus.OK, f'exact solution: {sol.model}'
+        if warns:
+            level, msg = DiagnosticStatus.WARN, '; '.join(warns)
         if st.errors:
-            level, msg = DiagnosticStatus.ERROR, f'evaluation failed: {st.last_error}'
+            level = DiagnosticStatus.ERROR
+            msg = '; '.join([f'evaluation failed: {st.last_error}'] + warns)
             st.errors = 0
         values = {
             'model': sol.model, 'method': sol.method, 'backend': sol.backend,
@@ -745,10 +803,10 @@ class AttitudeNode(Node):
     def _on_reset(self, request, response):
         try:
             solution = build_solution(self._values())
-            trial = _trial(solution, self._values())
+            sensors = sensor_settings(self._values())
+            trial = _trial(solution, self._values(), sensors)
             if trial is not None:
                 raise ValueError(trial)
-            sensors = sensor_settings(self._values())
             devices = _make_sensors(solution, sensors)
         except ValueError as exc:
             response.success = False
@@ -759,6 +817,7 @@ class AttitudeNode(Node):
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
         self._last_sample = None
+        self._stats.increment_bound = 0.0   # the bound of this run's increments only
         self._run_pending = True            # the next tick announces the new run on ~/run
         self._use_sensors(devices)
         self._make_sensor_timers()
@@ -795,6 +854,8 @@ def usage():
         'timing, delivered rate',
         '  ~/reset             std_srvs/srv/Trigger             restart at t = 0 from the '
         'current parameters',
+        '  ~/run               std_msgs/String                  run description as JSON '
+        '(transient-local)',
         '  with imu.enable: imu (sensor_msgs/Imu), delta_angle, delta_rotation '
         '(Vector3Stamped);',
         '  with star_tracker.enable: star_tracker (PoseWithCovarianceStamped); with '

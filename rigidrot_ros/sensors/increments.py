@@ -30,6 +30,7 @@ Euler's equations ``I w' = m - w x I w``: ``|w_i| <= y(|t - t_m|)`` with
 """
 
 import math
+import time
 
 import numpy as np
 
@@ -132,7 +133,8 @@ class RateBound:
                     phase = math.sqrt(self.mu * self.c) * r + math.atan(w / s)
                     y = np.where(phase < 0.5 * math.pi, s * np.tan(phase), np.inf)
                 log_err = math.log(math.sqrt(3.0) * hh) + np.log(y) + log_scale
-        err = np.exp(np.min(log_err[~np.isnan(log_err)], initial=np.inf))
+        with np.errstate(over='ignore'):          # a bound beyond float64 is inf, no warning
+            err = np.exp(np.min(log_err[~np.isnan(log_err)], initial=np.inf))
         return float(err)
 
     def rounding(self, t0, t1, n, w):
@@ -166,7 +168,13 @@ def _gauss(solution, t0, t1, n):
     return hh * (wts @ om), float(np.max(np.linalg.norm(om, axis=-1)))
 
 
-def delta_angle(solution, t0, t1, tol=DELTA_TOL, bound=None):
+def _check_deadline(deadline, t0, t1, pieces, n):
+    if deadline is not None and time.perf_counter() > deadline:
+        raise ValueError(f'delta_angle over [{t0}, {t1}] s ran out of its time budget '
+                         f'({pieces} subintervals of {n} nodes); shorten the interval')
+
+
+def delta_angle(solution, t0, t1, tol=DELTA_TOL, bound=None, deadline=None):
     """Return the exact ``∫_{t0}^{t1} omega_B dt`` (rad, in B) and its error bound.
 
     Parameters
@@ -179,6 +187,9 @@ def delta_angle(solution, t0, t1, tol=DELTA_TOL, bound=None):
         Target of the error bound, rad (default 1e-13).
     bound : RateBound, optional
         Reuse the per-solution constants across calls.
+    deadline : float, optional
+        A :func:`time.perf_counter` value: give up (ValueError) once it has passed, so one
+        call cannot take longer than its caller's budget (checked every few subintervals).
 
     Returns
     -------
@@ -189,7 +200,8 @@ def delta_angle(solution, t0, t1, tol=DELTA_TOL, bound=None):
     Raises
     ------
     ValueError
-        Non-finite or reversed times, or no rule meets ``tol`` within 4096 subintervals.
+        Non-finite or reversed times, no rule meets ``tol`` within 4096 subintervals, or
+        the ``deadline`` passed.
 
     Examples
     --------
@@ -213,12 +225,18 @@ def delta_angle(solution, t0, t1, tol=DELTA_TOL, bound=None):
         # a stream of like intervals: start at the rule that served the last one
         first = bound.last_rule if pieces == 1 else 0
         for n in _NODES[first:]:
-            trunc = sum(bound.truncation(a, b, n) for a, b in zip(edges[:-1], edges[1:]))
+            trunc = 0.0
+            for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+                if i % 16 == 0:
+                    _check_deadline(deadline, t0, t1, pieces, n)
+                trunc += bound.truncation(a, b, n)
             if trunc <= 0.5 * tol:
                 if pieces == 1:
                     bound.last_rule = max(0, _NODES.index(n) - 1)
                 total, w = np.zeros(3), 0.0
-                for a, b in zip(edges[:-1], edges[1:]):
+                for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+                    if i % 16 == 0:
+                        _check_deadline(deadline, t0, t1, pieces, n)
                     part, w_part = _gauss(solution, a, b, n)
                     total, w = total + part, max(w, w_part)
                 rnd = bound.rounding(t0, t1, n, w) + pieces * 3 * _EPS * float(

@@ -5,6 +5,7 @@ relative to N, in B, rad/s. Times are scene seconds since t = 0.
 """
 
 from dataclasses import dataclass
+import time
 
 import numpy as np
 
@@ -90,8 +91,12 @@ class Gyro:
         s = self.solution.at(t)
         return np.asarray(s.quaternion, dtype=float), float(s.error_bound)
 
-    def read(self, t0, t1):
-        """Sample the interval ``[t0, t1]`` (s, ``t0 < t1``): a :class:`GyroReading`."""
+    def read(self, t0, t1, budget=None):
+        """Sample the interval ``[t0, t1]`` (s, ``t0 < t1``): a :class:`GyroReading`.
+
+        ``budget`` (s, optional) bounds the delta-angle quadrature's time: past it the read
+        raises ValueError and leaves the noise stream untouched.
+        """
         t0, t1 = float(t0), float(t1)
         if not t1 > t0:
             raise ValueError(f'a gyro interval needs t0 < t1, got [{t0!r}, {t1!r}]')
@@ -100,7 +105,9 @@ class Gyro:
         s1 = self.solution.at(t1)
         q1, e1 = np.asarray(s1.quaternion, dtype=float), float(s1.error_bound)
         self._last = (t1, q1, e1)
-        da, da_bound = delta_angle(self.solution, t0, t1, tol=self.tol, bound=self._bound)
+        deadline = None if budget is None else time.perf_counter() + budget
+        da, da_bound = delta_angle(self.solution, t0, t1, tol=self.tol, bound=self._bound,
+                                   deadline=deadline)
         dr, dr_bound = delta_rotation(q0, q1, e0, e1)
         avg = da / dt
         before = self.noise.bias.copy()
