@@ -202,8 +202,9 @@ class TaylorKernel:
                         times.append(t)                        # a stream resumes from t
                         states.append(st)
                     return st
-                st = self._advance(tk, st, sign * h)
-                tk = tk + sign * h
+                nt = tk + sign * h              # may round when crossing 2^k:
+                st = self._advance(tk, st, nt - tk)   # step to the time stored
+                tk = nt
                 if i == len(times) - 1:                        # extend the stored path
                     times.append(tk)
                     states.append(st)
