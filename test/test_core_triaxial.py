@@ -354,3 +354,12 @@ def test_quick_benchmark_part_runs_and_checks_values(tmp_path):
     assert cells and all(c['status'] == 'meets 1e-12' for c in cells)
     assert {r['model'] for r in res['cost']} == {'torque-free-triaxial',
                                                  'torque-free-axisymmetric'}
+
+
+@pytest.mark.parametrize('bad', [10 ** 400, 'x', [[1.0]], np.zeros((2, 2))])
+def test_bad_times_refused_like_every_model(bad):
+    """Times the core cannot read raise ValueError naming t, as Solution.at does."""
+    sol = solve(Scene(inertia=(1.0, 2.0, 3.0), omega0=(0.3, -0.2, 0.5)))
+    for f in (sol.at, sol.omega_at):
+        with pytest.raises(ValueError, match='t must be a float'):
+            f(bad)

@@ -204,6 +204,15 @@ def _q_mp_mul(a, b):
             aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz]
 
 
+def _times_1d(t):
+    """``t`` as a float array of at most one dimension, or ValueError (as Solution.at)."""
+    from .models import _times
+    tt = _times(t)
+    if tt.ndim > 1:
+        raise ValueError(f't must be a float or a 1-D array, got shape {tt.shape}')
+    return tt
+
+
 class _Turns:
     """A phase ``rho t + offset`` in turns, reduced to [-1/2, 1/2] from exact float t.
 
@@ -589,21 +598,24 @@ class TriaxialSolution:
         f_err = _sep_err(au, u_err)
         return sech, tanh, fint, f_err
 
+    def _compose1(self, ux, uy, uz, txi, q):
+        """q_NB (float 4-tuple) from the unit h in B and the turns of xi (scalar paths)."""
+        pw = 1.0 + uz
+        pn = math.sqrt(uy * uy + ux * ux + pw * pw)
+        px, py, pw = uy / pn, -ux / pn, pw / pn
+        xi = 4 * math.pi * txi + self._xi_c - self._cq * q
+        hs, hc = math.sin(0.5 * xi), math.cos(0.5 * xi)
+        mid = (hc * px - hs * py, hc * py + hs * px, hs * pw, hc * pw)
+        mul = quat.multiply_floats
+        return mul(mul(self._left_t, mid), self._right_t)
+
     def _separatrix_scalar(self, t, txi, exi):
         """:meth:`at` on the separatrix for one time, in plain floats (as :meth:`at`)."""
         from .models import Samples
         sech, tanh, fint, f_err = self._sep1(t)
         c0 = self._sep_c[0]
         ut = self._ut
-        ux, uy, uz = ut[0] * sech, ut[1] * tanh, ut[2] * sech
-        pw = 1.0 + uz
-        pn = math.sqrt(uy * uy + ux * ux + pw * pw)
-        px, py, pw = uy / pn, -ux / pn, pw / pn
-        xi = 4 * math.pi * txi + self._xi_c - self._cq * fint
-        hs, hc = math.sin(0.5 * xi), math.cos(0.5 * xi)
-        mid = (hc * px - hs * py, hc * py + hs * px, hs * pw, hc * pw)
-        mul = quat.multiply_floats
-        qq = mul(mul(self._left_t, mid), self._right_t)
+        qq = self._compose1(ut[0] * sech, ut[1] * tanh, ut[2] * sech, txi, fint)
         amp = self._amp
         omega = np.array([amp[0] * sech, amp[1] * tanh, amp[2] * sech]) @ self._rows
         du = [abs(ut[f]) * (f_err + 2 * _U) for f in range(3)]
@@ -616,7 +628,7 @@ class TriaxialSolution:
 
     def omega_at(self, t):
         """Angular velocity of B relative to N, in B, rad/s, at t (float or 1-D array)."""
-        tt = np.asarray(t, dtype=float)
+        tt = _times_1d(t)
         flat = np.atleast_1d(tt)
         self._check_t(flat)
         if tt.ndim == 0:            # the scalar path of at(), bit for bit
@@ -667,11 +679,9 @@ class TriaxialSolution:
             When a sample's bound would exceed ``tol`` (|t| far beyond 1e15 s).
         """
         from .models import Samples
-        t_arr = np.asarray(t, dtype=float)
+        t_arr = _times_1d(t)
         if t_arr.ndim == 0:
             return self._at_scalar(float(t_arr))
-        if t_arr.ndim > 1:
-            raise ValueError(f't must be a float or a 1-D array, got shape {t_arr.shape}')
         tt = t_arr
         self._check_t(tt)
         txi, exi = self._xi_turns.reduce(tt)
@@ -754,15 +764,7 @@ class TriaxialSolution:
         s, c, d, q, i, eu = self._table1(t)
         k = self._K
         ut = self._ut
-        ux, uy, uz = ut[0] * c, ut[1] * s, ut[2] * d
-        pw = 1.0 + uz
-        pn = math.sqrt(uy * uy + ux * ux + pw * pw)
-        px, py, pw = uy / pn, -ux / pn, pw / pn
-        xi = 4 * math.pi * txi + self._xi_c - self._cq * q
-        hs, hc = math.sin(0.5 * xi), math.cos(0.5 * xi)
-        mid = (hc * px - hs * py, hc * py + hs * px, hs * pw, hc * pw)
-        mul = quat.multiply_floats
-        qq = mul(mul(self._left_t, mid), self._right_t)
+        qq = self._compose1(ut[0] * c, ut[1] * s, ut[2] * d, txi, q)
         amp = self._amp
         omega = np.array([amp[0] * c, amp[1] * s, amp[2] * d]) @ self._rows
         # the bound, as in _bound (scalar)
