@@ -580,3 +580,11 @@ def test_dense_output_stays_out_of_float_overflow():
     start = time.process_time()
     s = sol.at(np.linspace(0.0, 2.0, 20))
     assert time.process_time() - start < 5.0 and np.all(s.error_bound <= 1e-12)
+
+
+@pytest.mark.parametrize('r0', [1e160, 1e250])
+def test_mpmath_backend_refuses_huge_spin_with_a_reason(r0):
+    """The mpmath 1F1 path's refusal reports |z^2| without overflowing a float."""
+    scene = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, r0))
+    with pytest.raises(PrecisionError, match='mpmath 1F1'):
+        solve(scene, backend='mpmath')

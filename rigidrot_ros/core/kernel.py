@@ -388,11 +388,13 @@ class HyperKernel:
                 self.method = f'hypergeometric-flint+{self._fallback.method}'
             return self._fallback.evaluate(t)
         pr = self.params
+        with mp.workprec(64):                    # |z^2| in floats can overflow or divide by 0
+            z2 = float(abs(self.r0 + self.U * mpmath.mpf(t)) ** 2 / (2 * self.U))
         raise PrecisionError(
             f'the {self.backend.name} 1F1 evaluation reached only {last_err:.3g} '
             f'(asked {self.tol:.3g}) at t = {t!r} s with {self.max_prec} bits: the sphere '
             f'problem has delta = (p^2 + q^2) / (4U) = {pr["delta"]:.4g} and |z^2| = '
-            f'(r0 + U t)^2 / (2U) = {(pr["r0"] + pr["U"] * t) ** 2 / (2 * pr["U"]):.4g} '
+            f'(r0 + U t)^2 / (2U) = {z2:.4g} '
             f'(p, q, r0 = {pr["p"]:.6g}, {pr["q"]:.6g}, {pr["r0"]:.6g} rad/s, '
             f'U = {pr["U"]:.6g} rad/s^2). Large delta (small torque against the transverse '
             f'rate) or large |z^2| (long horizons) need more bits: raise max_prec, use a '
