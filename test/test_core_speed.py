@@ -209,3 +209,15 @@ def test_far_query_by_cheap_1f1_seed_equals_stepping():
     b, eb = stepping.evaluate(1e3)
     assert np.linalg.norm(a - b) <= ea + eb
     assert ea <= kernel.tol
+
+
+@pytest.mark.parametrize('first', [30000.3, 30000.7, 32000.01])
+def test_taylor_answer_does_not_depend_on_earlier_queries(first):
+    """A checkpoint at an arbitrary t whose step crosses 2^15 s keeps the time it reached."""
+    scene = Scene(inertia=(1.0, 1.0, 1.0), torque=(0.0, 0.0, 5 / 42000), omega0=(2.0, 1.0, -3.0))
+    fresh = solve(scene, tol=1e-13).at(np.array([37950.0]))
+    sol = solve(scene, tol=1e-13)
+    sol.at(np.array([first]))
+    later = sol.at(np.array([37950.0]))
+    err = quat.angle_between(later.quaternion, fresh.quaternion)
+    assert np.all(err <= later.error_bound + fresh.error_bound)
