@@ -286,6 +286,12 @@ def _envelope_scene(rng):
     return Scene(inertia=inertia, torque=torque, torque_frame=frame, omega0=w), u, wt, r0
 
 
+def _mpf_bits(v):
+    """Bits of the mantissa of an mpf (or of a float or int), as it is stored."""
+    m = v if isinstance(v, mpmath.mpf) else mpmath.mpf(v)     # a float converts exactly
+    return max(53, int(m._mpf_[1]).bit_length())
+
+
 def envelope(quick, log, max_turn=2e5):
     """Random scenes across the envelope: per-sample cost of a 100 Hz stream and errors."""
     rng = np.random.default_rng(2026)
@@ -324,13 +330,15 @@ def envelope(quick, log, max_turn=2e5):
             p, q, kr0, ku = kern._inputs if hasattr(kern, '_inputs') else (None,) * 4
             delta = (float(p) ** 2 + float(q) ** 2) / (4 * float(ku))
             try:
+                # the same exact inputs, unrounded (mpmath.mpf(v) would round them to the
+                # ambient 53 bits) and with their derived constants at as many bits as the
+                # inputs carry: otherwise the two would answer slightly different scenes
+                bits = max(256, *(_mpf_bits(v) for v in (p, q, kr0, ku)))
                 if isinstance(kern, TaylorKernel) and delta < 300:
-                    # the same exact (256-bit) inputs: floats would move long phases
-                    alt = HyperKernel(p, q, kr0, ku, 'flint', tol=kern.tol)
+                    alt = HyperKernel(p, q, kr0, ku, 'flint', tol=kern.tol, setup_prec=bits)
                 elif isinstance(kern, HyperKernel) and abs(float(kr0)) + float(ku) * t0 \
                         + math.hypot(float(p), float(q)) < 1e5 / max(t0, 1):
-                    alt = TaylorKernel(*(mpmath.mpf(v) for v in (p, q, kr0, ku)),
-                                       tol=kern.tol)
+                    alt = TaylorKernel(p, q, kr0, ku, tol=kern.tol)
                 else:
                     alt = None
                 if alt is not None:
