@@ -143,12 +143,11 @@ def _diagnostics_of(node):
 def test_diagnostics_keep_every_warn_reason():
     """A starved truth stream, skipped sensor samples and a loose bound: all three named."""
     import time
-    from types import SimpleNamespace
     node = AttitudeNode()
     try:
         node._rate_window = (time.monotonic() - 1.0, node._stats.published, node._period_hz)
         node._stats.skipped = 7
-        node._last_sample = (0.0, SimpleNamespace(error_bound=1.0))
+        node._last_sample = (0.0, 1.0)
         st = _diagnostics_of(node)
         assert st.level == DiagnosticStatus.WARN
         for words in ('delivering 0 Hz', 'sensor samples skipped', 'error bound above tol'):

@@ -19,8 +19,11 @@ Topics (relative names, so namespaces and remapping apply):
   published with the first tick of each run, so a bag of any recorder can be scored.
 Service ``~/reset`` (std_srvs/Trigger): restart at t = 0 from the current parameters.
 
-All messages of a tick carry the same stamp: the clock time that the scene time
-``t = (now - t_start) * time_scale`` was computed for (``use_sim_time`` works). The
+The truth is sampled on the timer's own grid: tick k is stamped ``g0 + k / publish_rate``
+(``g0`` the scheduled time of the timer's first call, which is also ``t_start`` of the
+run) and carries the scene time ``t = (stamp - t_start) * time_scale``; all messages of a
+tick share that stamp (``use_sim_time`` works). Because the coming ticks' times are known,
+their samples are evaluated ahead in batches (:mod:`rigidrot_ros.node.lookahead`). The
 sensors sample their own fixed grids ``t_start + k / rate`` (so a seed reproduces the
 stream bit for bit); each sample's messages share its grid stamp. Messages are built by
 :mod:`rigidrot_ros.io.messages`.
@@ -48,6 +51,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.time import Time
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -58,6 +62,7 @@ from rigidrot_ros.core import MIN_TOL, NoExactSolution, PrecisionError, solve
 from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter
 from rigidrot_ros.io.recorder import Recorder, type_name_of
+from rigidrot_ros.node.lookahead import Lookahead
 from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.sensors import Gyro, StarTracker
 from rigidrot_ros.settings import (
@@ -289,6 +294,7 @@ class _Stats:
     def __init__(self):
         self.times = []
         self.tick_times = []
+        self.latencies = []
         self.imu_times = []
         self.published = 0
         self.imu_samples = 0
@@ -298,18 +304,23 @@ class _Stats:
         self.increment_bound = 0.0
         self.late = 0
         self.missed = 0
-        self.last_tick = None
         self.errors = 0
         self.last_error = ''
 
     def window(self):
-        """Return evaluation seconds (mean, p99, max) since the last call, then the ticks'."""
-        t = np.array(self.times) if self.times else np.zeros(1)
-        w = np.array(self.tick_times) * 1e-9 if self.tick_times else np.zeros(1)
-        self.times = []
-        self.tick_times = []
-        return (float(t.mean()), float(np.percentile(t, 99)), float(t.max()),
-                float(w.mean()), float(np.percentile(w, 99)), float(w.max()))
+        """Return (mean, p99, max) seconds since the last call of: evaluation, tick, latency.
+
+        Evaluation: getting a tick's sample (from the look-ahead buffer, or evaluated then);
+        tick: the whole callback up to its messages' publication; latency: from the tick's
+        grid time (its stamp) to the start of its callback, on the node clock.
+        """
+        out = []
+        for name, scale in (('times', 1.0), ('tick_times', 1e-9), ('latencies', 1e-9)):
+            v = getattr(self, name)
+            a = np.array(v) * scale if v else np.zeros(1)
+            setattr(self, name, [])
+            out.append((float(a.mean()), float(np.percentile(a, 99)), float(a.max())))
+        return out
 
     def imu_window(self):
         """Return the gyro samples' build seconds (mean, max) since the last call."""
@@ -360,6 +371,9 @@ class AttitudeNode(Node):
             raise SceneError(str(exc)) from None
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
+        self._grid0 = None              # clock ns of the truth grid's index 0 (see _anchor)
+        self._tick_k = -1               # the last truth grid index published
+        self._ahead = None
         self._last_sample = None
         self._stats = _Stats()
         self.add_on_set_parameters_callback(self._on_set)
@@ -509,14 +523,34 @@ class AttitudeNode(Node):
             self.destroy_timer(self._timer)
         self._period_hz = float(rate)
         self._period = 1.0 / float(rate)
+        self._grid0 = None              # the next tick anchors a new grid (same t_start)
         self._timer = self.create_timer(self._period, self._tick)
 
     # -- publishing -------------------------------------------------------------------------
-    def _start(self, now):
-        """Start the run's clock at the first callback that needs it."""
+    def _anchor(self, now_ns):
+        """Anchor the truth grid at the scheduled time of this timer call (ns, <= now).
+
+        rclpy keeps a timer's calls on the schedule ``created + k * period``; in a callback,
+        ``now + time_until_next_call() - period`` is the scheduled time of the call being
+        served (a few µs early: the two clock reads), so every later call, however late
+        within its period, falls in its own grid slot. The first anchor of a run is also
+        its ``t_start`` (scene time 0).
+        """
+        period_ns = round(self._period * 1e9)
+        g0 = now_ns
+        until = self._timer.time_until_next_call() if self._timer is not None else None
+        if until is not None and 0 <= until <= period_ns:
+            g0 = now_ns + until - period_ns
         if self._t_start is None:
-            self._t_start = now
+            self._t_start = Time(nanoseconds=g0, clock_type=self.get_clock().clock_type)
             self._run_pending = True        # _record_tick announces the run on ~/run
+        self._grid0, self._tick_k = g0, -1
+        self._ahead = Lookahead(self._solution,
+                                lambda k: self._scene_time(self._tick_stamp_ns(k)),
+                                self._period)
+
+    def _tick_stamp_ns(self, k):
+        return self._grid0 + round(k * 1e9 / self._period_hz)
 
     def _scene_time(self, ns):
         return (ns - self._t_start.nanoseconds) * 1e-9 * self._time_scale
@@ -532,11 +566,14 @@ class AttitudeNode(Node):
             return False            # shut down (SIGINT/SIGTERM) while this callback ran
         return True
 
-    def _truth_messages(self, stamp, s):
-        """Build the truth of one sample as ``(publisher, msg)`` pairs, all with one stamp."""
+    def _truth_messages(self, stamp, sample):
+        """Build the truth of one sample as ``(publisher, msg)`` pairs, all with one stamp.
+
+        ``sample``: ``(quaternion, omega, error_bound)`` as :class:`Lookahead` gives it.
+        """
         frame = self.get_parameter('frame_id').value
         body = self.get_parameter('body_frame_id').value
-        q, omega = s.quaternion, s.omega
+        q, omega, bound = sample
         out = [(self._pub_att, msgs.attitude(stamp, frame, q)),
                (self._pub_rate, msgs.vector(stamp, body, omega))]
         if self._pub_tf is not None:
@@ -544,7 +581,7 @@ class AttitudeNode(Node):
         if self._pub_odom is not None:
             rate_sd = 32.0 * _EPS * float(np.linalg.norm(omega))
             out.append((self._pub_odom, msgs.odometry(
-                stamp, frame, body, q, omega, attitude_variance=float(s.error_bound) ** 2,
+                stamp, frame, body, q, omega, attitude_variance=bound ** 2,
                 rate_variance=rate_sd ** 2)))
         if self._pub_markers is not None:
             out.append((self._pub_markers, msgs.body_markers(
@@ -553,30 +590,38 @@ class AttitudeNode(Node):
 
     def _tick(self):
         c_tick = time.perf_counter_ns()
-        now = self.get_clock().now()
+        now_ns = self.get_clock().now().nanoseconds
         st = self._stats
-        if st.last_tick is not None:
-            gap = (now - st.last_tick).nanoseconds * 1e-9
-            if gap > 1.5 * self._period:
-                st.late += 1
-                st.missed += max(0, int(round(gap / self._period)) - 1)
-        st.last_tick = now
-        self._start(now)
-        t = self._scene_time(now.nanoseconds)
+        if self._grid0 is None or now_ns < self._grid0:     # new grid, or the clock went back
+            self._anchor(now_ns)
+        k = _grid_index(self._grid0, 1e9 / self._period_hz, now_ns)
+        if k <= self._tick_k:
+            if k >= self._tick_k - 1:
+                return                  # this grid time is published already
+            self._anchor(now_ns)        # the clock went back: a new grid
+            k = 0
+        if self._tick_k >= 0 and k > self._tick_k + 1:
+            st.late += 1
+            st.missed += k - self._tick_k - 1
+        self._tick_k = k
+        stamp_ns = self._tick_stamp_ns(k)
+        st.latencies.append(now_ns - stamp_ns)
+        t = self._scene_time(stamp_ns)
         c0 = time.perf_counter()
         try:
-            s = self._solution.at(t)
+            sample, _ = self._ahead.get(k)
         except Exception as exc:        # PrecisionError, or anything else: report, keep going
             self._failed(t, exc)
             return
         st.times.append(time.perf_counter() - c0)
-        pairs = self._truth_messages(now.to_msg(), s)
+        pairs = self._truth_messages(msgs.stamp(stamp_ns), sample)
         if not self._publish(pairs):
             return
         st.tick_times.append(time.perf_counter_ns() - c_tick)
         st.published += 1
-        self._last_sample = (t, s)
-        self._record_tick(now.nanoseconds, [(pub.topic_name, m) for pub, m in pairs])
+        self._last_sample = (t, sample[2])
+        self._record_tick(now_ns, [(pub.topic_name, m) for pub, m in pairs])
+        self._ahead.refill(k)           # after publishing: the batch delays no message
 
     def _failed(self, t, exc):
         st = self._stats
@@ -592,13 +637,7 @@ class AttitudeNode(Node):
         A backlog of more than a second (a clock jump) restarts the grid's chain at the
         newest sample; the skipped samples are counted in the diagnostics.
         """
-        start = self._t_start.nanoseconds
-        period_ns = 1e9 / rate
-        k = int((now_ns - start) / period_ns)
-        while start + round((k + 1) * period_ns) <= now_ns:
-            k += 1
-        while k > 0 and start + round(k * period_ns) > now_ns:
-            k -= 1
+        k = max(0, _grid_index(self._t_start.nanoseconds, 1e9 / rate, now_ns))
         cap = max(10, int(rate))
         first = last + 1
         if k - last > cap:
@@ -610,8 +649,9 @@ class AttitudeNode(Node):
         return self._t_start.nanoseconds + round(k * 1e9 / rate)
 
     def _imu_tick(self):
+        if self._t_start is None:
+            return                      # the first truth tick starts the run (t_start)
         now = self.get_clock().now()
-        self._start(now)
         rate = self._sensors.imu_rate
         first, last = self._grid(rate, self._imu_k, now.nanoseconds)
         if last < first:
@@ -644,8 +684,9 @@ class AttitudeNode(Node):
             self._record_tick(now.nanoseconds, [(p.topic_name, m) for p, m in pairs])
 
     def _star_tick(self):
+        if self._t_start is None:
+            return                      # the first truth tick starts the run (t_start)
         now = self.get_clock().now()
-        self._start(now)
         rate = self._sensors.star_tracker_rate
         first, last = self._grid(rate, self._star_k, now.nanoseconds)
         if last < first:
@@ -672,10 +713,13 @@ class AttitudeNode(Node):
 
     def _publish_diagnostics(self):
         st = self._stats
-        mean, p99, mx, tick_mean, tick_p99, tick_max = st.window()
+        (mean, p99, mx), (tick_mean, tick_p99, tick_max), (lat_mean, lat_p99, lat_max) = \
+            st.window()
         imu_mean, imu_max = st.imu_window()
+        ahead = self._ahead
+        batches = ahead.take_stats() if ahead is not None else []
         sol = self._solution
-        bound = float(self._last_sample[1].error_bound) if self._last_sample else 0.0
+        bound = float(self._last_sample[1]) if self._last_sample else 0.0
         warns = []                  # every reason of this window, not only the last
         if mx > self._period:
             warns.append('evaluation slower than the timer period')
@@ -706,6 +750,13 @@ class AttitudeNode(Node):
             'eval_mean_us': f'{mean * 1e6:.1f}', 'eval_p99_us': f'{p99 * 1e6:.1f}',
             'eval_max_us': f'{mx * 1e6:.1f}', 'tick_mean_us': f'{tick_mean * 1e6:.1f}',
             'tick_p99_us': f'{tick_p99 * 1e6:.1f}', 'tick_max_us': f'{tick_max * 1e6:.1f}',
+            'latency_mean_us': f'{lat_mean * 1e6:.1f}', 'latency_p99_us': f'{lat_p99 * 1e6:.1f}',
+            'latency_max_us': f'{lat_max * 1e6:.1f}',
+            'lookahead': ('' if ahead is None else f'{ahead.size} samples a batch'
+                          if ahead.size else f'off: {ahead.off_reason}'),
+            'lookahead_batches': str(len(batches)),
+            'lookahead_batch_max_us': f'{max(batches, default=0.0) * 1e6:.1f}',
+            'lookahead_sample_us': f'{(ahead.last_per_sample if ahead else 0.0) * 1e6:.2f}',
             'imu_samples': str(st.imu_samples), 'imu_sample_mean_us': f'{imu_mean * 1e6:.1f}',
             'imu_sample_max_us': f'{imu_max * 1e6:.1f}',
             'star_tracker_samples': str(st.star_samples),
@@ -816,6 +867,8 @@ class AttitudeNode(Node):
         self._sensors = sensors
         self._time_scale = float(self.get_parameter('time_scale').value)
         self._t_start = None
+        self._grid0 = None                  # the next tick anchors the new run's grid
+        self._ahead = None
         self._last_sample = None
         self._stats.increment_bound = 0.0   # the bound of this run's increments only
         self._run_pending = True            # the next tick announces the new run on ~/run
@@ -830,6 +883,16 @@ class AttitudeNode(Node):
     def solution(self):
         """Return the core solution being published."""
         return self._solution
+
+
+def _grid_index(origin_ns, period_ns, now_ns):
+    """Return the last k with ``origin_ns + round(k * period_ns) <= now_ns`` (ns; may be < 0)."""
+    k = math.floor((now_ns - origin_ns) / period_ns)
+    while origin_ns + round((k + 1) * period_ns) <= now_ns:
+        k += 1
+    while origin_ns + round(k * period_ns) > now_ns:
+        k -= 1
+    return k
 
 
 def usage():
