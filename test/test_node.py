@@ -146,6 +146,10 @@ def test_diagnostics_report_model_costs_and_ticks():
     assert values['method'] == 'hypergeometric-flint' and values['backend'] == 'flint'
     assert int(values['ticks_published']) >= 50
     assert float(values['eval_p99_us']) > 0 and float(values['error_bound_rad']) <= 1e-12
+    assert float(values['tick_p99_us']) >= float(values['eval_p99_us'])
+    assert float(values['latency_p99_us']) >= 0.0
+    assert values['lookahead'].endswith('samples a batch'), values['lookahead']
+    assert int(values['lookahead_batches']) >= 0 and float(values['lookahead_sample_us']) > 0
     assert got[-1].status[0].level in (b'\x00', 0, b'\x01', 1)     # OK, or WARN if slow
     node.destroy_node()
     sub.destroy_node()
@@ -163,4 +167,59 @@ def test_publish_rate_change_takes_effect_at_once():
     stamps = [stamp_ns(m) for m in lis.att[n0 + 1:]]
     gaps = np.diff(stamps) * 1e-9
     assert np.median(gaps) == pytest.approx(0.05, abs=0.01)
+    node.destroy_node()
+
+
+def test_stamps_lie_on_the_timer_grid_from_t_start():
+    """Tick k is stamped t_start + k / publish_rate exactly; the first tick is t = 0."""
+    node = _node(publish_rate=100.0)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    lis = Listener(ex)
+    _spin_until(ex, lambda: len(lis.att) >= 60)
+    start = node._t_start.nanoseconds
+    stamps = np.array([stamp_ns(m) for m in lis.att])
+    assert stamps[0] == start
+    offsets = stamps - start
+    assert np.all(offsets % 10_000_000 == 0), offsets[offsets % 10_000_000 != 0][:5]
+    assert np.all(np.diff(stamps) > 0)
+    # most samples came from the look-ahead buffer, built ahead
+    assert node._ahead.size >= 16, node._ahead.off_reason
+    node.destroy_node()
+
+
+def test_frame_id_change_applies_at_once_to_messages_built_ahead():
+    node = _node(publish_rate=100.0)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    lis = Listener(ex)
+    _spin_until(ex, lambda: len(lis.att) >= 40)     # the buffer holds built messages now
+    assert len(node._ahead) > 0
+    assert node.set_parameters([Parameter('frame_id', value='world'),
+                                Parameter('body_frame_id', value='base_link')])[0].successful
+    n0 = len(lis.att)
+    _spin_until(ex, lambda: len(lis.att) >= n0 + 3 and len(lis.rate) >= n0 + 3)
+    assert {m.header.frame_id for m in lis.att[n0 + 1:]} == {'world'}
+    assert {m.header.frame_id for m in lis.rate[n0 + 1:]} == {'base_link'}
+    node.destroy_node()
+
+
+def test_rate_change_anchors_a_new_grid_on_the_same_scene_clock():
+    node = _node(publish_rate=100.0, time_scale=1.0)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    lis = Listener(ex)
+    _spin_until(ex, lambda: len(lis.att) >= 10)
+    start = node._t_start.nanoseconds
+    assert node.set_parameters([Parameter('publish_rate', value=40.0)])[0].successful
+    n0 = len(lis.att)
+    _spin_until(ex, lambda: len(lis.att) >= n0 + 8)
+    assert node._t_start.nanoseconds == start        # the scene time runs on
+    later = np.array([stamp_ns(m) for m in lis.att[n0 + 1:]])
+    assert np.all(np.diff(later) % 25_000_000 == 0) and np.all(np.diff(later) > 0)
+    sol = node.solution
+    for m in lis.att[n0 + 1:]:
+        t = (stamp_ns(m) - start) * 1e-9
+        q = np.array([m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w])
+        assert quat.angle_between(q, sol.at(t).quaternion) <= 2e-12
     node.destroy_node()

@@ -1,20 +1,24 @@
-"""Why a tick costs more in the node than in a tight loop: the same calls, three settings.
+"""Why a tick costs more in the node than in a tight loop, and what the node does about it.
 
-``python -m rigidrot_ros.bench.node_tick [--seconds S] [--preset NAME ...]`` times
-``Solution.at(t)`` (wall clock, perf_counter) for successive 100 Hz scene times
+``python -m rigidrot_ros.bench.node_tick [--seconds S] [--preset NAME ...]`` measures, per
+preset scene (wall clock, ``perf_counter``):
 
-1. in a tight loop (the figure the benchmark quotes per tick);
-2. in a loop that waits for the next 10 ms tick between calls (no ROS), sleeping or
-   spinning on the clock, and a second call right after each: what the idle gap alone
-   does (measured here: the first call after a 10 ms gap costs 10x a call made at once,
-   spinning or not, so the cost is cold state - caches, TLB, branch predictors - on a
-   shared virtual CPU, not ROS);
-3. inside a 100 Hz rclpy timer callback of a real node that publishes a
-   QuaternionStamped and Vector3Stamped every tick, with a subscriber to both in the same
-   process (the node's evaluation figure, as its diagnostics report it).
+1. ``Solution.at(t)`` for successive 100 Hz scene times in a tight loop;
+2. the same call after an idle gap of 0, 0.1, 1, 3 and 10 ms (``time.sleep``), and a second
+   call right after it: how the cost of one call grows with the idle time before it (on
+   a shared virtual CPU the other tenants empty the caches meanwhile: measured here, the
+   first call after 10 ms costs about 10x the second, and every step of it is slower, the
+   pure-Python float arithmetic as much as numpy), so a 100 Hz timer pays it every tick;
+3. one 256-sample batch ``Solution.at(array)`` after a 10 ms gap, per sample: what the
+   node's look-ahead (:mod:`rigidrot_ros.node.lookahead`) pays instead;
+4. the real ``AttitudeNode`` on that scene at 100 Hz with a subscriber to its two topics
+   in the same process, as its own ``/diagnostics`` report it (1 s windows): evaluation
+   (a tick's sample from the look-ahead buffer), the whole tick up to publication, the
+   wake-up latency (the callback's start after the tick's grid time), the look-ahead's
+   batches; the median and the worst window of each p99, and the same node with the
+   look-ahead off (every tick evaluates its own sample) for comparison.
 
-It prints mean, p50, p99 and max of each, per preset, and the whole callback's p99 in the
-node. ROS traffic stays on the machine: it sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
+ROS traffic stays on the machine: it sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
 unless already set; use your own ``ROS_DOMAIN_ID``.
 """
 
@@ -26,6 +30,8 @@ import numpy as np
 
 from rigidrot_ros.bench.run import ratio_scenes
 from rigidrot_ros.core import solve
+
+GAPS_S = (0.0, 1e-4, 1e-3, 3e-3, 1e-2)
 
 
 def _stats(us):
@@ -45,24 +51,13 @@ def tight(scene, n):
     return 1e6 * np.array(out)
 
 
-def paced(scene, n, busy=False):
-    """Latencies (us) of the same calls, one every 10 ms of wall time.
-
-    Between calls the loop sleeps, or with ``busy`` spins on the clock. Returns the
-    latencies of the paced calls and of a second call made right after each.
-    """
+def after_gap(scene, n, gap):
+    """Latencies (us) of calls each made after ``gap`` s asleep, and of a call right after."""
     sol = solve(scene)
     out, again = [], []
-    nxt = time.perf_counter()
     for k in range(1, n + 1):
-        nxt += 0.01
-        if busy:
-            while time.perf_counter() < nxt:
-                pass
-        else:
-            delay = nxt - time.perf_counter()
-            if delay > 0:
-                time.sleep(delay)
+        if gap:
+            time.sleep(gap)
         c = time.perf_counter()
         sol.at(0.01 * k)
         c1 = time.perf_counter()
@@ -72,64 +67,78 @@ def paced(scene, n, busy=False):
     return 1e6 * np.array(out), 1e6 * np.array(again)
 
 
-def in_node(scene, n):
-    """Time the evaluation and the whole callback (us) in a 100 Hz rclpy timer."""
+def batch_after_gap(scene, reps=30, size=256):
+    """Per-sample cost (us) of a ``size``-sample batch made after a 10 ms gap."""
+    sol = solve(scene)
+    out = []
+    for j in range(reps):
+        time.sleep(0.01)
+        t = 0.01 * (j * size + np.arange(1, size + 1))
+        c = time.perf_counter()
+        s = sol.at(t)
+        s.quaternion.tolist(), s.omega.tolist(), s.error_bound.tolist()
+        out.append((time.perf_counter() - c) / size)
+    return 1e6 * np.array(out)
+
+
+def in_node(scene, seconds, lookahead=True):
+    """Run an AttitudeNode on ``scene`` at 100 Hz; return its diagnostics windows (dicts)."""
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
+    from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from rigidrot_ros.node import attitude_node as an
 
     rclpy.init()
+    saved = an.Lookahead
+    if not lookahead:
+        an.Lookahead = _no_lookahead(saved)
     try:
-        node = rclpy.create_node('rigidrot_tick_probe')
-        pub_q = node.create_publisher(QuaternionStamped, 'probe/attitude', 10)
-        pub_w = node.create_publisher(Vector3Stamped, 'probe/angular_velocity', 10)
-        got = [0]
-        sub_node = rclpy.create_node('rigidrot_tick_listener')
-        sub_node.create_subscription(QuaternionStamped, 'probe/attitude',
-                                     lambda m: got.__setitem__(0, got[0] + 1), 10)
-        sub_node.create_subscription(Vector3Stamped, 'probe/angular_velocity',
-                                     lambda m: None, 10)
-        sol = solve(scene)
-        evals, calls = [], []
-        k = [0]
-
-        def tick():
-            c0 = time.perf_counter()
-            k[0] += 1
-            s = sol.at(0.01 * k[0])
-            c1 = time.perf_counter()
-            stamp = node.get_clock().now().to_msg()
-            att = QuaternionStamped()
-            att.header.stamp = stamp
-            att.quaternion.x, att.quaternion.y, att.quaternion.z, att.quaternion.w = (
-                float(v) for v in s.quaternion)
-            rate = Vector3Stamped()
-            rate.header.stamp = stamp
-            rate.vector.x, rate.vector.y, rate.vector.z = (float(v) for v in s.omega)
-            pub_q.publish(att)
-            pub_w.publish(rate)
-            evals.append(c1 - c0)
-            calls.append(time.perf_counter() - c0)
-
-        node.create_timer(0.01, tick)
+        params = dict(scene.as_dict(), publish_rate=100.0)
+        node = an.AttitudeNode(
+            parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+        sub = rclpy.create_node('rigidrot_tick_listener')
+        got, diags = [0], []
+        sub.create_subscription(QuaternionStamped, 'attitude',
+                                lambda m: got.__setitem__(0, got[0] + 1), 10)
+        sub.create_subscription(Vector3Stamped, 'angular_velocity', lambda m: None, 10)
+        sub.create_subscription(DiagnosticArray, '/diagnostics', lambda m: diags.append(
+            {kv.key: kv.value for kv in m.status[0].values}), 10)
         ex = SingleThreadedExecutor()
         ex.add_node(node)
-        ex.add_node(sub_node)
-        while len(evals) < n:
+        ex.add_node(sub)
+        end = time.monotonic() + seconds + 1.0
+        while time.monotonic() < end:
             ex.spin_once(timeout_sec=0.1)
         ex.shutdown()
         node.destroy_node()
-        sub_node.destroy_node()
-        return 1e6 * np.array(evals), 1e6 * np.array(calls), got[0]
+        sub.destroy_node()
+        return diags[1:], got[0]              # the first window holds the start-up
     finally:
+        an.Lookahead = saved
         rclpy.try_shutdown()
 
 
+def _no_lookahead(cls):
+    def make(*args, **kwargs):
+        return cls(*args, **dict(kwargs, enabled=False))
+    return make
+
+
+def _windows(diags, key):
+    v = np.array([float(d[key]) for d in diags if d.get(key)])
+    return f'{key[:-3]:14s} median {np.median(v):7.1f}  worst {v.max():7.1f} us' if len(v) \
+        else f'{key}: no windows'
+
+
 def main(argv=None):
-    """Print the three settings' latencies per preset."""
+    """Print the settings' latencies per preset."""
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument('--seconds', type=float, default=10.0, help='scene time per setting')
+    ap.add_argument('--seconds', type=float, default=10.0,
+                    help='seconds per setting (the gap sweep takes 100 calls a second)')
     ap.add_argument('--preset', action='append', help='scene name (default: all)')
     opts = ap.parse_args(argv)
     scenes = ratio_scenes()
@@ -137,14 +146,24 @@ def main(argv=None):
     for name in opts.preset or list(scenes):
         scene = scenes[name]
         print(f'{name}:')
-        print(f'  tight loop      {_stats(tight(scene, n))}')
-        for label, busy in (('sleeping', False), ('spinning', True)):
-            first, again = paced(scene, n, busy)
-            print(f'  paced, {label} {_stats(first)}')
-            print(f'    at once again {_stats(again)}')
-        ev, cb, got = in_node(scene, n)
-        print(f'  node timer eval {_stats(ev)}')
-        print(f'  node callback   {_stats(cb)}  ({got} messages received)', flush=True)
+        print(f'  tight loop           {_stats(tight(scene, n))}')
+        for gap in GAPS_S:
+            first, again = after_gap(scene, min(n, 300), gap)
+            print(f'  after {gap * 1e3:4.1f} ms idle   {_stats(first)}')
+            if gap == GAPS_S[-1]:
+                print(f'    a call right after {_stats(again)}')
+        print(f'  batch of 256 after 10 ms idle, per sample {_stats(batch_after_gap(scene))}')
+        for label, on in (('look-ahead on ', True), ('look-ahead off', False)):
+            diags, got = in_node(scene, opts.seconds, lookahead=on)
+            print(f'  node, {label} ({len(diags)} windows, {got} attitude messages received,'
+                  f' ticks late {diags[-1]["ticks_late"] if diags else "?"}):')
+            for key in ('eval_p99_us', 'tick_p99_us', 'latency_p99_us', 'eval_mean_us',
+                        'tick_mean_us'):
+                print(f'    {_windows(diags, key)}')
+            if on and diags:
+                print(f'    look-ahead: {diags[-1]["lookahead"]}, worst batch '
+                      f'{max(float(d["lookahead_batch_max_us"]) for d in diags):.0f} us, '
+                      f'{diags[-1]["lookahead_sample_us"]} us a sample', flush=True)
 
 
 if __name__ == '__main__':

@@ -370,6 +370,8 @@ class AttitudeNode(Node):
         except ValueError as exc:
             raise SceneError(str(exc)) from None
         self._time_scale = float(self.get_parameter('time_scale').value)
+        self._frames = (self.get_parameter('frame_id').value,
+                        self.get_parameter('body_frame_id').value)
         self._t_start = None
         self._grid0 = None              # clock ns of the truth grid's index 0 (see _anchor)
         self._tick_k = -1               # the last truth grid index published
@@ -387,6 +389,8 @@ class AttitudeNode(Node):
         self._pub_odom = self.create_publisher(Odometry, 'odom', qos) if cfg.odom else None
         self._pub_markers = (self.create_publisher(MarkerArray, 'markers', qos)
                              if cfg.markers else None)
+        self._truth_extra = [p for p in (self._pub_tf, self._pub_odom, self._pub_markers)
+                             if p is not None]
         self._pub_imu = self._pub_da = self._pub_dr = self._pub_star = None
         if cfg.imu:
             self._pub_imu = self.create_publisher(Imu, 'imu', qos)
@@ -487,6 +491,11 @@ class AttitudeNode(Node):
         if reason is None:
             if 'publish_rate' in names:
                 self._make_timer(float(self._values(params)['publish_rate']))
+            if 'frame_id' in names or 'body_frame_id' in names:   # at once, as before
+                values = self._values(params)
+                self._frames = (values['frame_id'], values['body_frame_id'])
+                if self._ahead is not None:
+                    self._ahead.drop_built()
             return SetParametersResult(successful=True)
         if not any(n in reason for n in names):
             reason = f'parameter(s) {", ".join(names)}: {reason}'
@@ -547,7 +556,13 @@ class AttitudeNode(Node):
         self._grid0, self._tick_k = g0, -1
         self._ahead = Lookahead(self._solution,
                                 lambda k: self._scene_time(self._tick_stamp_ns(k)),
-                                self._period)
+                                self._period, build=self._build_pair)
+
+    def _build_pair(self, k, sample, stamp_ns=None):
+        """The attitude and rate messages of grid index k (or at ``stamp_ns``)."""
+        frame, body = self._frames
+        stamp = msgs.stamp(self._tick_stamp_ns(k) if stamp_ns is None else stamp_ns)
+        return (msgs.attitude(stamp, frame, sample[0]), msgs.vector(stamp, body, sample[1]))
 
     def _tick_stamp_ns(self, k):
         return self._grid0 + round(k * 1e9 / self._period_hz)
@@ -566,16 +581,20 @@ class AttitudeNode(Node):
             return False            # shut down (SIGINT/SIGTERM) while this callback ran
         return True
 
-    def _truth_messages(self, stamp, sample):
+    def _truth_messages(self, stamp_ns, sample, pair=None):
         """Build the truth of one sample as ``(publisher, msg)`` pairs, all with one stamp.
 
-        ``sample``: ``(quaternion, omega, error_bound)`` as :class:`Lookahead` gives it.
+        ``sample``: ``(quaternion, omega, error_bound)`` as :class:`Lookahead` gives it;
+        ``pair``: its attitude and rate messages if built ahead.
         """
-        frame = self.get_parameter('frame_id').value
-        body = self.get_parameter('body_frame_id').value
+        frame, body = self._frames
         q, omega, bound = sample
-        out = [(self._pub_att, msgs.attitude(stamp, frame, q)),
-               (self._pub_rate, msgs.vector(stamp, body, omega))]
+        if pair is None:
+            pair = self._build_pair(None, sample, stamp_ns)
+        out = [(self._pub_att, pair[0]), (self._pub_rate, pair[1])]
+        if len(self._truth_extra) == 0:
+            return out
+        stamp = pair[0].header.stamp
         if self._pub_tf is not None:
             out.append((self._pub_tf, msgs.transform(stamp, frame, body, q)))
         if self._pub_odom is not None:
@@ -609,12 +628,12 @@ class AttitudeNode(Node):
         t = self._scene_time(stamp_ns)
         c0 = time.perf_counter()
         try:
-            sample, _ = self._ahead.get(k)
+            sample, pair = self._ahead.get(k)
         except Exception as exc:        # PrecisionError, or anything else: report, keep going
             self._failed(t, exc)
             return
         st.times.append(time.perf_counter() - c0)
-        pairs = self._truth_messages(msgs.stamp(stamp_ns), sample)
+        pairs = self._truth_messages(stamp_ns, sample, pair)
         if not self._publish(pairs):
             return
         st.tick_times.append(time.perf_counter_ns() - c_tick)

@@ -36,12 +36,16 @@ class Lookahead:
 
     ``time_of(k)`` returns the scene time (s) of grid index k. A sample is a tuple
     ``(quaternion, omega, error_bound)`` of a 4-list (x, y, z, w), a 3-list (rad/s, in B)
-    and a float (rad), plain Python floats.
+    and a float (rad), plain Python floats. ``build(k, sample)``, if given, is called for
+    each sample of a batch right after it is evaluated (while the process is warm: the
+    node builds the tick's messages there) and its result is handed out with the sample.
     """
 
-    def __init__(self, solution, time_of, period_s, budget_s=BATCH_BUDGET_S, enabled=True):
+    def __init__(self, solution, time_of, period_s, budget_s=BATCH_BUDGET_S, enabled=True,
+                 build=None):
         self.solution = solution
         self.time_of = time_of
+        self.build = build
         self.budget_s = min(float(budget_s), 0.5 * float(period_s))
         self.size = AHEAD_MIN if enabled else 0
         self.off_reason = '' if enabled else 'disabled'
@@ -54,15 +58,17 @@ class Lookahead:
         return len(self._buf)
 
     def get(self, k):
-        """Return ``(sample, from_buffer)`` for grid index k (evaluated now if not buffered).
+        """Return ``(sample, built)`` for grid index k (evaluated now if not buffered).
 
-        Raises what :meth:`Solution.at` raises for that time (PrecisionError, ValueError).
+        ``built`` is what ``build`` made of a buffered sample, None for a sample evaluated
+        now. Raises what :meth:`Solution.at` raises for that time (PrecisionError,
+        ValueError).
         """
-        smp = self._buf.pop(k, None)
-        if smp is not None:
-            return smp, True
+        entry = self._buf.pop(k, None)
+        if entry is not None:
+            return entry
         s = self.solution.at(self.time_of(k))
-        return (s.quaternion.tolist(), s.omega.tolist(), float(s.error_bound)), False
+        return (s.quaternion.tolist(), s.omega.tolist(), float(s.error_bound)), None
 
     def refill(self, k):
         """After tick k: evaluate the next batch if at most half a batch is left; its size."""
@@ -84,8 +90,9 @@ class Lookahead:
                                f'({type(exc).__name__}: {exc}); evaluating per tick')
             return 0
         q, w, e = s.quaternion.tolist(), s.omega.tolist(), s.error_bound.tolist()
+        build = self.build
         for j, smp in enumerate(zip(q, w, e), start):
-            self._buf[j] = smp
+            self._buf[j] = (smp, build(j, smp) if build is not None else None)
         self._next = start + n
         cost = time.perf_counter() - c0
         self.batch_times.append(cost)
@@ -99,6 +106,10 @@ class Lookahead:
                                f'the budget of {self.budget_s * 1e3:.3g} ms for '
                                f'{AHEAD_MIN}; evaluating per tick')
         return n
+
+    def drop_built(self):
+        """Forget what ``build`` made (e.g. the frame ids changed); keep the samples."""
+        self._buf = {j: (smp, None) for j, (smp, _) in self._buf.items()}
 
     def take_stats(self):
         """Return the batch times (s) since the last call, and forget them."""
