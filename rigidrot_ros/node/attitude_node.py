@@ -89,7 +89,9 @@ _DESCRIPTIONS = {
             '~/reset', ParameterType.PARAMETER_DOUBLE),
     'backend': ("special functions: 'auto', 'flint' (Arb, certified) or 'mpmath'; applied "
                 'at the next ~/reset', ParameterType.PARAMETER_STRING),
-    'publish_rate': ('timer rate, Hz', ParameterType.PARAMETER_DOUBLE),
+    'publish_rate': ('timer rate, Hz; the truth is sampled at t_start + k / publish_rate; '
+                     'takes effect at once (a new grid from the next tick)',
+                     ParameterType.PARAMETER_DOUBLE),
     'time_scale': ('scene seconds per clock second; applied at the next ~/reset',
                    ParameterType.PARAMETER_DOUBLE),
     'frame_id': ('header.frame_id of attitude: the inertial frame N',
@@ -559,7 +561,7 @@ class AttitudeNode(Node):
                                 self._period, build=self._build_pair)
 
     def _build_pair(self, k, sample, stamp_ns=None):
-        """The attitude and rate messages of grid index k (or at ``stamp_ns``)."""
+        """Build the attitude and rate messages of grid index k (or at ``stamp_ns``)."""
         frame, body = self._frames
         stamp = msgs.stamp(self._tick_stamp_ns(k) if stamp_ns is None else stamp_ns)
         return (msgs.attitude(stamp, frame, sample[0]), msgs.vector(stamp, body, sample[1]))
@@ -943,6 +945,10 @@ def usage():
         '  with star_tracker.enable: star_tracker (PoseWithCovarianceStamped); with '
         'odom.enable,',
         '  transform.enable, markers.enable: odom, transform, markers (the truth)',
+        '',
+        "Tick k of the truth is stamped t_start + k / publish_rate (the timer's schedule, "
+        't_start its first call)',
+        'and holds the scene at t = (stamp - t_start) * time_scale.',
         '',
         f'Parameters (-p NAME:=VALUE or --params-file FILE; default in brackets){missing}:',
     ]
