@@ -363,3 +363,18 @@ def test_bad_times_refused_like_every_model(bad):
     for f in (sol.at, sol.omega_at):
         with pytest.raises(ValueError, match='t must be a float'):
             f(bad)
+
+
+@pytest.mark.parametrize('one_minus_m', [0.5, 1e-3, 1e-12, 1e-30])
+def test_elliptic_constants_arb_and_mpmath_agree(one_minus_m):
+    """K(m) and F(phi0 | m) from Arb balls (flint) and from mpmath, near the separatrix too."""
+    pytest.importorskip('flint')
+    from mpmath import mp
+    from rigidrot_ros.core.triaxial import _elliptic_constants
+    with mp.workprec(200):
+        m = 1 - mpmath.mpf(one_minus_m)
+        for phi0 in (mpmath.mpf('0.3'), mpmath.pi / 2 - mpmath.mpf('1e-9'), -mpmath.mpf(1.2)):
+            f_arb, k_arb = _elliptic_constants(m, phi0, True)
+            f_mp, k_mp = _elliptic_constants(m, phi0, False)
+            assert abs(k_arb - k_mp) <= abs(k_mp) * mpmath.ldexp(1, -190)
+            assert abs(f_arb - f_mp) <= abs(f_mp) * mpmath.ldexp(1, -190)

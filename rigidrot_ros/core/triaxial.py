@@ -39,13 +39,15 @@ Horner rounding is bounded per cell from the stored coefficients; phase reductio
 folding and the quaternion formulas add bounded rounding (a few ulp allowed for libm's
 sin, cos, exp, atan and sqrt). Within 1 - m < ~1e-50 of the separatrix (K > 60) the
 table would be too long and :func:`solve` refuses. The per-scene
-constants are computed by mpmath at >= 128 bits; on the flint backend K(m) and u0 are
-confirmed against Arb balls, and the table is checked at u = K to 1e-25, far below the
-bound. They are checked, not carried as balls: ``method`` does not say 'flint'.
+constants are computed at >= 128 bits: K(m) and u0 by Arb on the flint backend (balls
+whose radius must lie below the last bit kept), by mpmath on the mpmath backend; the rest
+by mpmath, and the table is checked at u = K to 1e-25, far below the bound. The constants
+are rounded from the balls, not carried as balls: ``method`` does not say 'flint'.
 """
 
 from fractions import Fraction
 import math
+import operator
 
 import mpmath
 from mpmath import mp
@@ -80,10 +82,11 @@ def _series(s0, c0, d0, m, beta, n, prec):
     2^-prec; Python ints make this some 20 times faster than mpf.
     """
     s, c, d = [s0], [c0], [d0]
+    mul = operator.mul                      # the sums below are exact: any order
     for k in range(n):
-        cd = sum(c[j] * d[k - j] for j in range(k + 1)) >> prec
-        sd = sum(s[j] * d[k - j] for j in range(k + 1)) >> prec
-        sc = sum(s[j] * c[k - j] for j in range(k + 1)) >> prec
+        cd = sum(map(mul, c, reversed(d))) >> prec
+        sd = sum(map(mul, s, reversed(d))) >> prec
+        sc = sum(map(mul, s, reversed(c))) >> prec
         s.append(cd // (k + 1))
         c.append(-sd // (k + 1))
         d.append(-((m * sc) >> prec) // (k + 1))
@@ -91,7 +94,7 @@ def _series(s0, c0, d0, m, beta, n, prec):
     w0 = one + ((beta * d0) >> prec)
     g = [(d0 << prec) // w0]
     for k in range(1, n + 1):
-        acc = sum(d[j] * g[k - j] for j in range(1, k + 1)) >> prec
+        acc = sum(map(mul, d[1:k + 1], reversed(g))) >> prec
         g.append(((d[k] - ((beta * acc) >> prec)) << prec) // w0)
     return s, c, d, g
 
@@ -173,26 +176,44 @@ def _sep_err(au, u_err):
         return np.where(near, tail, np.minimum(u_err, 2.0)) + 8 * _U
 
 
-def _check_with_arb(m, phi0, u0):
-    """Confirm mpmath's K(m) and F(phi0 | m) with Arb balls (python-flint), else raise."""
-    try:
-        import flint
-    except ImportError:
-        return
-    digits = int(mp.prec * 0.30103) + 10
+def _elliptic_constants(m, phi0, use_arb):
+    """Return ``(F(phi0 | m) at 2 mp.prec bits, K(m) at mp.prec bits)`` as mpf.
+
+    With python-flint (``use_arb``), both are Arb balls computed at 64 bits more than they
+    are returned with, and their radii must lie below 2^-mp.prec relative (the bits the
+    set-up uses: certified); else mpmath, uncertified. F loses bits as m -> 1 and
+    phi0 -> pi/2, hence its doubled precision in either.
+    """
+    prec = mp.prec
+    if use_arb:
+        try:
+            import flint
+        except ImportError:
+            use_arb = False
+    if not use_arb:
+        with mp.workprec(2 * prec):
+            u0 = +mpmath.ellipf(phi0, m)
+        return u0, mpmath.ellipk(m)
     old = flint.ctx.prec
-    flint.ctx.prec = mp.prec + 64
     try:
-        m_b, phi_b = _arb_exact(flint, m), _arb_exact(flint, phi0)
-        pairs = ((flint.acb(m_b).elliptic_k(), mpmath.ellipk(m), 'K(m)'),
-                 (flint.acb.elliptic_f(phi_b, m_b), u0, 'F(phi0 | m)'))
-        for ball, val, name in pairs:
-            mid = mpmath.mpf(ball.real.mid().str(digits, radius=False))
-            rad = mpmath.mpf(ball.real.rad().str(5, radius=False))
-            if not abs(mid - val) <= rad + max(1, abs(val)) * mpmath.mpf(10) ** -30 or \
-                    rad > mpmath.mpf(10) ** -30:
-                raise PrecisionError(f'{name} by mpmath ({mpmath.nstr(val, 20)}) is not '
-                                     f'confirmed by Arb ({ball})')
+        out = []
+        for bits, what in ((2 * prec, 'F(phi0 | m)'), (prec, 'K(m)')):
+            flint.ctx.prec = bits + 64
+            m_b = _arb_exact(flint, m)
+            if what == 'K(m)':
+                ball = flint.acb(m_b).elliptic_k().real
+            else:
+                ball = flint.acb.elliptic_f(_arb_exact(flint, phi0), m_b).real
+            man, exp = ball.mid().man_exp()
+            with mp.workprec(bits):
+                val = mpmath.mpf((int(man), int(exp)))
+                rad_man, rad_exp = ball.rad().man_exp()
+                rad = mpmath.mpf((int(rad_man), int(rad_exp)))
+                if not (mpmath.isfinite(val) and rad <= abs(val) * mpmath.ldexp(1, -prec)):
+                    raise PrecisionError(f'{what} (m = {float(m)!r}) is not resolved by Arb '
+                                         f'at {bits + 64} bits: {ball}')
+            out.append(val)
+        return tuple(out)
     finally:
         flint.ctx.prec = old
 
@@ -307,11 +328,11 @@ class TriaxialSolution:
     method : str
         ``'jacobi-elliptic-table'`` (m < 1) or ``'separatrix-closed-form'`` (m = 1, the
         tennis-racket separatrix): float64 with an a-priori error bound; the per-scene
-        constants come from mpmath (K and u0 confirmed by Arb balls on the flint
-        backend; not carried as balls).
+        constants come from mpmath (K and u0 from Arb balls on the flint backend; not
+        carried as balls).
     backend : str
         The backend asked for ('flint' or 'mpmath'); both use the same evaluation, the
-        flint backend also confirms K(m) and u0 with Arb.
+        flint backend takes K(m) and u0 from Arb.
     tol : float
         Attitude accuracy asked, rad. :func:`solve` raises PrecisionError when the
         float64 bound of this scene cannot meet it.
@@ -393,10 +414,7 @@ class TriaxialSolution:
             m = 1 - (i3 - i1) * e2 / ((i3 - i2) * e1)
             amp1, amp2 = a1, sigma * a2
             phi0 = mpmath.atan2(w[1] / amp2, w[0] / amp1)
-            with mp.workprec(2 * mp.prec):      # ellipf loses bits as m -> 1, phi -> pi/2
-                u0 = +mpmath.ellipf(phi0, m)
-            if self.backend == 'flint':
-                _check_with_arb(m, phi0, u0)
+            u0, kk = _elliptic_constants(m, phi0, self.backend == 'flint')
         self.m = m
         self._beta_mp = beta
         self._amp = np.array([float(amp1), float(amp2), float(a3)])
@@ -437,7 +455,6 @@ class TriaxialSolution:
             return
         self._sep = False
         self.method = 'jacobi-elliptic-table'
-        kk = mpmath.ellipk(m)
         # precision and series degree for stepping over [0, K] (errors grow like e^u there)
         prec = max(mp.prec, 128 + int(1.5 * float(kk)))
         if prec > max(max_prec, 256) + 256:
