@@ -7,7 +7,7 @@ import pytest
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, Lookahead
+from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, Lookahead, STRIKES
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
 PERIOD = 0.01
@@ -98,11 +98,29 @@ def test_a_failing_batch_turns_the_lookahead_off_with_its_reason():
     assert la.refill(1) == 0
 
 
-def test_a_batch_beyond_its_budget_turns_the_lookahead_off():
+def test_batches_beyond_their_budget_turn_the_lookahead_off_after_strikes():
     la = Lookahead(solve(SCENE), _time_of, PERIOD, budget_s=1e-9)
-    assert la.refill(0) == AHEAD_MIN                 # measured, then judged
+    k = 0
+    for strike in range(STRIKES - 1):                # measured, then judged: shrink, go on
+        k += la.refill(k)
+        assert la.size == AHEAD_MIN and la.off_reason == ''
+    assert la.refill(k) == AHEAD_MIN
     assert la.size == 0 and 'beyond the budget' in la.off_reason
-    assert la.take_stats() and la.take_stats() == []
+    assert len(la.take_stats()) == STRIKES and la.take_stats() == []
+
+
+def test_one_slow_batch_only_shrinks_the_next():
+    la = Lookahead(solve(SCENE), _time_of, PERIOD, budget_s=1.0)
+    k = 0
+    for _ in range(4):
+        k += la.refill(k)
+    assert la.size == 128
+    la.budget_s = 1e-9                              # as if a batch were slowed down once
+    k += la.refill(k)
+    assert la.size == AHEAD_MIN
+    la.budget_s = 1.0
+    k += la.refill(k)
+    assert la.size == 2 * AHEAD_MIN and la.off_reason == ''
 
 
 def test_budget_is_at_most_half_a_period():

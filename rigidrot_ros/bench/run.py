@@ -660,10 +660,12 @@ def main(argv=None):
             print(f'rigidrot_bench: {merged} is not JSON ({exc}); move it away or choose '
                   'another --out', file=sys.stderr)
             return 2
-    if parts == ['crosscheck'] and 'footer' in results:
-        results['footer_crosscheck_run'] = foot     # the charts keep the map's own footer
-    else:
+    # 'footer' dates the charts of wp, horizon and stability; a part run on its own
+    # (crosscheck, ratios, triaxial, ...) keeps its own footer beside theirs
+    if set(parts) & {'wp', 'horizon', 'stability'} or 'footer' not in results:
         results['footer'] = foot
+    for part in set(parts) - {'wp', 'horizon', 'stability'}:
+        results[f'footer_{part}_run'] = foot
     if 'wp' in parts:
         results['work_precision'] = work_precision(opts.quick, repeats, budget, log)
         write_csv(os.path.join(opts.out, 'work_precision.csv'), results['work_precision'],
