@@ -2,10 +2,11 @@
 
 The node publishes the truth at the grid times ``g0 + k / publish_rate`` of its timer, so
 it knows the scene times of the coming ticks. :class:`Lookahead` evaluates them a batch at
-a time with the vectorised path of :meth:`Solution.at` (about 1 µs a sample warm, against
-10 µs for a scalar call warm and about 100 µs for a scalar call that runs after the
-10 ms idle gap of a 100 Hz timer on a shared virtual CPU, whose caches the other tenants
-have emptied meanwhile; ``python -m rigidrot_ros.bench.node_tick`` measures both). A tick
+a time with the vectorised path of :meth:`Solution.at` (about 1 µs a sample warm and 3-5 µs
+after an idle gap, against 10-20 µs for a scalar call warm and 120-200 µs for a scalar
+call that runs after the 10 ms idle gap of a 100 Hz timer on a shared virtual CPU, whose
+caches the other tenants have emptied meanwhile; ``python -m rigidrot_ros.bench.node_tick``
+measures both). A tick
 then takes its sample from the buffer, and the batch runs after a tick has published, so
 it never delays a message.
 
@@ -24,7 +25,7 @@ import numpy as np
 
 __all__ = ['Lookahead', 'AHEAD_MIN', 'AHEAD_MAX', 'BATCH_BUDGET_S', 'STRIKES']
 
-#: The first batch's size; a batch budget that fits fewer samples turns the look-ahead off.
+#: The first batch's size, and the smallest (see :data:`STRIKES`).
 AHEAD_MIN = 8
 #: The largest batch (2.56 s at 100 Hz): bounded memory, and a bounded stale tail after a
 #: change of publish_rate or a reset, which drop the buffer.
@@ -58,6 +59,7 @@ class Lookahead:
         self.off_reason = '' if enabled else 'disabled'
         self._buf = {}
         self._next = 0                  # the first index not yet buffered
+        self._last = -1                 # the last tick refill() was told of
         self._strikes = 0               # batches in a row over budget at AHEAD_MIN
         self.batch_times = []           # wall seconds per batch, since the last take_stats()
         self.last_per_sample = 0.0      # wall seconds per sample of the last batch
@@ -82,8 +84,9 @@ class Lookahead:
         """After tick k: evaluate the next batch if at most half a batch is left; its size."""
         if self.size < AHEAD_MIN:
             return 0
-        if self._buf and min(self._buf) <= k:         # ticks skipped: drop their samples
+        if k != self._last + 1 and self._buf:     # ticks skipped: drop their samples
             self._buf = {j: v for j, v in self._buf.items() if j > k}
+        self._last = k
         start = max(self._next, k + 1)
         if start - (k + 1) > self.size // 2:
             return 0
