@@ -378,3 +378,44 @@ def test_elliptic_constants_arb_and_mpmath_agree(one_minus_m):
             f_mp, k_mp = _elliptic_constants(m, phi0, False)
             assert abs(k_arb - k_mp) <= abs(k_mp) * mpmath.ldexp(1, -190)
             assert abs(f_arb - f_mp) <= abs(f_mp) * mpmath.ldexp(1, -190)
+
+
+@pytest.mark.parametrize('backend', ['flint', 'mpmath'])
+@pytest.mark.parametrize('omega0', [(0.3, -0.2, 0.5), (0.02, 1.0, 0.03), (0.1, 1.0, 0.05)])
+def test_mean_rate_is_accurate_to_the_bits_the_phase_bound_assumes(omega0, backend):
+    """The mean of g = dn / (1 + beta dn), which sets the phase at long times, against a
+    quadrature at 300 bits, within 2^(8 - precision) relative (what the phase bound takes).
+
+    The table's own mean (its integral over [0, K] / K) was 2^-124.9 off for the second
+    scene at 144 bits, 2^11 above that: a bound fooled from t ~ 1e25 s.
+    """
+    if backend == 'flint':
+        pytest.importorskip('flint')
+    sol = solve(Scene(inertia=(1.0, 2.0, 3.0), omega0=omega0), backend=backend)
+    with mpmath.workprec(300):
+        m, beta = mpmath.mpf(sol.m), mpmath.mpf(sol._beta_mp)
+        kk = mpmath.ellipk(m)
+
+        def g(u):
+            dn = mpmath.ellipfun('dn', u, m=m)
+            return dn / (1 + beta * dn)
+        ref = mpmath.quad(g, mpmath.linspace(0, kk, 5)) / kk
+        rel = abs(sol._gbar_mp - ref) / ref
+        assert rel <= mpmath.ldexp(1, 8 - sol.precision), float(mpmath.log(rel, 2))
+
+
+def test_mean_rate_out_of_closed_form_reach_widens_the_phase_bound():
+    """Within ~1e-30 of the major axis beta^2 rounds to 1: the table's mean rate is used,
+    taken as known to 2^-80 only, and the phase bound carries that."""
+    sol = solve(Scene(inertia=(1.0, 2.0, 3.0), omega0=(1e-30, -1e-30, 1.3)))
+    assert sol.method == 'jacobi-elliptic-table' and sol._gbar_rel_err == 2.0 ** -80
+    # the phase carries an error of its rate: |t| rho_err turns, on top of its own
+    from rigidrot_ros.core.triaxial import _Turns
+    with mpmath.workprec(sol.precision):
+        plain = _Turns(mpmath.mpf(1) / 3, 0)
+        wide = _Turns(mpmath.mpf(1) / 3, 0, rho_err=1e-20)
+    t = np.array([1e10, -1e12])
+    assert np.all(wide.reduce(t)[1] >= plain.reduce(t)[1] + 1e-20 * np.abs(t) * (1 - 1e-9))
+    fixed = solve(Scene(inertia=(1.0, 2.0, 3.0), omega0=(0.0, 0.0, 1.3)))
+    t = np.linspace(0.0, 30.0, 7)
+    assert np.all(_axis_angle(sol.at(t), fixed.at(t)) <= 1e-13)

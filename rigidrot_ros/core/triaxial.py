@@ -204,16 +204,85 @@ def _elliptic_constants(m, phi0, use_arb):
                 ball = flint.acb(m_b).elliptic_k().real
             else:
                 ball = flint.acb.elliptic_f(_arb_exact(flint, phi0), m_b).real
-            man, exp = ball.mid().man_exp()
             with mp.workprec(bits):
-                val = mpmath.mpf((int(man), int(exp)))
-                rad_man, rad_exp = ball.rad().man_exp()
-                rad = mpmath.mpf((int(rad_man), int(rad_exp)))
-                if not (mpmath.isfinite(val) and rad <= abs(val) * mpmath.ldexp(1, -prec)):
-                    raise PrecisionError(f'{what} (m = {float(m)!r}) is not resolved by Arb '
-                                         f'at {bits + 64} bits: {ball}')
+                val = _arb_to_mpf(ball, prec)
+            if val is None:
+                raise PrecisionError(f'{what} (m = {float(m)!r}) is not resolved by Arb '
+                                     f'at {bits + 64} bits: {ball}')
             out.append(val)
         return tuple(out)
+    finally:
+        flint.ctx.prec = old
+
+
+def _arb_to_mpf(ball, prec):
+    """Round an Arb ball's midpoint to an mpf; None unless its radius is below 2^-prec of it.
+
+    The mpf has the current mpmath precision.
+    """
+    man, exp = ball.mid().man_exp()
+    rad_man, rad_exp = ball.rad().man_exp()
+    val = mpmath.mpf((int(man), int(exp)))
+    rad = mpmath.mpf((int(rad_man), int(rad_exp)))
+    if not (mpmath.isfinite(val) and rad <= abs(val) * mpmath.ldexp(1, -prec)):
+        return None
+    return val
+
+
+def _mean_rate(m, beta, use_arb):
+    """Return the mean of g = dn / (1 + beta dn) over a quarter period, at mp.prec bits.
+
+    In closed form (dn = d am / du, dn^2 = 1 - m sn^2):
+    ``K gbar = (K - Pi(-n | m) / (1 - beta^2) + beta pi / (2 sqrt((1 - beta^2)(1 - beta^2
+    + beta^2 m)))) / beta`` with ``n = beta^2 m / (1 - beta^2)``, and pi / 2 for beta = 0,
+    at as many more bits as the cancellation of its terms costs. From Arb balls (radius
+    below the last bit) with python-flint, else from mpmath. None where beta^2 is 1 at
+    twice the bits, where the cancellation would cost more than 4 mp.prec bits, or where
+    Arb cannot resolve it at up to four times the bits that should take.
+    """
+    prec = mp.prec
+    with mp.workprec(2 * prec + 16):
+        one_b2 = 1 - beta * beta                # exact: beta has at most prec bits
+    if not one_b2 > 0:
+        return None
+    # the three terms are ~ K / (1 - beta^2), their sum ~ K / 2: work with the bits lost
+    lost = max(0, int(-mpmath.log(one_b2, 2)) + 1)
+    if lost > 4 * prec:
+        return None
+    work = prec + 64 + lost
+    if use_arb:
+        try:
+            import flint
+        except ImportError:
+            use_arb = False
+    if not use_arb:
+        with mp.workprec(work):
+            kk = mpmath.ellipk(m)
+            if beta == 0:
+                return +(mpmath.pi / (2 * kk))
+            one_b2 = 1 - beta * beta
+            pi3 = mpmath.ellippi(-beta * beta * m / one_b2, m)
+            i2 = mpmath.pi / (2 * mpmath.sqrt(one_b2 * (one_b2 + beta * beta * m)))
+            val = (kk - pi3 / one_b2 + beta * i2) / (beta * kk)
+        return +val
+    old = flint.ctx.prec
+    try:
+        for _ in range(3):                      # Arb says when its bits did not suffice
+            flint.ctx.prec = work
+            m_b, b_b = _arb_exact(flint, m), _arb_exact(flint, beta)
+            kk = flint.acb(m_b).elliptic_k().real
+            if beta == 0:
+                ball = flint.arb.pi() / (2 * kk)
+            else:
+                one_b2 = 1 - b_b * b_b
+                pi3 = flint.acb.elliptic_pi(-b_b * b_b * m_b / one_b2, m_b).real
+                i2 = flint.arb.pi() / (2 * (one_b2 * (one_b2 + b_b * b_b * m_b)).sqrt())
+                ball = (kk - pi3 / one_b2 + b_b * i2) / (b_b * kk)
+            val = _arb_to_mpf(ball, prec)
+            if val is not None:
+                return val
+            work *= 2
+        return None
     finally:
         flint.ctx.prec = old
 
@@ -239,15 +308,16 @@ class _Turns:
 
     ``rho`` is split into 26-bit pieces, t into two 26-bit halves (Veltkamp), so every
     partial product is exact and its fractional part too; the fractions are summed in
-    double-double. Error, in turns: ``2 u + |t| (residual(k pieces) + |rho| 2^(8 - prec))``,
-    the last term for rho itself, computed from the exact inputs in some tens of
-    operations at ``prec`` bits (the current mpmath precision).
+    double-double. Error, in turns: ``2 u + |t| (residual(k pieces) + |rho| 2^(8 - prec)
+    + rho_err)``, the last two terms for rho itself, computed from the exact inputs in some
+    tens of operations at ``prec`` bits (the current mpmath precision), and ``rho_err``
+    for any input of rho known less well than that.
     """
 
-    def __init__(self, rho, offset):
+    def __init__(self, rho, offset, rho_err=0.0):
         self.pieces, self.resid = _pieces(rho)
         self.off = _split_offset(offset)
-        rel = float(abs(rho)) * 2.0 ** (8 - mp.prec)
+        rel = float(abs(rho)) * 2.0 ** (8 - mp.prec) + float(rho_err)
         self.resid = [r + rel for r in self.resid]
 
     def _count(self, tmax):
@@ -468,7 +538,8 @@ class TriaxialSolution:
             u_turns = lam / (4 * kk)
             self._u_turns = _Turns(u_turns, u0 / (4 * kk))
             omega = two_t / hn - cq * gbar * lam
-            self._xi_turns = _Turns(omega / (4 * mp.pi), 0)
+            self._xi_turns = _Turns(omega / (4 * mp.pi), 0, rho_err=float(
+                abs(cq * gbar * lam) / (4 * mp.pi)) * self._gbar_rel_err)
             # Q at u0 (exact, from the high-precision table)
             q_u0 = self._q_mp(u0, kk)
             self._xi_c = float(cq * q_u0)
@@ -516,7 +587,19 @@ class TriaxialSolution:
             raise PrecisionError(f'the elliptic table failed its check at u = K '
                                  f'(m = {float(m)!r}): {[float(mpf(v)) for v in check]}')
         total = mpf(integ[-1] + _integral_fx_z(last[3], zk, prec))
-        gbar = total / kk
+        # the mean rate sets the phase at long times: from its closed form (the table's
+        # own, total / K, agrees only to about 2^-125 relative: measured, its truncation;
+        # where the closed form is out of reach, the table's, known to the 2^-80 its
+        # check at K stands for, and the phase bound says so)
+        gbar = _mean_rate(m, beta, self.backend == 'flint')
+        self._gbar_rel_err = 0.0
+        if gbar is None:
+            gbar = total / kk
+            self._gbar_rel_err = 2.0 ** -80
+        if not abs(total / kk - gbar) <= abs(gbar) * mpmath.ldexp(1, -80):
+            raise PrecisionError(f"the elliptic table's mean rate {mpmath.nstr(total / kk, 20)}"
+                                 f' disagrees with its closed form {mpmath.nstr(gbar, 20)} '
+                                 f'(m = {float(m)!r})')
         self._gbar_mp = gbar
         self._cells_fx = [ser[3] for ser in cells]
         self._integ_fx = integ
