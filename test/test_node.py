@@ -223,3 +223,36 @@ def test_rate_change_anchors_a_new_grid_on_the_same_scene_clock():
         q = np.array([m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w])
         assert quat.angle_between(q, sol.at(t).quaternion) <= 2e-12
     node.destroy_node()
+
+
+def test_sim_time_stamps_are_on_the_grid_of_the_sim_clock():
+    """With use_sim_time the timer runs on /clock: stamps on its grid, in sim time."""
+    from rosgraph_msgs.msg import Clock
+    node = _node(publish_rate=100.0, time_scale=1.0, use_sim_time=True)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    lis = Listener(ex)
+    clock_node = rclpy.create_node('sim_clock')
+    pub = clock_node.create_publisher(Clock, '/clock', 10)
+    ex.add_node(clock_node)
+    sim_ns = 100_000_000_000                        # the simulation starts at 100 s
+    end = rclpy.clock.Clock().now().nanoseconds + 20e9
+    while len(lis.att) < 25 and rclpy.clock.Clock().now().nanoseconds < end:
+        sim_ns += 1_000_000                         # 1 ms of sim time per step
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(sim_ns, 1_000_000_000)
+        pub.publish(msg)
+        ex.spin_once(timeout_sec=0.005)
+    assert len(lis.att) >= 25
+    start = node._t_start.nanoseconds
+    assert 100e9 <= start <= sim_ns
+    stamps = np.array([stamp_ns(m) for m in lis.att])
+    assert stamps[0] == start and np.all((stamps - start) % 10_000_000 == 0)
+    assert np.all(stamps <= sim_ns)                 # never ahead of the sim clock
+    sol = node.solution
+    for m in lis.att:
+        q = np.array([m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w])
+        t = (stamp_ns(m) - start) * 1e-9
+        assert quat.angle_between(q, sol.at(t).quaternion) <= 2e-12
+    node.destroy_node()
+    clock_node.destroy_node()

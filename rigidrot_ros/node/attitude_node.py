@@ -551,7 +551,7 @@ class AttitudeNode(Node):
         g0 = now_ns
         until = self._timer.time_until_next_call() if self._timer is not None else None
         if until is not None and 0 <= until <= period_ns:
-            g0 = now_ns + until - period_ns
+            g0 = max(0, now_ns + until - period_ns)     # a clock (sim time) starts at 0
         if self._t_start is None:
             self._t_start = Time(nanoseconds=g0, clock_type=self.get_clock().clock_type)
             self._run_pending = True        # _record_tick announces the run on ~/run
