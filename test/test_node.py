@@ -184,7 +184,7 @@ def test_stamps_lie_on_the_timer_grid_from_t_start():
     assert np.all(offsets % 10_000_000 == 0), offsets[offsets % 10_000_000 != 0][:5]
     assert np.all(np.diff(stamps) > 0)
     # most samples came from the look-ahead buffer, built ahead
-    assert node._ahead.size >= 16, node._ahead.off_reason
+    assert node._ahead.size >= 8, node._ahead.off_reason     # on (AHEAD_MIN or more)
     node.destroy_node()
 
 
