@@ -558,16 +558,18 @@ class AttitudeNode(Node):
         self._grid0, self._tick_k = g0, -1
         self._ahead = Lookahead(self._solution,
                                 lambda k: self._scene_time(self._tick_stamp_ns(k)),
-                                self._period, build=self._build_pair)
+                                self._period,
+                                build=lambda k, smp: self._build_pair(self._tick_stamp_ns(k),
+                                                                      smp))
 
-    def _build_pair(self, k, sample, stamp_ns=None):
-        """Build the attitude and rate messages of grid index k (or at ``stamp_ns``)."""
+    def _build_pair(self, stamp_ns, sample):
+        """Build the attitude and rate messages of a sample stamped ``stamp_ns``."""
         frame, body = self._frames
-        stamp = msgs.stamp(self._tick_stamp_ns(k) if stamp_ns is None else stamp_ns)
+        stamp = msgs.stamp(stamp_ns)
         return (msgs.attitude(stamp, frame, sample[0]), msgs.vector(stamp, body, sample[1]))
 
     def _tick_stamp_ns(self, k):
-        return self._grid0 + round(k * 1e9 / self._period_hz)
+        return _grid_stamp_ns(self._grid0, self._period_hz, k)
 
     def _scene_time(self, ns):
         return (ns - self._t_start.nanoseconds) * 1e-9 * self._time_scale
@@ -592,7 +594,7 @@ class AttitudeNode(Node):
         frame, body = self._frames
         q, omega, bound = sample
         if pair is None:
-            pair = self._build_pair(None, sample, stamp_ns)
+            pair = self._build_pair(stamp_ns, sample)
         out = [(self._pub_att, pair[0]), (self._pub_rate, pair[1])]
         if len(self._truth_extra) == 0:
             return out
@@ -615,7 +617,7 @@ class AttitudeNode(Node):
         st = self._stats
         if self._grid0 is None or now_ns < self._grid0:     # new grid, or the clock went back
             self._anchor(now_ns)
-        k = _grid_index(self._grid0, 1e9 / self._period_hz, now_ns)
+        k = _grid_index(self._grid0, self._period_hz, now_ns)
         if k <= self._tick_k:
             if k >= self._tick_k - 1:
                 return                  # this grid time is published already
@@ -658,7 +660,7 @@ class AttitudeNode(Node):
         A backlog of more than a second (a clock jump) restarts the grid's chain at the
         newest sample; the skipped samples are counted in the diagnostics.
         """
-        k = max(0, _grid_index(self._t_start.nanoseconds, 1e9 / rate, now_ns))
+        k = max(0, _grid_index(self._t_start.nanoseconds, rate, now_ns))
         cap = max(10, int(rate))
         first = last + 1
         if k - last > cap:
@@ -667,7 +669,7 @@ class AttitudeNode(Node):
         return first, k
 
     def _stamp_ns(self, rate, k):
-        return self._t_start.nanoseconds + round(k * 1e9 / rate)
+        return _grid_stamp_ns(self._t_start.nanoseconds, rate, k)
 
     def _imu_tick(self):
         if self._t_start is None:
@@ -906,12 +908,17 @@ class AttitudeNode(Node):
         return self._solution
 
 
-def _grid_index(origin_ns, period_ns, now_ns):
-    """Return the last k with ``origin_ns + round(k * period_ns) <= now_ns`` (ns; may be < 0)."""
-    k = math.floor((now_ns - origin_ns) / period_ns)
-    while origin_ns + round((k + 1) * period_ns) <= now_ns:
+def _grid_stamp_ns(origin_ns, rate, k):
+    """Return the stamp (ns) of index k on the grid ``origin_ns + k / rate`` (one rounding)."""
+    return origin_ns + round(k * 1e9 / rate)
+
+
+def _grid_index(origin_ns, rate, now_ns):
+    """Return the last k whose :func:`_grid_stamp_ns` is at or before ``now_ns`` (may be < 0)."""
+    k = math.floor((now_ns - origin_ns) * rate * 1e-9)
+    while _grid_stamp_ns(origin_ns, rate, k + 1) <= now_ns:
         k += 1
-    while origin_ns + round(k * period_ns) > now_ns:
+    while _grid_stamp_ns(origin_ns, rate, k) > now_ns:
         k -= 1
     return k
 
