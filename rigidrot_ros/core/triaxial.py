@@ -39,10 +39,11 @@ Horner rounding is bounded per cell from the stored coefficients; phase reductio
 folding and the quaternion formulas add bounded rounding (a few ulp allowed for libm's
 sin, cos, exp, atan and sqrt). Within 1 - m < ~1e-50 of the separatrix (K > 60) the
 table would be too long and :func:`solve` refuses. The per-scene
-constants are computed at >= 128 bits: K(m) and u0 by Arb on the flint backend (balls
-whose radius must lie below the last bit kept), by mpmath on the mpmath backend; the rest
-by mpmath, and the table is checked at u = K to 1e-25, far below the bound. The constants
-are rounded from the balls, not carried as balls: ``method`` does not say 'flint'.
+constants are computed at >= 128 bits: K(m), u0 and the mean rate of the angle about h
+(closed form) by Arb on the flint backend (balls whose radius must lie below the last bit
+kept), by mpmath on the mpmath backend; the rest by mpmath, and the table is checked at
+u = K to 1e-25, far below the bound. The constants are rounded from the balls, not carried
+as balls: ``method`` does not say 'flint'.
 """
 
 from fractions import Fraction
@@ -176,6 +177,17 @@ def _sep_err(au, u_err):
         return np.where(near, tail, np.minimum(u_err, 2.0)) + 8 * _U
 
 
+def _flint_if(use_arb):
+    """Return the python-flint module where Arb is asked for and installed, else None."""
+    if not use_arb:
+        return None
+    try:
+        import flint
+    except ImportError:
+        return None
+    return flint
+
+
 def _elliptic_constants(m, phi0, use_arb):
     """Return ``(F(phi0 | m) at 2 mp.prec bits, K(m) at mp.prec bits)`` as mpf.
 
@@ -185,12 +197,8 @@ def _elliptic_constants(m, phi0, use_arb):
     phi0 -> pi/2, hence its doubled precision in either.
     """
     prec = mp.prec
-    if use_arb:
-        try:
-            import flint
-        except ImportError:
-            use_arb = False
-    if not use_arb:
+    flint = _flint_if(use_arb)
+    if flint is None:
         with mp.workprec(2 * prec):
             u0 = +mpmath.ellipf(phi0, m)
         return u0, mpmath.ellipk(m)
@@ -250,12 +258,8 @@ def _mean_rate(m, beta, use_arb):
     if lost > 4 * prec:
         return None
     work = prec + 64 + lost
-    if use_arb:
-        try:
-            import flint
-        except ImportError:
-            use_arb = False
-    if not use_arb:
+    flint = _flint_if(use_arb)
+    if flint is None:
         with mp.workprec(work):
             kk = mpmath.ellipk(m)
             if beta == 0:
@@ -398,11 +402,11 @@ class TriaxialSolution:
     method : str
         ``'jacobi-elliptic-table'`` (m < 1) or ``'separatrix-closed-form'`` (m = 1, the
         tennis-racket separatrix): float64 with an a-priori error bound; the per-scene
-        constants come from mpmath (K and u0 from Arb balls on the flint backend; not
-        carried as balls).
+        constants come from mpmath (K, u0 and the mean rate from Arb balls on the flint
+        backend; not carried as balls).
     backend : str
         The backend asked for ('flint' or 'mpmath'); both use the same evaluation, the
-        flint backend takes K(m) and u0 from Arb.
+        flint backend takes K(m), u0 and the mean rate from Arb.
     tol : float
         Attitude accuracy asked, rad. :func:`solve` raises PrecisionError when the
         float64 bound of this scene cannot meet it.
@@ -596,7 +600,7 @@ class TriaxialSolution:
         if gbar is None:
             gbar = total / kk
             self._gbar_rel_err = 2.0 ** -80
-        if not abs(total / kk - gbar) <= abs(gbar) * mpmath.ldexp(1, -80):
+        elif not abs(total / kk - gbar) <= abs(gbar) * mpmath.ldexp(1, -80):
             raise PrecisionError(f"the elliptic table's mean rate {mpmath.nstr(total / kk, 20)}"
                                  f' disagrees with its closed form {mpmath.nstr(gbar, 20)} '
                                  f'(m = {float(m)!r})')
