@@ -36,14 +36,19 @@ def _node(**params):
     return attitude_node(**{'time_scale': 3.0, **params})
 
 
+def _listening(**params):
+    """Return a node on ``params``, an executor spinning it, and a Listener of its topics."""
+    node = _node(**params)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    return node, ex, Listener(ex)
+
+
 _spin_until = functools.partial(spin_until, timeout=15.0)
 
 
 def test_published_values_equal_the_core_at_the_stamp_time():
-    node = _node()
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    lis = Listener(ex)
+    node, ex, lis = _listening()
     _spin_until(ex, lambda: len(lis.att) >= 30 and len(lis.rate) >= 30)
     sol = solve(Scene(**{k: tuple(v) if isinstance(v, list) else v
                          for k, v in NODE_SCENE.items()}))
@@ -101,10 +106,7 @@ def test_invalid_scene_at_start_up_raises_scene_error():
 
 
 def test_reset_applies_an_atomic_scene_change_and_restarts_at_t0():
-    node = _node(time_scale=1.0)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    lis = Listener(ex)
+    node, ex, lis = _listening(time_scale=1.0)
     _spin_until(ex, lambda: len(lis.att) >= 5)
     new = dict(inertia=[3.0, 3.0, 3.0], torque=[0.0, 0.2, 0.1], torque_frame='body',
                omega0=[1.0, 0.5, -0.5], attitude0=[0.0, 0.0, 0.6, 0.8])
@@ -156,10 +158,7 @@ def test_diagnostics_report_model_costs_and_ticks():
 
 
 def test_publish_rate_change_takes_effect_at_once():
-    node = _node(publish_rate=100.0)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    lis = Listener(ex)
+    node, ex, lis = _listening(publish_rate=100.0)
     _spin_until(ex, lambda: len(lis.att) >= 10)
     assert node.set_parameters([Parameter('publish_rate', value=20.0)])[0].successful
     n0 = len(lis.att)
@@ -172,10 +171,7 @@ def test_publish_rate_change_takes_effect_at_once():
 
 def test_stamps_lie_on_the_timer_grid_from_t_start():
     """Tick k is stamped t_start + k / publish_rate exactly; the first tick is t = 0."""
-    node = _node(publish_rate=100.0)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    lis = Listener(ex)
+    node, ex, lis = _listening(publish_rate=100.0)
     _spin_until(ex, lambda: len(lis.att) >= 60)
     start = node._t_start.nanoseconds
     stamps = np.array([stamp_ns(m) for m in lis.att])
@@ -189,10 +185,7 @@ def test_stamps_lie_on_the_timer_grid_from_t_start():
 
 
 def test_frame_id_change_applies_at_once_to_messages_built_ahead():
-    node = _node(publish_rate=100.0)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    lis = Listener(ex)
+    node, ex, lis = _listening(publish_rate=100.0)
     _spin_until(ex, lambda: len(lis.att) >= 40)     # the buffer holds built messages now
     assert len(node._ahead) > 0
     assert node.set_parameters([Parameter('frame_id', value='world'),
@@ -205,10 +198,7 @@ def test_frame_id_change_applies_at_once_to_messages_built_ahead():
 
 
 def test_rate_change_anchors_a_new_grid_on_the_same_scene_clock():
-    node = _node(publish_rate=100.0, time_scale=1.0)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    lis = Listener(ex)
+    node, ex, lis = _listening(publish_rate=100.0, time_scale=1.0)
     _spin_until(ex, lambda: len(lis.att) >= 10)
     start = node._t_start.nanoseconds
     assert node.set_parameters([Parameter('publish_rate', value=40.0)])[0].successful
@@ -228,10 +218,7 @@ def test_rate_change_anchors_a_new_grid_on_the_same_scene_clock():
 def test_sim_time_stamps_are_on_the_grid_of_the_sim_clock():
     """With use_sim_time the timer runs on /clock: stamps on its grid, in sim time."""
     from rosgraph_msgs.msg import Clock
-    node = _node(publish_rate=100.0, time_scale=1.0, use_sim_time=True)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    lis = Listener(ex)
+    node, ex, lis = _listening(publish_rate=100.0, time_scale=1.0, use_sim_time=True)
     clock_node = rclpy.create_node('sim_clock')
     pub = clock_node.create_publisher(Clock, '/clock', 10)
     ex.add_node(clock_node)
