@@ -26,9 +26,11 @@ cn = dn = sech and ``∫ g = 2 / sqrt(1 - beta^2) atan(sqrt((1 - beta)/(1 + beta
 
 Evaluation: per scene, at >= 128 bits (mpmath), K(m), u0 = F(am u0 | m)
 and a table of Taylor expansions of sn, cn, dn and the periodic part Q of ``∫ g`` on cells
-of width 1/8 covering the quarter period [0, K], built by stepping the Taylor series of
-the Jacobi system ``s' = c d, c' = -s d, d' = -m s c`` from u = 0 and checked against the
-exact values at u = K. Per sample, in float64 (vectorised): the phases ``lam t`` and
+of width 1/8 covering the quarter period [0, K]: the values at the cell centres by the
+addition theorem from u = h/2 and h (the series at 0), checked against the exact values at
+u = K, and at each centre the Taylor series of the Jacobi system ``s' = c d, c' = -s d,
+d' = -m s c`` to the degree the integral of g needs (its truncation, summed over the cells,
+is in the bound). Per sample, in float64 (vectorised): the phases ``lam t`` and
 ``Omega t`` reduced modulo the period exactly (the constant split in 26-bit pieces, every
 partial product exact), one Horner pass per function, three quaternion products.
 
@@ -42,7 +44,7 @@ table would be too long and :func:`solve` refuses. The per-scene
 constants are computed at >= 128 bits: K(m), u0 and the mean rate of the angle about h
 (closed form) by Arb on the flint backend (balls whose radius must lie below the last bit
 kept), by mpmath on the mpmath backend; the rest by mpmath, and the table is checked at
-u = K to 1e-25, far below the bound. The constants are rounded from the balls, not carried
+u = K to 2^-83 (1e-25), far below the bound. The constants are rounded from the balls, not carried
 as balls: ``method`` does not say 'flint'.
 """
 
@@ -75,12 +77,12 @@ _K_MAX = 60.0                   # largest quarter period tabulated (1 - m >~ 1e-
 # ---------------------------------------------------------------------------------------
 # per-scene set-up (mpmath)
 
-def _series(s0, c0, d0, m, beta, n, prec):
+def _series(s0, c0, d0, m, beta, n, prec, with_g=True):
     """Taylor coefficients (fixed point: ints scaled by 2^prec) of sn, cn, dn and g.
 
     From ``s' = c d, c' = -s d, d' = -m s c`` at a point where they take s0, c0, d0
-    (fixed point), and ``g = dn / (1 + beta dn)``; degree n. Each step truncates by at most
-    2^-prec; Python ints make this some 20 times faster than mpf.
+    (fixed point), and ``g = dn / (1 + beta dn)`` (unless not ``with_g``); degree n. Each
+    step truncates by at most 2^-prec; Python ints make this some 20 times faster than mpf.
     """
     s, c, d = [s0], [c0], [d0]
     mul = operator.mul                      # the sums below are exact: any order
@@ -91,6 +93,8 @@ def _series(s0, c0, d0, m, beta, n, prec):
         s.append(cd // (k + 1))
         c.append(-sd // (k + 1))
         d.append(-((m * sc) >> prec) // (k + 1))
+    if not with_g:
+        return s, c, d, None
     one = 1 << prec
     w0 = one + ((beta * d0) >> prec)
     g = [(d0 << prec) // w0]
@@ -98,6 +102,33 @@ def _series(s0, c0, d0, m, beta, n, prec):
         acc = sum(map(mul, d[1:k + 1], reversed(g))) >> prec
         g.append(((d[k] - ((beta * acc) >> prec)) << prec) // w0)
     return s, c, d, g
+
+
+def _add_fx(a, b, m, prec):
+    """sn, cn, dn at u + v from their values at u (``a``) and v (``b``), fixed point.
+
+    The addition theorem: with ``D = 1 - m sn_u^2 sn_v^2``, ``sn = (s_u c_v d_v + s_v c_u
+    d_u) / D``, ``cn = (c_u c_v - s_u s_v d_u d_v) / D``, ``dn = (d_u d_v - m s_u s_v c_u
+    c_v) / D``. Every product and quotient truncates by at most 2^-prec.
+    """
+    sa, ca, da = a
+    sb, cb, db = b
+    ss = (sa * sb) >> prec
+    den = (1 << prec) - ((m * ((ss * ss) >> prec)) >> prec)
+    ns = (sa * ((cb * db) >> prec) + sb * ((ca * da) >> prec)) >> prec
+    nc = (ca * cb - ss * ((da * db) >> prec)) >> prec
+    nd = (da * db - ((m * ss) >> prec) * ((ca * cb) >> prec)) >> prec
+    return [(x << prec) // den for x in (ns, nc, nd)]
+
+
+def _q_tail(deg, r=_R):
+    """Bound on the degree > deg part of the integral of g's series over [0, +-r].
+
+    g's Taylor coefficients at a real point are bounded by 2^k (majorant 1/(1 - 2u)), so
+    the tail is at most ``sum_{k > deg} 2^k r^(k+1) / (k+1) <= r (2r)^(deg+1) / ((deg+2)
+    (1 - 2r))``.
+    """
+    return r * (2 * r) ** (deg + 1) / ((deg + 2) * (1 - 2 * r))
 
 
 def _horner_fx(coef, shift):
@@ -536,7 +567,7 @@ class TriaxialSolution:
                                  f'(> max_prec = {max_prec}); raise max_prec')
         self.precision = prec
         with mp.workprec(prec):
-            self._build_table(m, beta, kk, int(30 + float(kk) / 2))
+            self._build_table(m, beta, kk)
         with mp.workprec(prec):
             gbar = self._gbar_mp
             u_turns = lam / (4 * kk)
@@ -553,11 +584,18 @@ class TriaxialSolution:
         q_max = float(np.max(np.sum(np.abs(self._coef[:, :, 3]) *
                                     (_R ** np.arange(_DEG + 1))[:, None], axis=0)))
         self._xi_round = 4 * _U * (2 * math.pi + abs(self._xi_c) + abs(self._cq) * q_max) \
-            + 4 * _U
+            + 4 * _U + abs(self._cq) * self._q_err
         self._static_bound = self._bound_constant()
 
-    def _build_table(self, m, beta, kk, n):
-        """Step the Taylor series over [0, K]; store float cells and their error bounds."""
+    def _build_table(self, m, beta, kk):
+        """Tabulate sn, cn, dn and Q over [0, K]: float cells and their error bounds.
+
+        The values at the cell centres (i + 1/2) h come from u = h/2 and u = h by the
+        addition theorem (the series at 0, exact to 2^-prec there, gives both); each cell's
+        Taylor series then needs only the degree its integral of g calls for, not the
+        degree a step of h would (some 32): a third of the products. The centres are
+        checked by stepping on to u = K, where sn = 1, cn = 0, dn = sqrt(1 - m).
+        """
         prec = mp.prec
         one = 1 << prec
 
@@ -569,38 +607,54 @@ class TriaxialSolution:
 
         mf, bf = fx(m), fx(beta)
         ncell = int(mpmath.ceil(kk / _H))
-        s, c, d, g = _series(0, one, one, mf, bf, n, prec)
-        vals = [_horner_fx(x, 4) for x in (s, c, d)]           # at u = h/2
+        # the mean rate sets the phase at long times: from its closed form; where that is
+        # out of reach, the table's own, which then needs its integral to 2^-90
+        gbar = _mean_rate(m, beta, self.backend == 'flint')
+        target = 2.0 ** -64 if gbar is not None else 2.0 ** -90
+        deg = _DEG
+        while 2 * ncell * _q_tail(deg) > target:
+            deg += 1
+        # Q at the centre i is the sum of 2 i + 1 half-cell integrals of degree deg
+        self._q_err = 2 * ncell * _q_tail(deg)
+        # the series at 0 to the degree that makes it exact to 2^-prec at |z| <= 1/16
+        # (coefficients <= 1: tail <= 16^-(n + 1) * 16 / 15)
+        s0 = _series(0, one, one, mf, bf, prec // 4 + 1, prec, with_g=False)[:3]
+        half = [_horner_fx(x, 4) for x in s0]                   # at u = h/2
+        step = _add_fx(half, half, mf, prec)                    # at u = h
         cells, integ = [], []
         acc = 0
-        prev = None
-        for _ in range(ncell):
-            ser = _series(vals[0], vals[1], vals[2], mf, bf, n, prec)
-            if prev is not None:
-                acc += _integral_fx(prev[3], 4, 1)
+        vals = half
+        for i in range(ncell):
+            if i:
+                vals = _add_fx(vals, step, mf, prec)
+                acc += _integral_fx(cells[-1][3], 4, 1)
+            ser = _series(vals[0], vals[1], vals[2], mf, bf, deg, prec)
             acc += _integral_fx(ser[3], 4, -1)
             cells.append(ser)
             integ.append(acc)
-            prev = ser
-            vals = [_horner_fx(x, 3) for x in ser[:3]]          # step h = 1/8
-        zk = fx(kk - (ncell - mpmath.mpf(0.5)) * _H)
+        zk = fx(kk - (ncell - mpmath.mpf(0.5)) * _H)            # |zk| <= h/2
+        at_k = _add_fx(vals, [_horner_fx_z(x, zk, prec) for x in s0], mf, prec)
+        exact_k = [one, 0, fx(mpmath.sqrt(1 - m))]
         last = cells[-1]
-        check = [_horner_fx_z(last[0], zk, prec) - one, _horner_fx_z(last[1], zk, prec),
-                 _horner_fx_z(last[2], zk, prec) - fx(mpmath.sqrt(1 - m))]
-        if max(abs(v) for v in check) > one >> 83:
-            raise PrecisionError(f'the elliptic table failed its check at u = K '
-                                 f'(m = {float(m)!r}): {[float(mpf(v)) for v in check]}')
+        # the last cell's own series at K, within its truncation r^(deg+1) / (1 - r)
+        series_k = [_horner_fx_z(last[f], zk, prec) for f in range(3)]
+        tail = one >> (4 * (deg + 1) - 1)
+        if max(abs(a - b) for a, b in zip(at_k, exact_k)) > one >> 83 or \
+                max(abs(a - b) for a, b in zip(series_k, exact_k)) > tail + (one >> 83):
+            raise PrecisionError(
+                f'the elliptic table failed its check at u = K (m = {float(m)!r}): '
+                f'{[float(mpf(a - b)) for a, b in zip(at_k, exact_k)]}, series '
+                f'{[float(mpf(a - b)) for a, b in zip(series_k, exact_k)]}')
         total = mpf(integ[-1] + _integral_fx_z(last[3], zk, prec))
-        # the mean rate sets the phase at long times: from its closed form (the table's
-        # own, total / K, agrees only to about 2^-125 relative: measured, its truncation;
-        # where the closed form is out of reach, the table's, known to the 2^-80 its
-        # check at K stands for, and the phase bound says so)
-        gbar = _mean_rate(m, beta, self.backend == 'flint')
+        # the table's mean, total / K, is known to (its integral's truncation + the 2^-83
+        # its check stands for, per unit u) / K: it must agree with the closed form to that;
+        # where there is no closed form it is the mean rate, and the phase bound says so
+        total_err = self._q_err + _q_tail(deg) + float(kk) * 2.0 ** -83
         self._gbar_rel_err = 0.0
         if gbar is None:
             gbar = total / kk
-            self._gbar_rel_err = 2.0 ** -80
-        elif not abs(total / kk - gbar) <= abs(gbar) * mpmath.ldexp(1, -80):
+            self._gbar_rel_err = total_err / float(abs(total))
+        elif not abs(total - gbar * kk) <= abs(gbar * kk) * mpmath.ldexp(1, -80) + total_err:
             raise PrecisionError(f"the elliptic table's mean rate {mpmath.nstr(total / kk, 20)}"
                                  f' disagrees with its closed form {mpmath.nstr(gbar, 20)} '
                                  f'(m = {float(m)!r})')
@@ -632,6 +686,7 @@ class TriaxialSolution:
             y = absc[k] + r * y_next
             e = r * e * (1 + 3 * _U) + _U * (2 * r * y_next + y) * (1 + 2 * _U)
         self._cell_err = (e + _U * y + tail) * 1.01              # (ncell, 4)
+        self._cell_err[:, 3] += self._q_err                      # Q's constant terms
 
     def _q_mp(self, u, kk):
         """Q(u) (the periodic part of the integral of g) at mpf u, from the fixed-point table."""
