@@ -243,3 +243,33 @@ def test_sim_time_stamps_are_on_the_grid_of_the_sim_clock():
         assert quat.angle_between(q, sol.at(t).quaternion) <= 2e-12
     node.destroy_node()
     clock_node.destroy_node()
+
+
+def test_use_sim_time_switched_on_while_running_moves_the_stamps_to_the_sim_clock():
+    """The node reads the system clock directly while no /clock drives it; switching
+    use_sim_time on at run time must move every later stamp onto the sim clock."""
+    from rosgraph_msgs.msg import Clock
+    node, ex, lis = _listening(publish_rate=100.0, time_scale=1.0)
+    _spin_until(ex, lambda: len(lis.att) >= 5)
+    wall = rclpy.clock.Clock().now().nanoseconds
+    assert abs(stamp_ns(lis.att[-1]) - wall) < 5e9             # system time so far
+    node.set_parameters([Parameter('use_sim_time', value=True)])
+    n_before = len(lis.att)
+    clock_node = rclpy.create_node('sim_clock_switch')
+    pub = clock_node.create_publisher(Clock, '/clock', 10)
+    ex.add_node(clock_node)
+    sim_ns = 100_000_000_000
+    end = wall + 20e9
+    while len(lis.att) < n_before + 15 and rclpy.clock.Clock().now().nanoseconds < end:
+        sim_ns += 1_000_000
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(sim_ns, 1_000_000_000)
+        pub.publish(msg)
+        ex.spin_once(timeout_sec=0.005)
+    later = np.array([stamp_ns(m) for m in lis.att[n_before:]])
+    assert len(later) >= 15
+    sim = later[later < 1_000_000_000_000]                      # stamps in sim time
+    assert len(sim) >= 10 and np.all(sim >= 100e9) and np.all(sim <= sim_ns)
+    assert np.all(later[-5:] < 1_000_000_000_000)               # and they stay there
+    node.destroy_node()
+    clock_node.destroy_node()

@@ -16,7 +16,11 @@ preset scene (wall clock, ``perf_counter``):
    (a tick's sample from the look-ahead buffer), the whole tick up to publication, the
    wake-up latency (the callback's start after the tick's grid time), the look-ahead's
    batches; the median and the worst window of each p99, and the same node with the
-   look-ahead off (every tick evaluates its own sample) for comparison.
+   look-ahead off (every tick evaluates its own sample) for comparison;
+5. once, the ROS calls a tick makes, each after a 10 ms gap: reading the clock through
+   ``get_clock().now()`` against ``time.time_ns()`` (what the node reads unless
+   ``use_sim_time``), and publishing the attitude and rate messages as messages against
+   publishing their bytes serialized ahead (what the node's look-ahead does).
 
 ROS traffic stays on the machine: it sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``
 unless already set; use your own ``ROS_DOMAIN_ID``.
@@ -121,6 +125,52 @@ def in_node(scene, seconds, lookahead=True):
         rclpy.try_shutdown()
 
 
+def ros_calls(n):
+    """Latencies (us) of a tick's ROS calls, each after 10 ms asleep: {label: array}."""
+    import rclpy
+    from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.serialization import serialize_message
+
+    rclpy.init()
+    try:
+        node = rclpy.create_node('rigidrot_tick_calls')
+        sub = rclpy.create_node('rigidrot_tick_calls_listener')
+        att = node.create_publisher(QuaternionStamped, 'tick_calls_attitude', 10)
+        rate = node.create_publisher(Vector3Stamped, 'tick_calls_rate', 10)
+        sub.create_subscription(QuaternionStamped, 'tick_calls_attitude', lambda m: None, 10)
+        sub.create_subscription(Vector3Stamped, 'tick_calls_rate', lambda m: None, 10)
+        ex = SingleThreadedExecutor()
+        ex.add_node(node)
+        ex.add_node(sub)
+        clock = node.get_clock()
+        out = {k: [] for k in ('clock: get_clock().now()', 'clock: time.time_ns()',
+                               'publish two messages', 'publish their bytes')}
+        for k in range(n):
+            a, r = QuaternionStamped(), Vector3Stamped()
+            a.header.frame_id, r.header.frame_id = 'inertial', 'body'
+            a.header.stamp.sec = r.header.stamp.sec = k
+            a.quaternion.w, r.vector.z = 1.0, 0.1
+            raw = (serialize_message(a), serialize_message(r))
+            for label, fn in (('clock: get_clock().now()', lambda: clock.now().nanoseconds),
+                              ('clock: time.time_ns()', time.time_ns),
+                              ('publish two messages', lambda: (att.publish(a),
+                                                                rate.publish(r))),
+                              ('publish their bytes', lambda: (att.publish(raw[0]),
+                                                               rate.publish(raw[1])))):
+                ex.spin_once(timeout_sec=0)
+                time.sleep(0.01)
+                c = time.perf_counter()
+                fn()
+                out[label].append(time.perf_counter() - c)
+        ex.shutdown()
+        node.destroy_node()
+        sub.destroy_node()
+        return {k: 1e6 * np.array(v) for k, v in out.items()}
+    finally:
+        rclpy.try_shutdown()
+
+
 def _no_lookahead(cls):
     def make(*args, **kwargs):
         return cls(*args, **dict(kwargs, enabled=False))
@@ -143,6 +193,9 @@ def main(argv=None):
     opts = ap.parse_args(argv)
     scenes = ratio_scenes()
     n = int(round(opts.seconds * 100))
+    print("a tick's ROS calls, each after 10 ms idle:")
+    for label, us in ros_calls(min(n, 300)).items():
+        print(f'  {label:26s} {_stats(us)}', flush=True)
     for name in opts.preset or list(scenes):
         scene = scenes[name]
         print(f'{name}:')

@@ -224,19 +224,21 @@ class Recorder:
 
     # -- writing -----------------------------------------------------------------------------
     def record_published(self, now_ns, published):
-        """Write messages this node has just published: ``[(resolved_topic, msg), ...]``.
+        """Write messages this node has just published: ``[(resolved_topic, msg, raw), ...]``.
 
-        The log time is ``now_ns``; each topic's channel is registered on first use with
-        the QoS of the node's publisher of that topic.
+        ``raw`` is the message serialized (CDR) if the node made those bytes to publish
+        them, else None (serialized here). The log time is ``now_ns``; each topic's channel
+        is registered on first use with the QoS of the node's publisher of that topic.
         """
         if not self.active:
             return
         try:
-            for topic, msg in published:
+            for topic, msg, raw in published:
                 if not self._writer.has_topic(topic):
                     self._direct.add(topic)
                     self._writer.add_topic(topic, type_name_of(msg), self._own_qos(topic))
-                self._writer.write(topic, serialize_message(msg), now_ns)
+                self._writer.write(topic, serialize_message(msg) if raw is None else raw,
+                                   now_ns)
         except OSError as exc:
             self._fail(exc)
 

@@ -23,7 +23,9 @@ The truth is sampled on the timer's own grid: tick k is stamped ``g0 + k / publi
 (``g0`` the scheduled time of the timer's first call, which is also ``t_start`` of the
 run) and carries the scene time ``t = (stamp - t_start) * time_scale``; all messages of a
 tick share that stamp (``use_sim_time`` works). Because the coming ticks' times are known,
-their samples are evaluated ahead in batches (:mod:`rigidrot_ros.node.lookahead`). The
+their samples are evaluated, and the attitude and rate messages built and serialized,
+ahead in batches (:mod:`rigidrot_ros.node.lookahead`); a tick reads the clock and
+publishes the bytes. The
 sensors sample their own fixed grids ``t_start + k / rate`` (so a seed reproduces the
 stream bit for bit); each sample's messages share its grid stamp. Messages are built by
 :mod:`rigidrot_ros.io.messages`.
@@ -51,6 +53,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from rclpy.time import Time
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
@@ -559,8 +562,8 @@ class AttitudeNode(Node):
         self._ahead = Lookahead(self._solution,
                                 lambda k: self._scene_time(self._tick_stamp_ns(k)),
                                 self._period,
-                                build=lambda k, smp: self._build_pair(self._tick_stamp_ns(k),
-                                                                      smp))
+                                build=lambda k, smp: self._build_ahead(self._tick_stamp_ns(k),
+                                                                       smp))
 
     def _build_pair(self, stamp_ns, sample):
         """Build the attitude and rate messages of a sample stamped ``stamp_ns``."""
@@ -568,52 +571,76 @@ class AttitudeNode(Node):
         stamp = msgs.stamp(stamp_ns)
         return (msgs.attitude(stamp, frame, sample[0]), msgs.vector(stamp, body, sample[1]))
 
+    def _build_ahead(self, stamp_ns, sample):
+        """:meth:`_build_pair` plus both messages serialized (CDR), for a tick to come.
+
+        The tick then publishes the bytes (``publish_raw``): rclpy's conversion of the
+        Python message and its serialization, half of a publish after an idle gap, are
+        done here, in the batch, and the recorder writes the same bytes.
+        """
+        att, rate = self._build_pair(stamp_ns, sample)
+        return att, rate, serialize_message(att), serialize_message(rate)
+
+    def _now_ns(self):
+        """The node clock's time (ns).
+
+        Unless ``use_sim_time`` drives it, the ROS clock is the system clock
+        (CLOCK_REALTIME, what rcl reads): read here directly, at a tenth of the cost of
+        ``get_clock().now()`` after an idle gap (measured: README, the node's cost per tick).
+        """
+        if self._time_source is not None and not self._time_source.ros_time_is_active:
+            return time.time_ns()
+        return self.get_clock().now().nanoseconds
+
     def _tick_stamp_ns(self, k):
         return _grid_stamp_ns(self._grid0, self._period_hz, k)
 
     def _scene_time(self, ns):
         return (ns - self._t_start.nanoseconds) * 1e-9 * self._time_scale
 
-    def _publish(self, pairs):
-        """Publish ``(publisher, msg)`` pairs; False if the context shut down meanwhile."""
+    def _publish(self, items):
+        """Publish ``(publisher, msg, raw)`` items (``raw``: the message's bytes, or None).
+
+        False if the context shut down meanwhile.
+        """
         try:
-            for pub, msg in pairs:
-                pub.publish(msg)
+            for pub, msg, raw in items:
+                pub.publish(msg if raw is None else raw)
         except _rclpy.RCLError:
             if self.context.ok():
                 raise
             return False            # shut down (SIGINT/SIGTERM) while this callback ran
         return True
 
-    def _truth_messages(self, stamp_ns, sample, pair=None):
-        """Build the truth of one sample as ``(publisher, msg)`` pairs, all with one stamp.
+    def _truth_messages(self, stamp_ns, sample, built=None):
+        """Build the truth of one sample as ``(publisher, msg, raw)`` items, one stamp.
 
         ``sample``: ``(quaternion, omega, error_bound)`` as :class:`Lookahead` gives it;
-        ``pair``: its attitude and rate messages if built ahead.
+        ``built``: what :meth:`_build_ahead` made of it ahead of time, if anything.
         """
         frame, body = self._frames
         q, omega, bound = sample
-        if pair is None:
-            pair = self._build_pair(stamp_ns, sample)
-        out = [(self._pub_att, pair[0]), (self._pub_rate, pair[1])]
+        if built is None:
+            built = self._build_pair(stamp_ns, sample) + (None, None)
+        out = [(self._pub_att, built[0], built[2]), (self._pub_rate, built[1], built[3])]
         if len(self._truth_extra) == 0:
             return out
-        stamp = pair[0].header.stamp
+        stamp = built[0].header.stamp
         if self._pub_tf is not None:
-            out.append((self._pub_tf, msgs.transform(stamp, frame, body, q)))
+            out.append((self._pub_tf, msgs.transform(stamp, frame, body, q), None))
         if self._pub_odom is not None:
             rate_sd = 32.0 * _EPS * float(np.linalg.norm(omega))
             out.append((self._pub_odom, msgs.odometry(
                 stamp, frame, body, q, omega, attitude_variance=bound ** 2,
-                rate_variance=rate_sd ** 2)))
+                rate_variance=rate_sd ** 2), None))
         if self._pub_markers is not None:
             out.append((self._pub_markers, msgs.body_markers(
-                stamp, frame, q, self._solution.scene.inertia)))
+                stamp, frame, q, self._solution.scene.inertia), None))
         return out
 
     def _tick(self):
         c_tick = time.perf_counter_ns()
-        now_ns = self.get_clock().now().nanoseconds
+        now_ns = self._now_ns()
         st = self._stats
         if self._grid0 is None or now_ns < self._grid0:     # new grid, or the clock went back
             self._anchor(now_ns)
@@ -632,18 +659,18 @@ class AttitudeNode(Node):
         t = self._scene_time(stamp_ns)
         c0 = time.perf_counter()
         try:
-            sample, pair = self._ahead.get(k)
+            sample, built = self._ahead.get(k)
         except Exception as exc:        # PrecisionError, or anything else: report, keep going
             self._failed(t, exc)
             return
         st.times.append(time.perf_counter() - c0)
-        pairs = self._truth_messages(stamp_ns, sample, pair)
-        if not self._publish(pairs):
+        items = self._truth_messages(stamp_ns, sample, built)
+        if not self._publish(items):
             return
         st.tick_times.append(time.perf_counter_ns() - c_tick)
         st.published += 1
         self._last_sample = (t, sample[2])
-        self._record_tick(now_ns, [(pub.topic_name, m) for pub, m in pairs])
+        self._record_tick(now_ns, [(pub.topic_name, m, raw) for pub, m, raw in items])
         self._ahead.refill(k)           # after publishing: the batch delays no message
 
     def _failed(self, t, exc):
@@ -674,9 +701,9 @@ class AttitudeNode(Node):
     def _imu_tick(self):
         if self._t_start is None:
             return                      # the first truth tick starts the run (t_start)
-        now = self.get_clock().now()
+        now_ns = self._now_ns()
         rate = self._sensors.imu_rate
-        first, last = self._grid(rate, self._imu_k, now.nanoseconds)
+        first, last = self._grid(rate, self._imu_k, now_ns)
         if last < first:
             return
         body = self.get_parameter('body_frame_id').value
@@ -695,23 +722,23 @@ class AttitudeNode(Node):
                 self._failed(t1, exc)
                 continue
             stamp = msgs.stamp(ns1)
-            pairs += [(self._pub_imu, msgs.imu(stamp, body, r.omega, r.variance)),
-                      (self._pub_da, msgs.vector(stamp, body, r.delta_angle)),
-                      (self._pub_dr, msgs.vector(stamp, body, r.delta_rotation))]
+            pairs += [(self._pub_imu, msgs.imu(stamp, body, r.omega, r.variance), None),
+                      (self._pub_da, msgs.vector(stamp, body, r.delta_angle), None),
+                      (self._pub_dr, msgs.vector(stamp, body, r.delta_rotation), None)]
             self._stats.imu_times.append(time.perf_counter() - c_sample)
             self._stats.increment_bound = max(self._stats.increment_bound,
                                               r.delta_angle_bound, r.delta_rotation_bound)
             self._stats.imu_samples += 1
         self._imu_k = last
         if pairs and self._publish(pairs):
-            self._record_tick(now.nanoseconds, [(p.topic_name, m) for p, m in pairs])
+            self._record_tick(now_ns, [(p.topic_name, m, raw) for p, m, raw in pairs])
 
     def _star_tick(self):
         if self._t_start is None:
             return                      # the first truth tick starts the run (t_start)
-        now = self.get_clock().now()
+        now_ns = self._now_ns()
         rate = self._sensors.star_tracker_rate
-        first, last = self._grid(rate, self._star_k, now.nanoseconds)
+        first, last = self._grid(rate, self._star_k, now_ns)
         if last < first:
             return
         frame = self.get_parameter('frame_id').value
@@ -728,11 +755,11 @@ class AttitudeNode(Node):
                 self._failed(self._scene_time(ns), exc)
                 continue
             pairs.append((self._pub_star, msgs.star_tracker(msgs.stamp(ns), frame,
-                                                            r.quaternion, r.covariance)))
+                                                            r.quaternion, r.covariance), None))
             self._stats.star_samples += 1
         self._star_k = last
         if pairs and self._publish(pairs):
-            self._record_tick(now.nanoseconds, [(p.topic_name, m) for p, m in pairs])
+            self._record_tick(now_ns, [(p.topic_name, m, raw) for p, m, raw in pairs])
 
     def _publish_diagnostics(self):
         st = self._stats
@@ -843,7 +870,8 @@ class AttitudeNode(Node):
     def _record_tick(self, now_ns, published):
         """After each publication: announce a new run on ``~/run``, record what was published.
 
-        ``published`` lists ``(resolved_topic_name, msg)`` for every message of this call.
+        ``published`` lists ``(resolved_topic_name, msg, raw)`` for every message of this
+        call (``raw``: its serialized bytes if they were made already, else None).
         The first call after start-up or a ``~/reset`` publishes the run description (JSON
         in std_msgs/String, transient-local, depth 1), so any recorder keeps it.
         """
@@ -854,7 +882,7 @@ class AttitudeNode(Node):
             info = self._run_description(start)
             msg = String(data=json.dumps(info))
             self._pub_run.publish(msg)
-            published = list(published) + [(self._pub_run.topic_name, msg)]
+            published = list(published) + [(self._pub_run.topic_name, msg, None)]
             if self._recorder is not None:
                 self._recorder.add_run(info)
         if self._recorder is not None:
