@@ -444,3 +444,40 @@ def test_mean_rate_out_of_closed_form_reach_widens_the_phase_bound():
     fixed = solve(Scene(inertia=(1.0, 2.0, 3.0), omega0=(0.0, 0.0, 1.3)))
     t = np.linspace(0.0, 30.0, 7)
     assert np.all(_axis_angle(sol.at(t), fixed.at(t)) <= 1e-13)
+
+
+@pytest.mark.parametrize('omega0', [(0.3, -0.2, 0.5), (0.02, 1.0, 0.03), (0.01, 1.0, 0.0100001),
+                                    (1e-6, 2e-6, 1.0)])
+def test_float_coefficients_within_their_proved_bounds(omega0):
+    """Each cell's coefficients beyond the first few come from float64 recurrences over all
+    cells at once; against the same recurrences in 240-bit fixed point from mpmath's
+    values at the centre (no addition theorem, no float), every stored coefficient of sn,
+    cn, dn and of g (as Q's g_(k-1) / k) lies within the bound the table's error analysis
+    uses for it."""
+    from rigidrot_ros.core.triaxial import _DEG, _U, _float_errors, _series
+    sol = solve(Scene(inertia=(1.0, 2.0, 3.0), omega0=omega0))
+    k0, deg = sol._degrees
+    err_e, err_f = _float_errors(k0, deg)
+    prec = 240
+    one = 1 << prec
+    worst = 0.0
+    with mpmath.workprec(prec + 20):
+        m, beta = mpmath.mpf(sol.m), mpmath.mpf(sol._beta_mp)
+
+        def fx(v):
+            return int(mpmath.nint(mpmath.ldexp(v, prec)))
+        for i, centre in enumerate(sol._centres):
+            u = mpmath.mpf(centre)
+            vals = [fx(mpmath.ellipfun(name, u, m=m)) for name in ('sn', 'cn', 'dn')]
+            ref = _series(*vals, fx(m), fx(beta), _DEG, prec)
+            for k in range(_DEG + 1):
+                for f in range(3):
+                    bound = err_e[k] if k > k0 else _U * abs(ref[f][k]) / one + 2.0 ** -80
+                    diff = abs(sol._coef[k, i, f] - ref[f][k] / one)
+                    assert diff <= bound, (i, k, f, diff, bound)
+                    worst = max(worst, diff / bound)
+                if 2 <= k and k - 1 > k0:
+                    q_ref = mpmath.mpf(ref[3][k - 1]) / one / k
+                    bound = (err_f[k - 1] + _U * (2.0 ** (k - 1) + err_f[k - 1])) / k
+                    assert abs(sol._coef[k, i, 3] - q_ref) <= bound, (i, k, 'Q')
+    assert worst > 0.0          # the comparison saw the float rows' errors at all

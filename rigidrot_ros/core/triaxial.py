@@ -30,13 +30,16 @@ of width 1/8 covering the quarter period [0, K]: the values at the cell centres 
 addition theorem from u = h/2 and h (the series at 0), checked against the exact values at
 u = K, and at each centre the Taylor series of the Jacobi system ``s' = c d, c' = -s d,
 d' = -m s c`` to the degree the integral of g needs (its truncation, summed over the cells,
-is in the bound). Per sample, in float64 (vectorised): the phases ``lam t`` and
-``Omega t`` reduced modulo the period exactly (the constant split in 26-bit pieces, every
-partial product exact), one Horner pass per function, three quaternion products.
+is in the bound): the first five degrees in fixed point, the rest in float64 for all
+cells at once, every coefficient's error bounded a priori. Per sample, in float64
+(vectorised): the phases ``lam t`` and ``Omega t`` reduced modulo the period exactly (the
+constant split in 26-bit pieces, every partial product exact), one Horner pass per
+function, three quaternion products.
 
 The error bound is an a-priori float64 analysis, proved, not an estimate: the majorant
 series ``1/(1 - u)`` bounds every Taylor coefficient of sn, cn, dn at a real point by 1
-and ``1/(1 - 2u)`` those of g, so the table's truncation (< 1e-17) is bounded exactly;
+and ``1/(1 - 2u)`` those of g, so the table's truncation (< 1e-17) is bounded exactly, and
+so are the float64 recurrences' errors (carried through every sum and product);
 Horner rounding is bounded per cell from the stored coefficients; phase reduction,
 folding and the quaternion formulas add bounded rounding (a few ulp allowed for libm's
 sin, cos, exp, atan and sqrt). Within 1 - m < ~1e-50 of the separatrix (K > 60) the
@@ -49,6 +52,7 @@ as balls: ``method`` does not say 'flint'.
 """
 
 from fractions import Fraction
+import functools
 import math
 import operator
 
@@ -69,6 +73,8 @@ _U = 2.0 ** -53                 # unit roundoff of float64
 _H = 0.125                      # cell width of the table, in u
 _R = _H / 2                     # largest |z| inside a cell
 _DEG = 17                       # degree of the stored polynomials
+_K0 = 5                         # degrees of each cell's series computed in fixed point
+_DELTA = 2.0 ** -80             # the fixed-point table's error, as its check at K stands for
 _TWO27 = 134217729.0            # Veltkamp splitter 2^27 + 1
 _T_MAX = 1e250                  # beyond, t * 2^27 could overflow: refuse
 _K_MAX = 60.0                   # largest quarter period tabulated (1 - m >~ 1e-51)
@@ -119,6 +125,60 @@ def _add_fx(a, b, m, prec):
     nc = (ca * cb - ss * ((da * db) >> prec)) >> prec
     nd = (da * db - ((m * ss) >> prec) * ((ca * cb) >> prec)) >> prec
     return [(x << prec) // den for x in (ns, nc, nd)]
+
+
+def _extend_float(x, m, beta, w0, k0, deg):
+    """Extend the cells' Taylor series of sn, cn, dn and g from degree k0 to deg in float64.
+
+    ``x``: (4, deg + 1, ncell) array, rows 0..k0 filled (rounded from fixed point); rows
+    k0 + 1..deg are filled in place by the recurrences of :func:`_series`, every cell at
+    once. ``m``, ``beta``, ``w0 = 1 + beta dn`` (per cell): floats within one rounding.
+    Their errors are bounded by :func:`_float_errors`.
+    """
+    s, c, d, g = x
+    for k in range(k0, deg):
+        cd = np.einsum('jn,jn->n', c[:k + 1], d[k::-1])
+        sd = np.einsum('jn,jn->n', s[:k + 1], d[k::-1])
+        sc = np.einsum('jn,jn->n', s[:k + 1], c[k::-1])
+        s[k + 1] = cd / (k + 1)
+        c[k + 1] = -sd / (k + 1)
+        d[k + 1] = -(m * sc) / (k + 1)
+    for k in range(k0 + 1, deg + 1):
+        acc = np.einsum('jn,jn->n', d[1:k + 1], g[k - 1::-1])
+        g[k] = (d[k] - beta * acc) / w0
+
+
+@functools.lru_cache(maxsize=None)
+def _float_errors(k0, deg):
+    """Bounds on the errors of :func:`_extend_float`'s coefficients: (E, F), per degree.
+
+    E[k] bounds |computed - exact| of sn's, cn's and dn's k-th coefficient, F[k] of g's,
+    at every cell, from: the exact coefficients' majorants (|sn_k|, |cn_k|, |dn_k| <= 1,
+    |g_k| <= 2^k at a real point), 0 <= m, beta <= 1 and w0 >= 1 (each rounded once),
+    rows <= k0 rounded from fixed point (one rounding plus the table's 2^-80), and for
+    each later row the inputs' errors carried through the sum of products, its rounding
+    (gamma_n times the sum of the terms' magnitudes, in any order of summation) and one
+    rounding per product and quotient. Computed once per (k0, deg), with 0.1 % spare for
+    the bound's own rounding.
+    """
+    u = _U
+    e = [u + _DELTA] * (k0 + 1)
+    for k in range(k0, deg):
+        n = k + 1
+        gam = n * u / (1 - n * u)
+        err = sum((1 + e[j]) * e[k - j] + e[j] for j in range(n))
+        mag = sum((1 + e[j]) * (1 + e[k - j]) for j in range(n))
+        e.append((err + gam * mag + 3.01 * u * mag) / n)        # d: m * sum, then / n
+    f = [(u + _DELTA) * 2.0 ** k for k in range(k0 + 1)]
+    for k in range(k0 + 1, deg + 1):
+        gam = k * u / (1 - k * u)
+        err_a = sum((1 + e[j]) * f[k - j] + e[j] * 2.0 ** (k - j) for j in range(1, k + 1))
+        mag_a = sum((1 + e[j]) * (2.0 ** (k - j) + f[k - j]) for j in range(1, k + 1))
+        err_a += gam * mag_a
+        mag_n = (1 + e[k] + mag_a) * (1 + 3 * u)                 # |d_k - beta acc|
+        err_n = e[k] + err_a + 2.01 * u * mag_a + u * mag_n
+        f.append(err_n + 2.01 * u * mag_n)                        # / w0 (w0, its float >= 1)
+    return np.array(e) * 1.001, np.array(f) * 1.001
 
 
 def _q_tail(deg, r=_R):
@@ -591,10 +651,13 @@ class TriaxialSolution:
         """Tabulate sn, cn, dn and Q over [0, K]: float cells and their error bounds.
 
         The values at the cell centres (i + 1/2) h come from u = h/2 and u = h by the
-        addition theorem (the series at 0, exact to 2^-prec there, gives both); each cell's
-        Taylor series then needs only the degree its integral of g calls for, not the
-        degree a step of h would (some 32): a third of the products. The centres are
-        checked by stepping on to u = K, where sn = 1, cn = 0, dn = sqrt(1 - m).
+        addition theorem (the series at 0, exact to 2^-prec there, gives both) in fixed
+        point, checked by stepping on to u = K, where sn = 1, cn = 0, dn = sqrt(1 - m).
+        Each cell's Taylor series: its first ``_K0`` degrees in fixed point (they carry the
+        integral of g, whose sum over the cells must not drift), the rest in float64 for
+        all cells at once with a proved bound on every coefficient's error
+        (:func:`_float_errors`), up to the degree the integral of g needs (its
+        truncation, summed over the cells, is in Q's bound).
         """
         prec = mp.prec
         one = 1 << prec
@@ -605,51 +668,77 @@ class TriaxialSolution:
         def mpf(i):
             return mpmath.ldexp(mpmath.mpf(i), -prec)
 
+        def to_fx(v):                   # a float, exactly (truncated below 2^-prec)
+            return int(math.ldexp(v, prec))
+
         mf, bf = fx(m), fx(beta)
         ncell = int(mpmath.ceil(kk / _H))
         # the mean rate sets the phase at long times: from its closed form; where that is
-        # out of reach, the table's own, which then needs its integral to 2^-90
+        # out of reach, the table's own, which then needs its integral to 2^-90, all of
+        # each cell's series in fixed point
         gbar = _mean_rate(m, beta, self.backend == 'flint')
         target = 2.0 ** -64 if gbar is not None else 2.0 ** -90
         deg = _DEG
         while 2 * ncell * _q_tail(deg) > target:
             deg += 1
-        # Q at the centre i is the sum of 2 i + 1 half-cell integrals of degree deg
-        self._q_err = 2 * ncell * _q_tail(deg)
+        k0 = min(_K0, deg) if gbar is not None else deg
+        self._degrees = (k0, deg)
+        err_e, err_f = _float_errors(k0, deg)
         # the series at 0 to the degree that makes it exact to 2^-prec at |z| <= 1/16
         # (coefficients <= 1: tail <= 16^-(n + 1) * 16 / 15)
         s0 = _series(0, one, one, mf, bf, prec // 4 + 1, prec, with_g=False)[:3]
         half = [_horner_fx(x, 4) for x in s0]                   # at u = h/2
         step = _add_fx(half, half, mf, prec)                    # at u = h
-        cells, integ = [], []
-        acc = 0
+        lead = []
         vals = half
         for i in range(ncell):
             if i:
                 vals = _add_fx(vals, step, mf, prec)
-                acc += _integral_fx(cells[-1][3], 4, 1)
-            ser = _series(vals[0], vals[1], vals[2], mf, bf, deg, prec)
-            acc += _integral_fx(ser[3], 4, -1)
-            cells.append(ser)
+            lead.append(_series(vals[0], vals[1], vals[2], mf, bf, k0, prec))
+        x = np.empty((4, deg + 1, ncell))
+        for i, ser in enumerate(lead):
+            for f in range(4):
+                x[f, :k0 + 1, i] = [v / one for v in ser[f]]  # int / int rounds correctly
+        w0 = np.array([(one + ((bf * ser[2][0]) >> prec)) / one for ser in lead])
+        _extend_float(x, mf / one, bf / one, w0, k0, deg)
+        # each cell's series of g in fixed point to degree deg (the float rows exactly)
+        gser = [ser[3] + [to_fx(v) for v in x[3, k0 + 1:, i]] for i, ser in enumerate(lead)]
+        # integrals of g over each half-cell: the fixed-point rows, then the float rows
+        # (their errors, < 2^-67 a half-cell, go into q_err)
+        kf = np.arange(k0 + 1, deg + 1)
+        w_plus = _R ** (kf + 1) / (kf + 1)
+        up = (w_plus @ x[3, k0 + 1:]).tolist()                  # int_0^{h/2}
+        down = ((w_plus * (-1.0) ** kf) @ x[3, k0 + 1:]).tolist()   # int_{-h/2}^0
+        fp_err = float(np.sum((err_f[k0 + 1:] + 2 * (deg + 2) * _U * 2.0 ** kf) * w_plus))
+        integ = []
+        acc = 0
+        for i in range(ncell):
+            if i:
+                acc += _integral_fx(lead[i - 1][3], 4, 1) + to_fx(up[i - 1])
+            acc += _integral_fx(lead[i][3], 4, -1) + to_fx(down[i])
             integ.append(acc)
+        # Q at a centre i sums 2 i + 1 half-cell integrals of degree deg; one more piece
+        # reaches any u (Q(u0) for the phase constant)
+        self._q_err = (2 * ncell + 1) * (_q_tail(deg) + fp_err + (deg + 2) * 2.0 ** -prec)
         zk = fx(kk - (ncell - mpmath.mpf(0.5)) * _H)            # |zk| <= h/2
-        at_k = _add_fx(vals, [_horner_fx_z(x, zk, prec) for x in s0], mf, prec)
+        at_k = _add_fx(vals, [_horner_fx_z(v, zk, prec) for v in s0], mf, prec)
         exact_k = [one, 0, fx(mpmath.sqrt(1 - m))]
-        last = cells[-1]
-        # the last cell's own series at K, within its truncation r^(deg+1) / (1 - r)
-        series_k = [_horner_fx_z(last[f], zk, prec) for f in range(3)]
-        tail = one >> (4 * (deg + 1) - 1)
+        # the last cell's own series at K, within its truncation r^(deg+1) / (1 - r) and
+        # the float rows' error bounds: a check of those bounds at one point
+        series_k = [_horner_fx_z([to_fx(v) for v in x[f, :, -1]], zk, prec)
+                    for f in range(3)]
+        allow = _R ** (deg + 1) / (1 - _R) + float(np.sum(err_e * _R ** np.arange(deg + 1)))
         if max(abs(a - b) for a, b in zip(at_k, exact_k)) > one >> 83 or \
-                max(abs(a - b) for a, b in zip(series_k, exact_k)) > tail + (one >> 83):
+                max(abs(a - b) for a, b in zip(series_k, exact_k)) > to_fx(allow):
             raise PrecisionError(
                 f'the elliptic table failed its check at u = K (m = {float(m)!r}): '
                 f'{[float(mpf(a - b)) for a, b in zip(at_k, exact_k)]}, series '
                 f'{[float(mpf(a - b)) for a, b in zip(series_k, exact_k)]}')
-        total = mpf(integ[-1] + _integral_fx_z(last[3], zk, prec))
-        # the table's mean, total / K, is known to (its integral's truncation + the 2^-83
-        # its check stands for, per unit u) / K: it must agree with the closed form to that;
+        total = mpf(integ[-1] + _integral_fx_z(gser[-1], zk, prec))
+        # the table's mean, total / K, is known to (its integral's errors + the 2^-83 its
+        # check stands for, per unit u) / K: it must agree with the closed form to that;
         # where there is no closed form it is the mean rate, and the phase bound says so
-        total_err = self._q_err + _q_tail(deg) + float(kk) * 2.0 ** -83
+        total_err = self._q_err + float(kk) * 2.0 ** -83
         self._gbar_rel_err = 0.0
         if gbar is None:
             gbar = total / kk
@@ -659,35 +748,53 @@ class TriaxialSolution:
                                  f' disagrees with its closed form {mpmath.nstr(gbar, 20)} '
                                  f'(m = {float(m)!r})')
         self._gbar_mp = gbar
-        self._cells_fx = [ser[3] for ser in cells]
+        self._cells_fx = gser
         self._integ_fx = integ
         self._fx = (fx, mpf, prec)
-        # to float straight from the fixed point (int / int rounds correctly)
+        # the stored coefficients: sn, cn, dn as computed; Q = integral of (g - gbar):
+        # its constant and linear terms from fixed point, then g_(k-1) / k
         gbar_fx = fx(gbar)
-        coef = np.zeros((_DEG + 1, ncell, 4))
-        for i, (ss, cc, dd, gg) in enumerate(cells):
+        coef = np.empty((_DEG + 1, ncell, 4))
+        coef[:, :, :3] = x[:3, :_DEG + 1].transpose(1, 2, 0)
+        for i, ser in enumerate(lead):
             centre_fx = (2 * i + 1) << (prec - 4)                 # (i + 1/2) / 8
-            qser = [integ[i] - ((gbar_fx * centre_fx) >> prec), gg[0] - gbar_fx] + \
-                [gg[k] // (k + 1) for k in range(1, _DEG)]
-            for f, ser in enumerate((ss, cc, dd, qser)):
-                coef[:, i, f] = [v / one for v in ser[:_DEG + 1]]
+            coef[0, i, 3] = (integ[i] - ((gbar_fx * centre_fx) >> prec)) / one
+            coef[1, i, 3] = (ser[3][0] - gbar_fx) / one
+            for k in range(1, min(k0, _DEG - 1) + 1):
+                coef[k + 1, i, 3] = (ser[3][k] // (k + 1)) / one
+        kq = np.arange(k0 + 1, _DEG)
+        if len(kq):
+            coef[kq + 1, :, 3] = x[3, kq] / (kq + 1)[:, None]
         self._coef = coef
         # (degree, function * ncell + cell): what _table gathers from
         self._coef_flat = np.ascontiguousarray(coef.transpose(0, 2, 1)).reshape(_DEG + 1, -1)
         self._centres = (np.arange(ncell) + 0.5) * _H
         self._ncell = ncell
-        # a-priori bounds per cell and function: truncation + coefficient rounding + Horner
+        # a-priori bounds per cell and function: truncation + the coefficients' errors
+        # (one rounding for those from fixed point, the proved bound for the float rows)
+        # + Horner
         r = _R
         tail = np.array([r ** (_DEG + 1) / (1 - r)] * 3 +
                         [r * (2 * r) ** _DEG / (_DEG + 1) / (1 - 2 * r)])
         absc = np.abs(coef)
+        rk = r ** np.arange(_DEG + 1)
+        exact_rows = np.zeros((_DEG + 1, 4), dtype=bool)
+        exact_rows[:k0 + 1, :3] = True
+        exact_rows[:k0 + 2, 3] = True
+        coef_err = _U * np.einsum('k,knf->nf', rk, absc * exact_rows[:, None, :])
+        ee = np.zeros((_DEG + 1, 4))
+        ee[:, :3] = err_e[:_DEG + 1, None]
+        kq_all = np.arange(1, _DEG + 1)
+        ee[1:, 3] = (err_f[kq_all - 1] + _U * (2.0 ** (kq_all - 1) + err_f[kq_all - 1])) \
+            / kq_all * 1.001
+        coef_err += np.sum(np.where(exact_rows, 0.0, ee) * rk[:, None], axis=0)[None, :]
         y = np.zeros((ncell, 4))
         e = np.zeros((ncell, 4))
         for k in range(_DEG, -1, -1):
             y_next = y
             y = absc[k] + r * y_next
             e = r * e * (1 + 3 * _U) + _U * (2 * r * y_next + y) * (1 + 2 * _U)
-        self._cell_err = (e + _U * y + tail) * 1.01              # (ncell, 4)
+        self._cell_err = (e + coef_err + tail) * 1.01            # (ncell, 4)
         self._cell_err[:, 3] += self._q_err                      # Q's constant terms
 
     def _q_mp(self, u, kk):

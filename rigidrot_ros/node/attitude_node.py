@@ -582,7 +582,7 @@ class AttitudeNode(Node):
         return att, rate, serialize_message(att), serialize_message(rate)
 
     def _now_ns(self):
-        """The node clock's time (ns).
+        """Return the node clock's time (ns).
 
         Unless ``use_sim_time`` drives it, the ROS clock is the system clock
         (CLOCK_REALTIME, what rcl reads): read here directly, at a tenth of the cost of
