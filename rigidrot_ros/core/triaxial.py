@@ -701,8 +701,6 @@ class TriaxialSolution:
                 x[f, :k0 + 1, i] = [v / one for v in ser[f]]  # int / int rounds correctly
         w0 = np.array([(one + ((bf * ser[2][0]) >> prec)) / one for ser in lead])
         _extend_float(x, mf / one, bf / one, w0, k0, deg)
-        # each cell's series of g in fixed point to degree deg (the float rows exactly)
-        gser = [ser[3] + [to_fx(v) for v in x[3, k0 + 1:, i]] for i, ser in enumerate(lead)]
         # integrals of g over each half-cell: the fixed-point rows, then the float rows
         # (their errors, < 2^-67 a half-cell, go into q_err)
         kf = np.arange(k0 + 1, deg + 1)
@@ -717,6 +715,9 @@ class TriaxialSolution:
                 acc += _integral_fx(lead[i - 1][3], 4, 1) + to_fx(up[i - 1])
             acc += _integral_fx(lead[i][3], 4, -1) + to_fx(down[i])
             integ.append(acc)
+        self._fx = (fx, mpf, prec)
+        self._g_lead = [ser[3] for ser in lead]
+        self._g_rest = x[3, k0 + 1:]
         # Q at a centre i sums 2 i + 1 half-cell integrals of degree deg; one more piece
         # reaches any u (Q(u0) for the phase constant)
         self._q_err = (2 * ncell + 1) * (_q_tail(deg) + fp_err + (deg + 2) * 2.0 ** -prec)
@@ -734,7 +735,7 @@ class TriaxialSolution:
                 f'the elliptic table failed its check at u = K (m = {float(m)!r}): '
                 f'{[float(mpf(a - b)) for a, b in zip(at_k, exact_k)]}, series '
                 f'{[float(mpf(a - b)) for a, b in zip(series_k, exact_k)]}')
-        total = mpf(integ[-1] + _integral_fx_z(gser[-1], zk, prec))
+        total = mpf(integ[-1] + _integral_fx_z(self._g_fx(ncell - 1), zk, prec))
         # the table's mean, total / K, is known to (its integral's errors + the 2^-83 its
         # check stands for, per unit u) / K: it must agree with the closed form to that;
         # where there is no closed form it is the mean rate, and the phase bound says so
@@ -748,9 +749,7 @@ class TriaxialSolution:
                                  f' disagrees with its closed form {mpmath.nstr(gbar, 20)} '
                                  f'(m = {float(m)!r})')
         self._gbar_mp = gbar
-        self._cells_fx = gser
         self._integ_fx = integ
-        self._fx = (fx, mpf, prec)
         # the stored coefficients: sn, cn, dn as computed; Q = integral of (g - gbar):
         # its constant and linear terms from fixed point, then g_(k-1) / k
         gbar_fx = fx(gbar)
@@ -797,6 +796,11 @@ class TriaxialSolution:
         self._cell_err = (e + coef_err + tail) * 1.01            # (ncell, 4)
         self._cell_err[:, 3] += self._q_err                      # Q's constant terms
 
+    def _g_fx(self, i):
+        """Cell i's series of g in fixed point (the float rows exactly, below 2^-prec)."""
+        prec = self._fx[2]
+        return self._g_lead[i] + [int(math.ldexp(v, prec)) for v in self._g_rest[:, i]]
+
     def _q_mp(self, u, kk):
         """Q(u) (the periodic part of the integral of g) at mpf u, from the fixed-point table."""
         fx, mpf, prec = self._fx
@@ -810,7 +814,7 @@ class TriaxialSolution:
             y = x
         i = min(int(y / _H), self._ncell - 1)
         z = y - (i + mpmath.mpf(0.5)) * _H
-        val = mpf(self._integ_fx[i] + _integral_fx_z(self._cells_fx[i], fx(z), prec))
+        val = mpf(self._integ_fx[i] + _integral_fx_z(self._g_fx(i), fx(z), prec))
         return sgn * (val - self._gbar_mp * y)
 
     def _bound_constant(self):
