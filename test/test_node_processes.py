@@ -156,3 +156,34 @@ def test_bad_override_at_start_up_exits_2_without_traceback(override, words):
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 2, err
     assert words in err and 'Traceback' not in err
+
+
+QUIET_SIGINT = textwrap.dedent('''
+    import os, signal, sys, time
+    import rclpy
+    from rigidrot_ros.node.spin import init_ros
+    assert init_ros('probe', []) is None
+    os.kill(os.getpid(), signal.SIGINT)             # rclpy shuts down, nothing is raised
+    deadline = time.monotonic() + 10
+    while rclpy.ok() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    print('shut down' if not rclpy.ok() else 'still up', flush=True)
+    try:
+        os.kill(os.getpid(), signal.SIGINT)         # a second Ctrl-C raises
+        time.sleep(1.0)
+        print('no KeyboardInterrupt', flush=True)
+    except KeyboardInterrupt:
+        print('KeyboardInterrupt', flush=True)
+''')
+
+
+def test_first_ctrl_c_shuts_ros_down_without_a_keyboard_interrupt_and_a_second_raises():
+    """A KeyboardInterrupt at an arbitrary line of rclpy's executor can leave a half-built
+    Task whose __del__ prints a traceback at exit: the scripts' first Ctrl-C only shuts
+    ROS down (rclpy's handler), which ends their spin loops; a second one raises."""
+    env = ros_env(next_domain_id())
+    proc = start([sys.executable, '-c', QUIET_SIGINT], env)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert out.split('\n')[:2] == ['shut down', 'KeyboardInterrupt'], (out, err)
+    assert 'Traceback' not in err

@@ -25,10 +25,9 @@ run) and carries the scene time ``t = (stamp - t_start) * time_scale``; all mess
 tick share that stamp (``use_sim_time`` works). Because the coming ticks' times are known,
 their samples are evaluated, and the attitude and rate messages built and serialized,
 ahead in batches (:mod:`rigidrot_ros.node.lookahead`); a tick reads the clock and
-publishes the bytes. The
-sensors sample their own fixed grids ``t_start + k / rate`` (so a seed reproduces the
-stream bit for bit); each sample's messages share its grid stamp. Messages are built by
-:mod:`rigidrot_ros.io.messages`.
+publishes the bytes. The sensors sample their own fixed grids ``t_start + k / rate`` (so
+a seed reproduces the stream bit for bit); each sample's messages share its grid stamp.
+Messages are built by :mod:`rigidrot_ros.io.messages`.
 """
 
 import difflib

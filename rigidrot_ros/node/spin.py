@@ -2,14 +2,17 @@
 
 - :func:`split_ros_args` separates a script's own arguments from ``--ros-args ... [--]``.
 - :func:`init_ros` runs ``rclpy.init`` and turns a failure (a missing ``--params-file``, a
-  malformed ``-p``) into one line of text instead of rcl's log line and a traceback.
+  malformed ``-p``) into one line of text instead of rcl's log line and a traceback; it
+  makes the first Ctrl-C shut ROS down without a KeyboardInterrupt (:func:`_quiet_sigint`).
 - :func:`spin_until_shutdown` spins until Ctrl-C, SIGTERM or a shutdown, then cleans up.
 """
 
 import os
 import re
+import signal
 import sys
 import tempfile
+import threading
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -68,6 +71,30 @@ def _clean_rcl_message(text):
     return ' '.join(text.split())
 
 
+def _quiet_sigint():
+    """Let the first SIGINT shut ROS down without raising KeyboardInterrupt; the second raises.
+
+    rclpy's SIGINT handler, installed by ``rclpy.init`` in front of the one found, shuts the
+    context down, which ends every spin loop of the console scripts. Python's default
+    handler then also raises KeyboardInterrupt at whatever line the main thread is on;
+    inside rclpy's executor that can be half way through a ``Task``'s constructor, whose
+    ``__del__`` then prints an AttributeError traceback at exit (rclpy's ``Future``; seen
+    in a test of ours). Installed only over Python's default handler and from the main
+    thread; a second Ctrl-C raises KeyboardInterrupt, for a process that would not stop.
+    """
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        return
+    count = [0]
+
+    def handler(signum, frame):
+        count[0] += 1
+        if count[0] > 1:
+            raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, handler)
+
+
 def init_ros(prog, ros_args):
     """Run ``rclpy.init`` with ``ros_args``; return None, or one line saying why it failed.
 
@@ -91,6 +118,7 @@ def init_ros(prog, ros_args):
     reason = _check_params_files(ros_args)
     if reason is not None:
         return reason
+    _quiet_sigint()
     sys.stderr.flush()
     saved = os.dup(2)
     try:
