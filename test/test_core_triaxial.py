@@ -394,6 +394,17 @@ def test_elliptic_constants_arb_and_mpmath_agree(one_minus_m):
             assert abs(f_arb - f_mp) <= abs(f_mp) * mpmath.ldexp(1, -190)
 
 
+def _mean_rate_by_quadrature(sol):
+    """The mean of g = dn / (1 + beta dn) over [0, K] by mpmath's quadrature of ellipfun."""
+    m, beta = mpmath.mpf(sol.m), mpmath.mpf(sol._beta_mp)
+    kk = mpmath.ellipk(m)
+
+    def g(u):
+        dn = mpmath.ellipfun('dn', u, m=m)
+        return dn / (1 + beta * dn)
+    return mpmath.quad(g, mpmath.linspace(0, kk, 5)) / kk
+
+
 @pytest.mark.parametrize('backend', ['flint', 'mpmath'])
 @pytest.mark.parametrize('omega0', [(0.3, -0.2, 0.5), (0.02, 1.0, 0.03), (0.1, 1.0, 0.05)])
 def test_mean_rate_is_accurate_to_the_bits_the_phase_bound_assumes(omega0, backend):
@@ -407,13 +418,7 @@ def test_mean_rate_is_accurate_to_the_bits_the_phase_bound_assumes(omega0, backe
         pytest.importorskip('flint')
     sol = solve(Scene(inertia=(1.0, 2.0, 3.0), omega0=omega0), backend=backend)
     with mpmath.workprec(300):
-        m, beta = mpmath.mpf(sol.m), mpmath.mpf(sol._beta_mp)
-        kk = mpmath.ellipk(m)
-
-        def g(u):
-            dn = mpmath.ellipfun('dn', u, m=m)
-            return dn / (1 + beta * dn)
-        ref = mpmath.quad(g, mpmath.linspace(0, kk, 5)) / kk
+        ref = _mean_rate_by_quadrature(sol)
         rel = abs(sol._gbar_mp - ref) / ref
         assert rel <= mpmath.ldexp(1, 8 - sol.precision), float(mpmath.log(rel, 2))
 
@@ -426,13 +431,7 @@ def test_mean_rate_out_of_closed_form_reach_widens_the_phase_bound():
     assert sol.method == 'jacobi-elliptic-table'
     assert 2.0 ** -90 < sol._gbar_rel_err <= 2.0 ** -80
     with mpmath.workprec(300):
-        m, beta = mpmath.mpf(sol.m), mpmath.mpf(sol._beta_mp)
-        kk = mpmath.ellipk(m)
-
-        def g(u):
-            dn = mpmath.ellipfun('dn', u, m=m)
-            return dn / (1 + beta * dn)
-        ref = mpmath.quad(g, mpmath.linspace(0, kk, 5)) / kk
+        ref = _mean_rate_by_quadrature(sol)
         assert abs(sol._gbar_mp - ref) <= ref * sol._gbar_rel_err
     # the phase carries an error of its rate: |t| rho_err turns, on top of its own
     from rigidrot_ros.core.triaxial import _Turns
