@@ -191,6 +191,11 @@ def _q_tail(deg, r=_R):
     return r * (2 * r) ** (deg + 1) / ((deg + 2) * (1 - 2 * r))
 
 
+def _float_fx(v, prec):
+    """Return float v in fixed point (scaled by 2^prec), exact but for bits below 2^-prec."""
+    return int(math.ldexp(v, prec))
+
+
 def _horner_fx(coef, shift):
     """Sum of coef[k] z^k at z = 2^-shift (fixed point)."""
     acc = 0
@@ -620,7 +625,7 @@ class TriaxialSolution:
             return
         self._sep = False
         self.method = 'jacobi-elliptic-table'
-        # precision and series degree for stepping over [0, K] (errors grow like e^u there)
+        # precision for carrying the cell centres over [0, K] (errors grow like e^u there)
         prec = max(mp.prec, 128 + int(1.5 * float(kk)))
         if prec > max(max_prec, 256) + 256:
             raise PrecisionError(f'the quarter period K = {float(kk):.3g} needs {prec} bits '
@@ -668,9 +673,6 @@ class TriaxialSolution:
         def mpf(i):
             return mpmath.ldexp(mpmath.mpf(i), -prec)
 
-        def to_fx(v):                   # a float, exactly (truncated below 2^-prec)
-            return int(math.ldexp(v, prec))
-
         mf, bf = fx(m), fx(beta)
         ncell = int(mpmath.ceil(kk / _H))
         # the mean rate sets the phase at long times: from its closed form; where that is
@@ -712,8 +714,8 @@ class TriaxialSolution:
         acc = 0
         for i in range(ncell):
             if i:
-                acc += _integral_fx(lead[i - 1][3], 4, 1) + to_fx(up[i - 1])
-            acc += _integral_fx(lead[i][3], 4, -1) + to_fx(down[i])
+                acc += _integral_fx(lead[i - 1][3], 4, 1) + _float_fx(up[i - 1], prec)
+            acc += _integral_fx(lead[i][3], 4, -1) + _float_fx(down[i], prec)
             integ.append(acc)
         self._fx = (fx, mpf, prec)
         self._g_lead = [ser[3] for ser in lead]
@@ -726,11 +728,11 @@ class TriaxialSolution:
         exact_k = [one, 0, fx(mpmath.sqrt(1 - m))]
         # the last cell's own series at K, within its truncation r^(deg+1) / (1 - r) and
         # the float rows' error bounds: a check of those bounds at one point
-        series_k = [_horner_fx_z([to_fx(v) for v in x[f, :, -1]], zk, prec)
+        series_k = [_horner_fx_z([_float_fx(v, prec) for v in x[f, :, -1]], zk, prec)
                     for f in range(3)]
         allow = _R ** (deg + 1) / (1 - _R) + float(np.sum(err_e * _R ** np.arange(deg + 1)))
         if max(abs(a - b) for a, b in zip(at_k, exact_k)) > one >> 83 or \
-                max(abs(a - b) for a, b in zip(series_k, exact_k)) > to_fx(allow):
+                max(abs(a - b) for a, b in zip(series_k, exact_k)) > _float_fx(allow, prec):
             raise PrecisionError(
                 f'the elliptic table failed its check at u = K (m = {float(m)!r}): '
                 f'{[float(mpf(a - b)) for a, b in zip(at_k, exact_k)]}, series '
@@ -799,7 +801,7 @@ class TriaxialSolution:
     def _g_fx(self, i):
         """Cell i's series of g in fixed point (the float rows exactly, below 2^-prec)."""
         prec = self._fx[2]
-        return self._g_lead[i] + [int(math.ldexp(v, prec)) for v in self._g_rest[:, i]]
+        return self._g_lead[i] + [_float_fx(v, prec) for v in self._g_rest[:, i]]
 
     def _q_mp(self, u, kk):
         """Q(u) (the periodic part of the integral of g) at mpf u, from the fixed-point table."""
