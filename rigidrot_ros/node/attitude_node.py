@@ -669,7 +669,7 @@ class AttitudeNode(Node):
         st.tick_times.append(time.perf_counter_ns() - c_tick)
         st.published += 1
         self._last_sample = (t, sample[2])
-        self._record_tick(now_ns, [(pub.topic_name, m, raw) for pub, m, raw in items])
+        self._record_tick(now_ns, items)
         self._ahead.refill(k)           # after publishing: the batch delays no message
 
     def _failed(self, t, exc):
@@ -705,7 +705,7 @@ class AttitudeNode(Node):
         first, last = self._grid(rate, self._imu_k, now_ns)
         if last < first:
             return
-        body = self.get_parameter('body_frame_id').value
+        body = self._frames[1]
         pairs = []
         c0 = time.perf_counter()
         for k in range(first, last + 1):
@@ -730,7 +730,7 @@ class AttitudeNode(Node):
             self._stats.imu_samples += 1
         self._imu_k = last
         if pairs and self._publish(pairs):
-            self._record_tick(now_ns, [(p.topic_name, m, raw) for p, m, raw in pairs])
+            self._record_tick(now_ns, pairs)
 
     def _star_tick(self):
         if self._t_start is None:
@@ -740,7 +740,7 @@ class AttitudeNode(Node):
         first, last = self._grid(rate, self._star_k, now_ns)
         if last < first:
             return
-        frame = self.get_parameter('frame_id').value
+        frame = self._frames[0]
         pairs = []
         c0 = time.perf_counter()
         for k in range(first, last + 1):
@@ -758,7 +758,7 @@ class AttitudeNode(Node):
             self._stats.star_samples += 1
         self._star_k = last
         if pairs and self._publish(pairs):
-            self._record_tick(now_ns, [(p.topic_name, m, raw) for p, m, raw in pairs])
+            self._record_tick(now_ns, pairs)
 
     def _publish_diagnostics(self):
         st = self._stats
@@ -869,8 +869,9 @@ class AttitudeNode(Node):
     def _record_tick(self, now_ns, published):
         """After each publication: announce a new run on ``~/run``, record what was published.
 
-        ``published`` lists ``(resolved_topic_name, msg, raw)`` for every message of this
-        call (``raw``: its serialized bytes if they were made already, else None).
+        ``published`` lists ``(publisher, msg, raw)`` for every message of this call, as
+        :meth:`_publish` took them (``raw``: the serialized bytes if made already, else None);
+        their topic names are looked up only when there is a recorder.
         The first call after start-up or a ``~/reset`` publishes the run description (JSON
         in std_msgs/String, transient-local, depth 1), so any recorder keeps it.
         """
@@ -881,11 +882,12 @@ class AttitudeNode(Node):
             info = self._run_description(start)
             msg = String(data=json.dumps(info))
             self._pub_run.publish(msg)
-            published = list(published) + [(self._pub_run.topic_name, msg, None)]
+            published = list(published) + [(self._pub_run, msg, None)]
             if self._recorder is not None:
                 self._recorder.add_run(info)
         if self._recorder is not None:
-            self._recorder.record_published(now_ns, published)
+            self._recorder.record_published(
+                now_ns, [(pub.topic_name, m, raw) for pub, m, raw in published])
 
     def destroy_node(self):
         """Finish the bag (summary, index, metadata.yaml), then destroy the node."""
