@@ -958,7 +958,7 @@ class TriaxialSolution:
         Raises
         ------
         PrecisionError
-            When a sample's bound would exceed ``tol`` (|t| far beyond 1e15 s).
+            When a sample's bound would exceed ``tol`` (``|t|`` far beyond 1e15 s).
         """
         from .models import Samples
         t_arr = _times_1d(t)
