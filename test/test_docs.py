@@ -63,6 +63,9 @@ def test_sphinx_build_has_no_warnings(tmp_path):
     for page in ('index', 'node', 'sensors', 'recording', 'core', 'models', 'benchmarks',
                  'api'):
         assert (tmp_path / 'html' / f'{page}.html').is_file(), f'{page}.html not built'
+    # the estimator loop is the README's block, included (not copied) into recording.md
+    recording = (tmp_path / 'html' / 'recording.html').read_text(encoding='utf-8')
+    assert 'EST_PID' in recording, 'the README estimator loop is not in recording.html'
     api = (tmp_path / 'html' / 'api.html').read_text(encoding='utf-8')
     for name in ('rigidrot_ros.core.solve', 'rigidrot_ros.core.Scene',
                  'rigidrot_ros.sensors.Gyro', 'rigidrot_ros.settings.scene_from_params',
