@@ -95,7 +95,8 @@ def ratios(quick, log, budget=600.0):
                                    log, every=10))
     n_big, t_big = (10 ** 4, 100.0) if quick else (10 ** 6, 1e4)
     t = np.arange(1, n_big + 1) * (t_big / n_big)
-    rows.append(_versus_dop853(f'{n_big:.0e} samples', 'spacecraft', common.SPACECRAFT, t, 1, budget,
+    rows.append(_versus_dop853(f'{n_big:.0e} samples', 'spacecraft', common.SPACECRAFT, t, 1,
+                               budget,
                                log, every=max(1, n_big // 200)))
     sol = solve(common.SPACECRAFT, tol=1e-12)
     sol.at(t[:10])
@@ -117,7 +118,8 @@ def ratios(quick, log, budget=600.0):
     rng = np.random.default_rng(10)
     for name, scene in scenes.items():
         sol = solve(scene, tol=1e-12)
-        lat = common.latencies(lambda x: sol.at(x), rng.uniform(0.0, horizon, 200 if quick else 3000))
+        lat = common.latencies(lambda x: sol.at(x),
+                               rng.uniform(0.0, horizon, 200 if quick else 3000))
         rows.append(_row(part='scalar at(t) random', scene=name, samples=len(lat),
                          horizon_s=horizon, **common.percentiles(lat)))
         sol = solve(scene, tol=1e-12)
