@@ -89,7 +89,7 @@ def timed(fn, repeats=1):
 
 
 def latencies(fn, times):
-    """Wall-clock latencies (us) of ``fn(x)`` for each ``x`` in ``times``, in order."""
+    """Return the wall-clock latency (us) of each call on ``times``, in order."""
     out = np.empty(len(times))
     clock = time.perf_counter
     for i, x in enumerate(times):
@@ -266,7 +266,7 @@ def write_json(path, data):
 
 
 def part_footer(results, name):
-    """The footer of part ``name`` in merged results: its own run's, else the shared one."""
+    """Return part ``name``'s footer in merged results: its own run's, else the shared one."""
     return results.get(f'footer_{name}_run') or results.get('footer') or {}
 
 
@@ -294,14 +294,14 @@ def span(values, digits=3, unit=''):
 
 
 def md_table(header, rows):
-    """A Markdown (MyST) pipe table: ``header`` a list of column titles, ``rows`` of cells."""
+    """Return a Markdown (MyST) pipe table: ``header`` the column titles, ``rows`` of cells."""
     lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
     lines += ['| ' + ' | '.join(str(c) for c in row) + ' |' for row in rows]
     return '\n'.join(lines) + '\n'
 
 
 def md_fragment(title, foot, body):
-    """A fragment: a bold caption, the machine and date from ``foot``, then ``body``.
+    """Return a fragment: a bold caption, the machine and date from ``foot``, then ``body``.
 
     No ``#`` heading, so that a page can ``{include}`` it under its own. The first line
     says it is generated, so nobody edits it by hand.

@@ -18,7 +18,7 @@ from rigidrot_ros.tools.cli import OneLineParser
 
 
 def install_hint(missing):
-    """The line that says which extra to install for the ``missing`` modules."""
+    """Return the line that says which extra to install for the ``missing`` modules."""
     return (f'rigidrot_bench needs {" and ".join(missing)}, which a plain `pip install .` '
             "does not install: pip install -e '.[bench]' in the checkout (or pip install "
             f'{" ".join(missing)})')
@@ -41,7 +41,7 @@ def _fail(message):
 
 
 def clock_log():
-    """A ``log`` that prefixes each line with the seconds since it was made."""
+    """Return a ``log`` that prefixes each line with the seconds since it was made."""
     t0 = time.monotonic()
 
     def log(line):
@@ -57,7 +57,7 @@ def add_part_arguments(ap, modules):
 
 
 def _kwargs(mod, opts, results):
-    """The keywords of ``mod.run`` beyond quick and log: ``results``, or options by name."""
+    """Return the keywords of ``mod.run`` beyond quick and log: results, or options."""
     out = {}
     for name in list(inspect.signature(mod.run).parameters)[2:]:
         if name == 'results':

@@ -47,7 +47,7 @@ def write(res, out, foot, log):
 
 
 def draw(results, out):
-    """The horizon chart; return the written paths."""
+    """Draw the horizon chart; return the written paths."""
     from rigidrot_ros.bench import charts
     if not results.get('horizon'):
         return []
@@ -73,7 +73,7 @@ def table(rows):
 
 
 def render_md(results):
-    """The horizon table from the results, or None where they hold none."""
+    """Render the horizon table from the results, or None where they hold none."""
     if not results.get('horizon'):
         return None
     return common.md_fragment(

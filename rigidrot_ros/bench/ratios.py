@@ -146,7 +146,7 @@ def write(res, out, foot, log):
 
 
 def draw(results, out):
-    """The speed-up chart from merged results; the written paths."""
+    """Draw the speed-up chart from merged results; return the written paths."""
     from rigidrot_ros.bench import charts
     if not results.get('ratios'):
         return []

@@ -89,5 +89,5 @@ def available(needs=True):
 
 
 def summary(mod):
-    """The first line of a part's docstring."""
+    """Return the first line of a part's docstring."""
     return ((mod.__doc__ or '').strip().splitlines() or [''])[0]

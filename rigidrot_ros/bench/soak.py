@@ -196,7 +196,7 @@ def write(res, out, foot, log):
 
 
 def failed(results):
-    """A line where the node exited with a non-zero status, else none."""
+    """Return a line where the node exited with a non-zero status, else none."""
     res = results.get('soak')
     if not res or res['exit_code'] == 0:
         return []
@@ -205,7 +205,7 @@ def failed(results):
 
 
 def render_md(results):
-    """The soak's RSS and slope as a table; None where the results hold no soak."""
+    """Render the soak's RSS and slope as a table; None where the results hold no soak."""
     res = results.get('soak')
     if not res:
         return None

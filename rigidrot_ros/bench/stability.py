@@ -24,7 +24,7 @@ SHARED_FOOTER = True
 
 
 def methods():
-    """The map's methods by name: ``fn(scene, t, budget) -> q``."""
+    """Return the map's methods by name: ``fn(scene, t, budget) -> q``."""
     from rigidrot_ros.bench import peers
     return {
         'exact (flint), tol 1e-12': lambda sc, t, b: solve(sc, tol=1e-12).at(t).quaternion,
@@ -82,7 +82,7 @@ def write(res, out, foot, log):
 
 
 def draw(results, out):
-    """The stability map (with the cross-check's marks where present); the written paths."""
+    """Draw the stability map (the cross-check's marks where present); the written paths."""
     from rigidrot_ros.bench import charts
     if not results.get('stability'):
         return []

@@ -367,7 +367,7 @@ def draw_charts(res, out, foot):
 
 
 def draw(results, out):
-    """The triaxial charts from merged results (key ``'triaxial'``); the written paths."""
+    """Draw the triaxial charts from merged results (``'triaxial'``); the written paths."""
     if not results.get('triaxial'):
         return []
     return draw_charts(results['triaxial'], out, common.part_footer(results, NAME))

@@ -74,7 +74,7 @@ def failed(results):
 
 
 def draw(results, out):
-    """The work-precision charts, one per workload; return the written paths."""
+    """Draw the work-precision charts, one per workload; return the written paths."""
     from rigidrot_ros.bench import charts
     paths = []
     for workload in ('query', 'stream'):
