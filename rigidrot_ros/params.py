@@ -96,7 +96,7 @@ def _choice(p, v):
 
 
 def _floats(p, v):
-    """A list of ``p.size`` numbers as a tuple of floats (finiteness is the model's rule)."""
+    """Return a list of ``p.size`` numbers as a tuple of floats (finiteness: the model)."""
     size = p.size
     if isinstance(v, (str, bytes)) or not hasattr(v, '__len__'):
         raise ValueError(f'parameter {p.name} must be a list of {size} numbers, got {v!r}')
