@@ -3,8 +3,8 @@
 Each parameter's own rule comes from the table :mod:`rigidrot_ros.params`; this module adds
 the rules across parameters (the scene must be solvable, a sensor rate of 0 means
 ``publish_rate``, the imu needs ``time_scale > 0``) and the trial of a run's first samples.
-The node (at start-up, on a parameter change, on ``~/reset``), the offline generator and
-the benchmarks all set a run up through :func:`prepare_run`, so a scene is validated by one
+The node (at start-up, on a parameter change, on ``~/reset``) and the offline generator
+set a run up through :func:`prepare_run`, so a scene is validated by one
 piece of code wherever it comes from. :func:`load_defaults` reads a params file.
 """
 
