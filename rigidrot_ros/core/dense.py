@@ -423,10 +423,10 @@ class DenseSpinor:
         done = ck[3]
         if upto < done:
             return True
-        # past the query: to the end of the octave two above (amortised), within SWEEP_MAX
+        # past the query: to the end of the next octave (amortised), within SWEEP_MAX
         sign_, e, _ = self._key_of(sign, upto)
         target = upto + 1
-        for ee in (e + 1, e + 2, e + 3):
+        for ee in (e + 1, e + 2):
             if self._index((sign, ee - 1, 0)) is None:
                 break
             lo, hi, h = self._octave(sign, ee - 1)
