@@ -22,6 +22,8 @@ memory stays bounded whatever the duration.
 import difflib
 import json
 import math
+import signal
+import threading
 
 import numpy as np
 import yaml
@@ -400,6 +402,11 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
     except OSError as exc:
         raise GenerationError(f'cannot write the bag to {out_dir}: '
                               f'{" ".join(str(exc).split())}') from None
+    stop = []
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        # SIGINT between blocks, never inside a write: the bag is always finished whole
+        previous = signal.signal(signal.SIGINT, lambda *_: stop.append(True))
     try:
         for topic, type_name in run.topics:
             writer.add_topic(topic, type_name, qos)
@@ -412,6 +419,12 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
                 writer.write(topic, serialize_message(msg), ns)
             if progress is not None:
                 progress(hi * 1e-9 * run.time_scale, total)
+            if stop:
+                break
     finally:
         writer.close()
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    if stop:
+        raise KeyboardInterrupt
     return writer.path
