@@ -43,6 +43,7 @@ def _payloads(bag):
     with AnyReader([Path(bag)]) as reader:
         for conn, _, raw in reader.messages():
             msg = reader.deserialize(raw, conn.msgtype)
+            types[conn.topic] = conn.msgtype
             if conn.topic.endswith('/run'):
                 run = json.loads(msg.data)
                 out.setdefault(conn.topic, {})[0] = bytes(raw)
@@ -50,7 +51,6 @@ def _payloads(bag):
             ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             assert ns not in out.setdefault(conn.topic, {}), (conn.topic, ns)
             out[conn.topic][ns] = bytes(raw)
-            types[conn.topic] = conn.msgtype
     return out, run
 
 

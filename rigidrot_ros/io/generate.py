@@ -28,6 +28,7 @@ import threading
 import numpy as np
 import yaml
 
+from rigidrot_ros.io import cdr
 from rigidrot_ros.io import messages as msgs
 
 __all__ = ['iter_run', 'generate_bag', 'load_values', 'prepare_run', 'parse_override',
@@ -42,6 +43,7 @@ BLOCK_S = 1.0
 #: The node's look-ahead batches (tick 0 alone, then doubling up to its ceiling).
 _AHEAD = (8, 256)
 _SEC = 1_000_000_000
+_EPS = float(np.finfo(float).eps)
 
 
 class GenerationError(ValueError):
@@ -247,43 +249,30 @@ class _Run:
 
     # -- one block ---------------------------------------------------------------------------
     def block(self, lo_ns, hi_ns):
-        """Messages with stamps in ``[lo_ns, hi_ns)`` (relative to start): a list of streams.
+        """The samples with stamps in ``[lo_ns, hi_ns)`` (relative to start), as arrays.
 
-        Each stream is ``(order, topic, stamps_ns, messages)``; ``order`` ranks the streams
-        of one stamp as the node publishes them.
+        A list of streams ``(order, topic, stamps_ns, data)``: ``order`` ranks the streams
+        of one stamp as the node publishes them; ``data`` a dict of float arrays (one row
+        a sample) that :func:`_messages` and :func:`_serialized` turn into messages.
         """
         streams = []
-        rate = self.rate
+        rate, cfg = self.rate, self.cfg
         ks = _sub(self.truth_k, rate, lo_ns, hi_ns)
         if len(ks):
-            stamps = _stamps(self.start_ns, rate, ks)
-            samples = self._truth_samples(ks)
-            att, vel, tf, odom, mk = [], [], [], [], []
-            cfg = self.cfg
-            eps = float(np.finfo(float).eps)
-            for ns, (q, w, bound) in zip(stamps, samples):
-                stamp = msgs.stamp(ns)
-                att.append(msgs.attitude(stamp, self.frame, q))
-                vel.append(msgs.vector(stamp, self.body, w))
-                if cfg.transform:
-                    tf.append(msgs.transform(stamp, self.frame, self.body, q))
-                if cfg.odom:
-                    rate_sd = 32.0 * eps * float(np.linalg.norm(w))
-                    odom.append(msgs.odometry(stamp, self.frame, self.body, q, w,
-                                              attitude_variance=bound ** 2,
-                                              rate_variance=rate_sd ** 2))
-                if cfg.markers:
-                    mk.append(msgs.body_markers(stamp, self.frame, q,
-                                                self.sol.scene.inertia))
-            streams += [(0, '/attitude', stamps, att), (1, '/angular_velocity', stamps, vel)]
-            for order, topic, lst in ((2, '/transform', tf), (3, '/odom', odom),
-                                      (4, '/markers', mk)):
-                if lst:
-                    streams.append((order, topic, stamps, lst))
+            stamps = np.array(_stamps(self.start_ns, rate, ks), dtype=np.int64)
+            q, w, e = (np.array(c, dtype=float) for c in zip(*self._truth_samples(ks)))
+            streams += [(0, '/attitude', stamps, {'q': q}),
+                        (1, '/angular_velocity', stamps, {'v': w})]
+            if cfg.transform:
+                streams.append((2, '/transform', stamps, {'q': q}))
+            if cfg.odom:
+                rate_sd = 32.0 * _EPS * np.array([float(np.linalg.norm(x)) for x in w])
+                streams.append((3, '/odom', stamps, {'q': q, 'w': w, 'av': e ** 2,
+                                                     'rv': rate_sd ** 2}))
+            if cfg.markers:
+                streams.append((4, '/markers', stamps, {'q': q}))
             if ks[0] == 0:      # ~/run goes out with the first tick, after its truth
-                from std_msgs.msg import String
-                streams.append((5, RUN_TOPIC, stamps[:1],
-                                [String(data=json.dumps(self.description()))]))
+                streams.append((5, RUN_TOPIC, stamps[:1], {}))
         if self.gyro is not None:
             streams += self._gyro_block(lo_ns, hi_ns)
         if self.star is not None:
@@ -295,30 +284,33 @@ class _Run:
         ks = _sub(self.imu_k, rate, lo_ns, hi_ns)
         if not len(ks):
             return []
-        stamps = _stamps(self.start_ns, rate, ks)
-        imu, da, dr = [], [], []
-        for k, ns1 in zip(ks, stamps):
-            ns0 = self.start_ns + round((k - 1) * 1e9 / rate)
-            r = self.gyro.read(self.scene_time(ns0), self.scene_time(ns1))
-            stamp = msgs.stamp(ns1)
-            imu.append(msgs.imu(stamp, self.body, r.omega, r.variance))
-            da.append(msgs.vector(stamp, self.body, r.delta_angle))
-            dr.append(msgs.vector(stamp, self.body, r.delta_rotation))
-        return [(6, '/imu', stamps, imu), (7, '/delta_angle', stamps, da),
-                (8, '/delta_rotation', stamps, dr)]
+        ns = np.array(_stamps(self.start_ns, rate, range(ks.start - 1, ks.stop)),
+                      dtype=np.int64)
+        t = [self.scene_time(int(x)) for x in ns]
+        n = len(ks)
+        omega, da, dr = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        var = np.empty(n)
+        read = self.gyro.read
+        for i in range(n):
+            r = read(t[i], t[i + 1])
+            omega[i], da[i], dr[i], var[i] = r.omega, r.delta_angle, r.delta_rotation, \
+                r.variance
+        stamps = ns[1:]
+        return [(6, '/imu', stamps, {'w': omega, 'var': var}),
+                (7, '/delta_angle', stamps, {'v': da}),
+                (8, '/delta_rotation', stamps, {'v': dr})]
 
     def _star_block(self, lo_ns, hi_ns):
         rate = self.cfg.star_tracker_rate
         ks = _sub(self.star_k, rate, lo_ns, hi_ns)
         if not len(ks):
             return []
-        stamps = _stamps(self.start_ns, rate, ks)
-        out = []
-        for ns in stamps:
-            r = self.star.read(self.scene_time(ns))
-            out.append(msgs.star_tracker(msgs.stamp(ns), self.frame, r.quaternion,
-                                         r.covariance))
-        return [(9, '/star_tracker', stamps, out)]
+        stamps = np.array(_stamps(self.start_ns, rate, ks), dtype=np.int64)
+        q, cov = np.empty((len(ks), 4)), np.empty((len(ks), 3, 3))
+        for i, ns in enumerate(stamps):
+            r = self.star.read(self.scene_time(int(ns)))
+            q[i], cov[i] = r.quaternion, r.covariance
+        return [(9, '/star_tracker', stamps, {'q': q, 'cov': cov})]
 
     def blocks(self):
         """Yield ``(lo_ns, hi_ns, streams)`` over the run, :data:`BLOCK_S` of clock each."""
@@ -337,13 +329,63 @@ def _sub(krange, rate, lo_ns, hi_ns):
     return range(max(a, krange.start), min(b, krange.stop))
 
 
-def _merged(streams):
-    """``(topic, stamp_ns, msg)`` of a block's streams in stamp order (node order within)."""
-    rows = []
-    for order, topic, stamps, items in streams:
-        rows += [(ns, order, i, topic, m) for i, (ns, m) in enumerate(zip(stamps, items))]
-    rows.sort(key=lambda r: (r[0], r[1], r[2]))
-    return rows
+def _order(streams):
+    """Merge order of a block's messages: ``(stream index, row)`` pairs by stamp, then rank."""
+    if not streams:
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+    which = np.concatenate([np.full(len(st), i) for i, (_, _, st, _) in enumerate(streams)])
+    row = np.concatenate([np.arange(len(st)) for _, _, st, _ in streams])
+    stamp = np.concatenate([st for _, _, st, _ in streams])
+    rank = np.concatenate([np.full(len(st), o) for o, _, st, _ in streams])
+    order = np.lexsort((row, rank, stamp))
+    return which[order], row[order]
+
+
+def _messages(run, order, topic, stamps, data):
+    """The ROS messages of one stream, built by :mod:`rigidrot_ros.io.messages`."""
+    frame, body = run.frame, run.body
+    st = [msgs.stamp(int(ns)) for ns in stamps]
+    if topic == RUN_TOPIC:
+        from std_msgs.msg import String
+        return [String(data=json.dumps(run.description()))]
+    if topic in ('/attitude',):
+        return [msgs.attitude(s, frame, q) for s, q in zip(st, data['q'].tolist())]
+    if topic in ('/angular_velocity', '/delta_angle', '/delta_rotation'):
+        return [msgs.vector(s, body, v) for s, v in zip(st, data['v'].tolist())]
+    if topic == '/transform':
+        return [msgs.transform(s, frame, body, q) for s, q in zip(st, data['q'].tolist())]
+    if topic == '/odom':
+        return [msgs.odometry(s, frame, body, q, w, attitude_variance=av, rate_variance=rv)
+                for s, q, w, av, rv in zip(st, data['q'].tolist(), data['w'].tolist(),
+                                           data['av'].tolist(), data['rv'].tolist())]
+    if topic == '/markers':
+        inertia = run.sol.scene.inertia
+        return [msgs.body_markers(s, frame, q, inertia) for s, q in zip(st, data['q'].tolist())]
+    if topic == '/imu':
+        return [msgs.imu(s, body, w, v) for s, w, v in zip(st, data['w'], data['var'].tolist())]
+    if topic == '/star_tracker':
+        return [msgs.star_tracker(s, frame, q, c) for s, q, c in zip(st, data['q'], data['cov'])]
+    raise AssertionError(topic)
+
+
+def _serialized(run, order, topic, stamps, data):
+    """The CDR bytes of one stream (:mod:`rigidrot_ros.io.cdr`), a list of ``bytes``."""
+    frame, body = run.frame, run.body
+    if topic == '/attitude':
+        return cdr.attitude(stamps, data['q'], frame).tolist()
+    if topic in ('/angular_velocity', '/delta_angle', '/delta_rotation'):
+        return cdr.vector(stamps, data['v'], body).tolist()
+    if topic == '/transform':
+        return cdr.transform(stamps, data['q'], frame, body).tolist()
+    if topic == '/odom':
+        return cdr.odometry(stamps, data['q'], data['w'], data['av'], data['rv'], frame,
+                            body).tolist()
+    if topic == '/imu':
+        return cdr.imu(stamps, data['w'], data['var'], body).tolist()
+    if topic == '/star_tracker':
+        return cdr.star_tracker(stamps, data['q'], data['cov'], frame).tolist()
+    from rclpy.serialization import serialize_message     # ~/run, markers: not fixed-size
+    return [serialize_message(m) for m in _messages(run, order, topic, stamps, data)]
 
 
 def iter_run(values, duration_s, start_ns=0):
@@ -371,8 +413,9 @@ def iter_run(values, duration_s, start_ns=0):
 
 def _iter(run):
     for _, _, streams in run.blocks():
-        for ns, _, _, topic, msg in _merged(streams):
-            yield topic, ns, msg
+        built = [_messages(run, *st) for st in streams]
+        for i, j in zip(*_order(streams)):
+            yield streams[i][1], int(streams[i][2][j]), built[i][j]
 
 
 def _qos_yamls(p):
@@ -391,8 +434,6 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
     A KeyboardInterrupt finishes the bag (summary, index, metadata.yaml) with what was
     written so far, then propagates.
     """
-    from rclpy.serialization import serialize_message
-
     from rigidrot_ros.io.bag import BagWriter
     run = _Run(values, duration_s, start_ns)
     qos, run_qos = _qos_yamls(run.p)
@@ -413,10 +454,12 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String', run_qos)
         total = run.span_ns * 1e-9 * run.time_scale
         for lo, hi, streams in run.blocks():
-            for ns, _, _, topic, msg in _merged(streams):
+            raws = [_serialized(run, *st) for st in streams]
+            for i, j in zip(*_order(streams)):
+                topic = streams[i][1]
                 if topic == RUN_TOPIC:          # as the node's recorder: a metadata record
-                    writer.add_run(json.loads(msg.data))
-                writer.write(topic, serialize_message(msg), ns)
+                    writer.add_run(run.description())
+                writer.write(topic, raws[i][j], int(streams[i][2][j]))
             if progress is not None:
                 progress(hi * 1e-9 * run.time_scale, total)
             if stop:
