@@ -11,8 +11,9 @@ as they were in its buffer; every value byte is the same, see ``test/test_cdr.py
 
 API
 ---
-- :func:`serialize_batch` ``(kind, stamps_ns, values, frame_id, child_frame_id=None)``:
-  ``values`` is ``(n, KINDS[kind].doubles)`` float64 in field order; returns a
+- :func:`serialize_batch`
+  ``(kind, stamps_ns, values, frame_id, child_frame_id=None)``: ``values`` is
+  ``(n, KINDS[kind].doubles)`` float64 in field order; returns a
   :class:`Batch` (one contiguous buffer, ``len()``, indexing and iteration give
   ``bytes`` per message, ``tolist()``).
 - Builders with the semantics of :mod:`rigidrot_ros.io.messages` (same values, field for
@@ -24,8 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ['serialize_batch', 'type_name_of', 'Batch', 'Layout', 'KINDS', 'attitude', 'vector', 'imu',
-           'star_tracker', 'transform', 'odometry', 'ENCAPSULATION']
+__all__ = ['serialize_batch', 'type_name_of', 'Batch', 'Layout', 'KINDS', 'attitude',
+           'vector', 'imu', 'star_tracker', 'transform', 'odometry', 'ENCAPSULATION']
 
 #: XCDR1 little-endian encapsulation header (CDR_LE, options 0).
 ENCAPSULATION = b'\x00\x01\x00\x00'

@@ -127,7 +127,7 @@ def prepare_run(values):
 
 # -- the run -----------------------------------------------------------------------------------
 def _grid_count(rate, span_ns, first=0):
-    """Indices k >= first of the grid ``round(k * 1e9 / rate)`` below ``span_ns``: a range."""
+    """Return the range of indices k >= first with ``round(k * 1e9 / rate) < span_ns``."""
     k = max(first, math.floor(span_ns * rate * 1e-9) - 1)
     while round(k * 1e9 / rate) < span_ns:
         k += 1
@@ -204,7 +204,7 @@ class _Run:
         return out
 
     def description(self):
-        """The run description the node publishes on ``~/run`` (a dict)."""
+        """Return the run description the node publishes on ``~/run`` (a dict)."""
         from rigidrot_ros import __version__
         sol = self.sol
         topics = {'/parameter_events': 'rcl_interfaces/msg/ParameterEvent'}
@@ -220,7 +220,7 @@ class _Run:
 
     # -- truth -----------------------------------------------------------------------------
     def _truth_samples(self, ks):
-        """Samples ``(q, omega, bound)`` (plain floats) of the truth ticks ``ks``, in order.
+        """Return the samples ``(q, omega, bound)`` (floats) of the truth ticks ``ks``, in order.
 
         Evaluated as the node's look-ahead does when it keeps within its budget: tick 0
         alone (a scalar call), then batches from tick 1 doubling from 8 to 256 samples.
@@ -249,7 +249,7 @@ class _Run:
 
     # -- one block ---------------------------------------------------------------------------
     def block(self, lo_ns, hi_ns):
-        """The samples with stamps in ``[lo_ns, hi_ns)`` (relative to start), as arrays.
+        """Return the samples with stamps in ``[lo_ns, hi_ns)`` (relative to start), as arrays.
 
         A list of streams ``(order, topic, stamps_ns, data)``: ``order`` ranks the streams
         of one stamp as the node publishes them; ``data`` a dict of float arrays (one row
@@ -323,7 +323,7 @@ class _Run:
 
 
 def _sub(krange, rate, lo_ns, hi_ns):
-    """The indices of ``krange`` whose grid offsets lie in ``[lo_ns, hi_ns)``."""
+    """Return the indices of ``krange`` whose grid offsets lie in ``[lo_ns, hi_ns)``."""
     a = _grid_count(rate, lo_ns, first=krange.start).stop if lo_ns > 0 else krange.start
     b = _grid_count(rate, hi_ns, first=krange.start).stop
     return range(max(a, krange.start), min(b, krange.stop))
@@ -342,7 +342,7 @@ def _order(streams):
 
 
 def _messages(run, order, topic, stamps, data):
-    """The ROS messages of one stream, built by :mod:`rigidrot_ros.io.messages`."""
+    """Build the ROS messages of one stream, built by :mod:`rigidrot_ros.io.messages`."""
     frame, body = run.frame, run.body
     st = [msgs.stamp(int(ns)) for ns in stamps]
     if topic == RUN_TOPIC:
@@ -369,7 +369,7 @@ def _messages(run, order, topic, stamps, data):
 
 
 def _serialized(run, order, topic, stamps, data):
-    """The CDR bytes of one stream (:mod:`rigidrot_ros.io.cdr`), a list of ``bytes``."""
+    """Serialize one stream (:mod:`rigidrot_ros.io.cdr`), a list of ``bytes``."""
     frame, body = run.frame, run.body
     if topic == '/attitude':
         return cdr.attitude(stamps, data['q'], frame).tolist()

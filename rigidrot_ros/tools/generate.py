@@ -29,7 +29,7 @@ def _parser():
     ap.add_argument('-p', dest='overrides', action='append', default=[],
                     metavar='NAME:=VALUE', help='a parameter override (repeatable)')
     ap.add_argument('--start-ns', type=int, default=0,
-                    help='clock stamp (ns) of scene time 0, the node\'s t_start (default 0)')
+                    help="clock stamp (ns) of scene time 0, the node's t_start (default 0)")
     ap.add_argument('--quiet', action='store_true', help='no progress on stderr')
     return ap
 
