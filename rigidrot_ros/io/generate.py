@@ -30,6 +30,8 @@ import yaml
 
 from rigidrot_ros.io import cdr
 from rigidrot_ros.io import messages as msgs
+from rigidrot_ros.node import grid
+from rigidrot_ros.node.streams import scene_time as _scene_time
 
 __all__ = ['iter_run', 'generate_bag', 'load_values', 'prepare_run', 'parse_override',
            'GenerationError', 'NODE_NAME', 'RUN_TOPIC']
@@ -65,7 +67,7 @@ def parse_override(text):
 
 
 def load_values(params_file=None, overrides=()):
-    """Return the node's defaults, merged with a params file and ``(name, value)`` overrides.
+    """Return the overrides of a params file, then of ``(name, value)`` pairs, as a dict.
 
     Raises
     ------
@@ -73,7 +75,7 @@ def load_values(params_file=None, overrides=()):
         A missing or malformed params file.
     """
     from rigidrot_ros.settings import load_defaults
-    values = load_defaults()
+    values = {}
     if params_file is not None:
         try:
             values.update(load_defaults(params_file))
@@ -84,45 +86,33 @@ def load_values(params_file=None, overrides=()):
     return values
 
 
-def _node():
-    from rigidrot_ros.node import attitude_node
-    return attitude_node
-
-
 def prepare_run(values):
-    """Validate ``values`` (overrides merged over the defaults) as the node does.
+    """Validate ``values`` (overrides by name) as the node does: a ``RunSetup``.
 
-    Returns ``(params, solution, sensor_settings)``; raises :class:`GenerationError` with
-    the node's own one-line reason otherwise. The node's start-up trial (its first ticks
-    and sensor samples) runs too, so a scene the node refuses is refused here, and the
-    solution has evaluated what the node's has before its first tick.
+    The overrides are merged over the parameter table's defaults and set up by
+    :func:`rigidrot_ros.settings.prepare_run`, the node's own function (each value by its
+    table entry, the scene solved, the sensors checked, the first samples tried), so a
+    scene the node refuses is refused here with the same reason, and the solution has
+    evaluated what the node's has before its first tick. A name the node does not
+    declare is refused (the node warns and ignores it; offline, a typo would silently
+    change the run). Raises :class:`GenerationError` (one line).
     """
-    from rigidrot_ros.settings import load_defaults, sensor_settings
-    node = _node()
-    p = load_defaults()
-    known = set(node._DESCRIPTIONS)
-    unknown = sorted(n for n in values if n not in known)
+    from rigidrot_ros import params, settings
+    unknown = sorted(n for n in values if n not in params.BY_NAME)
     if unknown:
-        close = difflib.get_close_matches(unknown[0], sorted(known), n=1)
+        close = difflib.get_close_matches(unknown[0], sorted(params.BY_NAME), n=1)
         hint = f' (did you mean {close[0]}?)' if close else ''
         raise GenerationError(f'unknown parameter(s) {", ".join(unknown)}{hint}: '
                               'attitude_node declares no such parameter')
+    p = params.defaults()
     p.update(values)
-    for name, rng in node._RANGES.items():      # what rclpy checks at declaration
-        v = p[name]
-        if isinstance(v, float) and not rng.from_value <= v <= rng.to_value:
-            raise GenerationError(f'parameter {name}: value {v!r} is outside the range '
-                                  f'[{rng.from_value:g}, {rng.to_value:g}]')
     try:
-        sol = node.build_solution(p)
-        cfg = sensor_settings(p)
-        trial = node._trial(sol, p, cfg)
-        if trial is not None:
-            summary = ', '.join(f'{k} {p[k]!r}' for k in ('inertia', 'torque', 'omega0'))
-            raise ValueError(f'scene {summary}: {trial}')
+        return settings.prepare_run(p)
+    except settings.TrialError as exc:
+        summary = ', '.join(f'{k} {p[k]!r}' for k in ('inertia', 'torque', 'omega0'))
+        raise GenerationError(' '.join(f'scene {summary}: {exc}'.split())) from None
     except ValueError as exc:
         raise GenerationError(' '.join(str(exc).split())) from None
-    return p, sol, cfg
 
 
 # -- the run -----------------------------------------------------------------------------------
@@ -137,7 +127,7 @@ def _grid_count(rate, span_ns, first=0):
 
 
 def _stamps(start_ns, rate, ks):
-    return [start_ns + round(k * 1e9 / rate) for k in ks]
+    return [grid.stamp_ns(start_ns, rate, k) for k in ks]
 
 
 class _Run:
@@ -152,10 +142,10 @@ class _Run:
                 not 0 <= start_ns < 2 ** 63:
             raise GenerationError(f'--start-ns must be an integer in [0, 2^63), '
                                   f'got {start_ns!r}')
-        from rigidrot_ros.sensors import Gyro, StarTracker
-        self.p, self.sol, self.cfg = prepare_run(values)
-        p, cfg = self.p, self.cfg
-        self.time_scale = float(p['time_scale'])
+        self.setup = setup = prepare_run(values)
+        self.p, self.sol, self.cfg = setup.values, setup.solution, setup.sensors
+        cfg = self.cfg
+        self.time_scale = float(setup.time_scale)
         if self.time_scale <= 0:
             raise GenerationError('parameter time_scale = 0 freezes the scene: a duration in '
                                   'scene seconds needs time_scale > 0')
@@ -164,15 +154,13 @@ class _Run:
             raise GenerationError(f'--duration {duration_s!r} s at time_scale '
                                   f'{self.time_scale:g} leaves the int64 nanosecond clock')
         self.start_ns = int(start_ns)
-        self.frame, self.body = p['frame_id'], p['body_frame_id']
-        self.rate = float(p['publish_rate'])
+        self.frame, self.body = setup.frames
+        self.rate = float(setup.publish_rate)
         self.truth_k = _grid_count(self.rate, self.span_ns)
-        self.gyro = self.star = None
+        self.gyro, self.star = setup.gyro, setup.star_tracker
         if cfg.imu:
-            self.gyro = Gyro(self.sol, cfg.gyro)
             self.imu_k = _grid_count(cfg.imu_rate, self.span_ns, first=1)
         if cfg.star_tracker:
-            self.star = StarTracker(self.sol, cfg.attitude_noise)
             self.star_k = _grid_count(cfg.star_tracker_rate, self.span_ns)
         self._ahead_next = 0            # the next truth index to evaluate
         self._ahead_size = _AHEAD[0]
@@ -180,8 +168,8 @@ class _Run:
 
     # -- time ------------------------------------------------------------------------------
     def scene_time(self, ns):
-        """Scene time (s) of clock stamp ``ns``, as the node computes it."""
-        return (ns - self.start_ns) * 1e-9 * self.time_scale
+        """Return the scene time (s) of clock stamp ``ns``, by the node's own function."""
+        return _scene_time(ns, self.start_ns, self.time_scale)
 
     @property
     def topics(self):
@@ -205,18 +193,12 @@ class _Run:
 
     def description(self):
         """Return the run description the node publishes on ``~/run`` (a dict)."""
-        from rigidrot_ros import __version__
-        sol = self.sol
+        from rigidrot_ros.node.outputs import run_description
         topics = {'/parameter_events': 'rcl_interfaces/msg/ParameterEvent'}
         topics.update(self.topics)
         topics['/diagnostics'] = 'diagnostic_msgs/msg/DiagnosticArray'
         topics[RUN_TOPIC] = 'std_msgs/msg/String'
-        return {
-            'rigidrot_run': 1, 'run': 1, 'start_ns': self.start_ns,
-            'time_scale': self.time_scale, 'scene': sol.scene.as_dict(), 'tol': sol.tol,
-            'backend': sol.backend, 'model': sol.model, 'method': sol.method,
-            'package': f'rigidrot_ros {__version__}', 'node': NODE_NAME, 'topics': topics,
-        }
+        return run_description(self.setup, self.start_ns, 1, NODE_NAME, topics)
 
     # -- truth -----------------------------------------------------------------------------
     def _truth_samples(self, ks):
@@ -235,7 +217,7 @@ class _Run:
             if self._buf is None or k >= self._ahead_next:
                 n = self._ahead_size
                 start = max(self._ahead_next, k)
-                ts = np.array([self.scene_time(self.start_ns + round(j * 1e9 / self.rate))
+                ts = np.array([self.scene_time(grid.stamp_ns(self.start_ns, self.rate, j))
                                for j in range(start, start + n)])
                 s = self.sol.at(ts)
                 self._buf = (start, s.quaternion.tolist(), s.omega.tolist(),
