@@ -1,0 +1,455 @@
+"""Offline generation: the bag ``attitude_node`` would record, without ROS running.
+
+The node's sampling, reproduced on the scene's own grids (no clock, no timers):
+
+- the truth tick k is stamped ``start_ns + round(k * 1e9 / publish_rate)`` and holds the
+  scene at ``t = (stamp - start_ns) * 1e-9 * time_scale``: ``attitude``,
+  ``angular_velocity`` and, where enabled, ``transform``, ``odom``, ``markers``;
+- the gyro sample k >= 1 is stamped ``start_ns + round(k * 1e9 / imu.rate)`` and covers the
+  interval from sample k - 1 to sample k: ``imu``, ``delta_angle``, ``delta_rotation``;
+- the star tracker sample k >= 0 is stamped ``start_ns + round(k * 1e9 / rate)``;
+- ``~/run`` (``/attitude_node/run``) carries the run description with the first tick, and
+  the bag holds it as a ``rigidrot_run`` metadata record too, as the node's recorder writes.
+
+Every message of the run has a stamp in ``[start_ns, start_ns + duration_s / time_scale)``
+(``duration_s`` in scene seconds). Parameters are validated by the node's own code
+(:mod:`rigidrot_ros.settings` and the node's scene checks). Messages are built by
+:mod:`rigidrot_ros.io.messages`; :func:`generate_bag` serializes them with the vectorised
+CDR writer :mod:`rigidrot_ros.io.cdr` a block at a time and streams them to the bag, so
+memory stays bounded whatever the duration.
+"""
+
+import difflib
+import json
+import math
+import signal
+import threading
+
+import numpy as np
+import yaml
+
+from rigidrot_ros.io import cdr
+from rigidrot_ros.io import messages as msgs
+from rigidrot_ros.node import grid
+from rigidrot_ros.node.streams import scene_time as _scene_time
+
+__all__ = ['iter_run', 'generate_bag', 'load_values', 'prepare_run', 'parse_override',
+           'GenerationError', 'NODE_NAME', 'RUN_TOPIC']
+
+#: The node whose recording is reproduced (its fully qualified name).
+NODE_NAME = '/attitude_node'
+#: Where the node publishes its run description.
+RUN_TOPIC = NODE_NAME + '/run'
+#: Clock seconds of samples handled together (evaluated, serialized, written).
+BLOCK_S = 1.0
+#: The node's look-ahead batches (tick 0 alone, then doubling up to its ceiling).
+_AHEAD = (8, 256)
+_SEC = 1_000_000_000
+_EPS = float(np.finfo(float).eps)
+
+
+class GenerationError(ValueError):
+    """Invalid parameters or arguments: the message is one line naming the problem."""
+
+
+# -- parameters ------------------------------------------------------------------------------
+def parse_override(text):
+    """Return ``(name, value)`` of ``name:=value``; the value is read as YAML, as ROS does."""
+    name, sep, raw = str(text).partition(':=')
+    if not sep or not name:
+        raise GenerationError(f'-p expects name:=value, got {text!r}')
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ''
+    except yaml.YAMLError as exc:
+        raise GenerationError(f'-p {name}: cannot read {raw!r} as a value '
+                              f'({" ".join(str(exc).split())})') from None
+    return name, value
+
+
+def load_values(params_file=None, overrides=()):
+    """Return the overrides of a params file, then of ``(name, value)`` pairs, as a dict.
+
+    Raises
+    ------
+    GenerationError
+        A missing or malformed params file.
+    """
+    from rigidrot_ros.settings import load_defaults
+    values = {}
+    if params_file is not None:
+        try:
+            values.update(load_defaults(params_file))
+        except (OSError, ValueError, yaml.YAMLError) as exc:
+            raise GenerationError(f'--params-file {params_file}: '
+                                  f'{" ".join(str(exc).split())}') from None
+    values.update(dict(overrides))
+    return values
+
+
+def prepare_run(values):
+    """Validate ``values`` (overrides by name) as the node does: a ``RunSetup``.
+
+    The overrides are merged over the parameter table's defaults and set up by
+    :func:`rigidrot_ros.settings.prepare_run`, the node's own function (each value by its
+    table entry, the scene solved, the sensors checked, the first samples tried), so a
+    scene the node refuses is refused here with the same reason, and the solution has
+    evaluated what the node's has before its first tick. A name the node does not
+    declare is refused (the node warns and ignores it; offline, a typo would silently
+    change the run). Raises :class:`GenerationError` (one line).
+    """
+    from rigidrot_ros import params, settings
+    unknown = sorted(n for n in values if n not in params.BY_NAME)
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], sorted(params.BY_NAME), n=1)
+        hint = f' (did you mean {close[0]}?)' if close else ''
+        raise GenerationError(f'unknown parameter(s) {", ".join(unknown)}{hint}: '
+                              'attitude_node declares no such parameter')
+    p = params.defaults()
+    p.update(values)
+    try:
+        return settings.prepare_run(p)
+    except settings.TrialError as exc:
+        summary = ', '.join(f'{k} {p[k]!r}' for k in ('inertia', 'torque', 'omega0'))
+        raise GenerationError(' '.join(f'scene {summary}: {exc}'.split())) from None
+    except ValueError as exc:
+        raise GenerationError(' '.join(str(exc).split())) from None
+
+
+# -- the run -----------------------------------------------------------------------------------
+def _grid_count(rate, span_ns, first=0):
+    """Return the range of indices k >= first with ``round(k * 1e9 / rate) < span_ns``."""
+    k = max(first, math.floor(span_ns * rate * 1e-9) - 1)
+    while round(k * 1e9 / rate) < span_ns:
+        k += 1
+    while k > first and round((k - 1) * 1e9 / rate) >= span_ns:
+        k -= 1
+    return range(first, k)
+
+
+def _stamps(start_ns, rate, ks):
+    return [grid.stamp_ns(start_ns, rate, k) for k in ks]
+
+
+class _Run:
+    """The streams of one run, sampled a block of clock time at a time."""
+
+    def __init__(self, values, duration_s, start_ns):
+        if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)) or \
+                not math.isfinite(duration_s) or duration_s <= 0:
+            raise GenerationError(f'--duration must be a positive number of scene seconds, '
+                                  f'got {duration_s!r}')
+        if isinstance(start_ns, bool) or not isinstance(start_ns, int) or \
+                not 0 <= start_ns < 2 ** 63:
+            raise GenerationError(f'--start-ns must be an integer in [0, 2^63), '
+                                  f'got {start_ns!r}')
+        self.setup = setup = prepare_run(values)
+        self.p, self.sol, self.cfg = setup.values, setup.solution, setup.sensors
+        cfg = self.cfg
+        self.time_scale = float(setup.time_scale)
+        if self.time_scale <= 0:
+            raise GenerationError('parameter time_scale = 0 freezes the scene: a duration in '
+                                  'scene seconds needs time_scale > 0')
+        self.span_ns = round(duration_s / self.time_scale * 1e9)
+        if not 0 < self.span_ns < 2 ** 63 - start_ns:
+            raise GenerationError(f'--duration {duration_s!r} s at time_scale '
+                                  f'{self.time_scale:g} leaves the int64 nanosecond clock')
+        self.start_ns = int(start_ns)
+        self.frame, self.body = setup.frames
+        self.rate = float(setup.publish_rate)
+        self.truth_k = _grid_count(self.rate, self.span_ns)
+        self.gyro, self.star = setup.gyro, setup.star_tracker
+        if cfg.imu:
+            self.imu_k = _grid_count(cfg.imu_rate, self.span_ns, first=1)
+        if cfg.star_tracker:
+            self.star_k = _grid_count(cfg.star_tracker_rate, self.span_ns)
+        self._ahead_next = 0            # the next truth index to evaluate
+        self._ahead_size = _AHEAD[0]
+        self._buf = None
+
+    # -- time ------------------------------------------------------------------------------
+    def scene_time(self, ns):
+        """Return the scene time (s) of clock stamp ``ns``, by the node's own function."""
+        return _scene_time(ns, self.start_ns, self.time_scale)
+
+    @property
+    def topics(self):
+        """``[(topic, pkg/msg/Type), ...]`` in the node's publisher order."""
+        cfg = self.cfg
+        out = [('/attitude', 'geometry_msgs/msg/QuaternionStamped'),
+               ('/angular_velocity', 'geometry_msgs/msg/Vector3Stamped')]
+        if cfg.transform:
+            out.append(('/transform', 'geometry_msgs/msg/TransformStamped'))
+        if cfg.odom:
+            out.append(('/odom', 'nav_msgs/msg/Odometry'))
+        if cfg.markers:
+            out.append(('/markers', 'visualization_msgs/msg/MarkerArray'))
+        if cfg.imu:
+            out += [('/imu', 'sensor_msgs/msg/Imu'),
+                    ('/delta_angle', 'geometry_msgs/msg/Vector3Stamped'),
+                    ('/delta_rotation', 'geometry_msgs/msg/Vector3Stamped')]
+        if cfg.star_tracker:
+            out.append(('/star_tracker', 'geometry_msgs/msg/PoseWithCovarianceStamped'))
+        return out
+
+    def description(self):
+        """Return the run description the node publishes on ``~/run`` (a dict)."""
+        from rigidrot_ros.node.outputs import run_description
+        topics = {'/parameter_events': 'rcl_interfaces/msg/ParameterEvent'}
+        topics.update(self.topics)
+        topics['/diagnostics'] = 'diagnostic_msgs/msg/DiagnosticArray'
+        topics[RUN_TOPIC] = 'std_msgs/msg/String'
+        return run_description(self.setup, self.start_ns, 1, NODE_NAME, topics)
+
+    # -- truth -----------------------------------------------------------------------------
+    def _truth_samples(self, ks):
+        """Return the samples ``(q, omega, bound)`` (floats) of the truth ticks ``ks``, in order.
+
+        Evaluated as the node's look-ahead does when it keeps within its budget: tick 0
+        alone (a scalar call), then batches from tick 1 doubling from 8 to 256 samples.
+        """
+        out = []
+        for k in ks:
+            if k == 0:
+                s = self.sol.at(self.scene_time(self.start_ns))
+                out.append((s.quaternion.tolist(), s.omega.tolist(), float(s.error_bound)))
+                self._ahead_next = 1
+                continue
+            if self._buf is None or k >= self._ahead_next:
+                n = self._ahead_size
+                start = max(self._ahead_next, k)
+                ts = np.array([self.scene_time(grid.stamp_ns(self.start_ns, self.rate, j))
+                               for j in range(start, start + n)])
+                s = self.sol.at(ts)
+                self._buf = (start, s.quaternion.tolist(), s.omega.tolist(),
+                             s.error_bound.tolist())
+                self._ahead_next = start + n
+                self._ahead_size = min(_AHEAD[1], 2 * n)
+            start, q, w, e = self._buf
+            i = k - start
+            out.append((q[i], w[i], e[i]))
+        return out
+
+    # -- one block ---------------------------------------------------------------------------
+    def block(self, lo_ns, hi_ns):
+        """Return the samples with stamps in ``[lo_ns, hi_ns)`` (relative to start), as arrays.
+
+        A list of streams ``(order, topic, stamps_ns, data)``: ``order`` ranks the streams
+        of one stamp as the node publishes them; ``data`` a dict of float arrays (one row
+        a sample) that :func:`_messages` and :func:`_serialized` turn into messages.
+        """
+        streams = []
+        rate, cfg = self.rate, self.cfg
+        ks = _sub(self.truth_k, rate, lo_ns, hi_ns)
+        if len(ks):
+            stamps = np.array(_stamps(self.start_ns, rate, ks), dtype=np.int64)
+            q, w, e = (np.array(c, dtype=float) for c in zip(*self._truth_samples(ks)))
+            streams += [(0, '/attitude', stamps, {'q': q}),
+                        (1, '/angular_velocity', stamps, {'v': w})]
+            if cfg.transform:
+                streams.append((2, '/transform', stamps, {'q': q}))
+            if cfg.odom:
+                rate_sd = 32.0 * _EPS * np.array([float(np.linalg.norm(x)) for x in w])
+                streams.append((3, '/odom', stamps, {'q': q, 'w': w, 'av': e ** 2,
+                                                     'rv': rate_sd ** 2}))
+            if cfg.markers:
+                streams.append((4, '/markers', stamps, {'q': q}))
+            if ks[0] == 0:      # ~/run goes out with the first tick, after its truth
+                streams.append((5, RUN_TOPIC, stamps[:1], {}))
+        if self.gyro is not None:
+            streams += self._gyro_block(lo_ns, hi_ns)
+        if self.star is not None:
+            streams += self._star_block(lo_ns, hi_ns)
+        return streams
+
+    def _gyro_block(self, lo_ns, hi_ns):
+        rate = self.cfg.imu_rate
+        ks = _sub(self.imu_k, rate, lo_ns, hi_ns)
+        if not len(ks):
+            return []
+        ns = np.array(_stamps(self.start_ns, rate, range(ks.start - 1, ks.stop)),
+                      dtype=np.int64)
+        t = [self.scene_time(int(x)) for x in ns]
+        n = len(ks)
+        omega, da, dr = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        var = np.empty(n)
+        read = self.gyro.read
+        for i in range(n):
+            r = read(t[i], t[i + 1])
+            omega[i], da[i], dr[i], var[i] = r.omega, r.delta_angle, r.delta_rotation, \
+                r.variance
+        stamps = ns[1:]
+        return [(6, '/imu', stamps, {'w': omega, 'var': var}),
+                (7, '/delta_angle', stamps, {'v': da}),
+                (8, '/delta_rotation', stamps, {'v': dr})]
+
+    def _star_block(self, lo_ns, hi_ns):
+        rate = self.cfg.star_tracker_rate
+        ks = _sub(self.star_k, rate, lo_ns, hi_ns)
+        if not len(ks):
+            return []
+        stamps = np.array(_stamps(self.start_ns, rate, ks), dtype=np.int64)
+        q, cov = np.empty((len(ks), 4)), np.empty((len(ks), 3, 3))
+        for i, ns in enumerate(stamps):
+            r = self.star.read(self.scene_time(int(ns)))
+            q[i], cov[i] = r.quaternion, r.covariance
+        return [(9, '/star_tracker', stamps, {'q': q, 'cov': cov})]
+
+    def blocks(self):
+        """Yield ``(lo_ns, hi_ns, streams)`` over the run, :data:`BLOCK_S` of clock each."""
+        step = round(BLOCK_S * _SEC)
+        lo = 0
+        while lo < self.span_ns:
+            hi = min(self.span_ns, lo + step)
+            yield lo, hi, self.block(lo, hi)
+            lo = hi
+
+
+def _sub(krange, rate, lo_ns, hi_ns):
+    """Return the indices of ``krange`` whose grid offsets lie in ``[lo_ns, hi_ns)``."""
+    a = _grid_count(rate, lo_ns, first=krange.start).stop if lo_ns > 0 else krange.start
+    b = _grid_count(rate, hi_ns, first=krange.start).stop
+    return range(max(a, krange.start), min(b, krange.stop))
+
+
+def _order(streams):
+    """Merge order of a block's messages: ``(stream index, row)`` pairs by stamp, then rank."""
+    if not streams:
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+    which = np.concatenate([np.full(len(st), i) for i, (_, _, st, _) in enumerate(streams)])
+    row = np.concatenate([np.arange(len(st)) for _, _, st, _ in streams])
+    stamp = np.concatenate([st for _, _, st, _ in streams])
+    rank = np.concatenate([np.full(len(st), o) for o, _, st, _ in streams])
+    order = np.lexsort((row, rank, stamp))
+    return which[order], row[order]
+
+
+def _messages(run, order, topic, stamps, data):
+    """Build the ROS messages of one stream, built by :mod:`rigidrot_ros.io.messages`."""
+    frame, body = run.frame, run.body
+    st = [msgs.stamp(int(ns)) for ns in stamps]
+    if topic == RUN_TOPIC:
+        from std_msgs.msg import String
+        return [String(data=json.dumps(run.description()))]
+    if topic in ('/attitude',):
+        return [msgs.attitude(s, frame, q) for s, q in zip(st, data['q'].tolist())]
+    if topic in ('/angular_velocity', '/delta_angle', '/delta_rotation'):
+        return [msgs.vector(s, body, v) for s, v in zip(st, data['v'].tolist())]
+    if topic == '/transform':
+        return [msgs.transform(s, frame, body, q) for s, q in zip(st, data['q'].tolist())]
+    if topic == '/odom':
+        return [msgs.odometry(s, frame, body, q, w, attitude_variance=av, rate_variance=rv)
+                for s, q, w, av, rv in zip(st, data['q'].tolist(), data['w'].tolist(),
+                                           data['av'].tolist(), data['rv'].tolist())]
+    if topic == '/markers':
+        inertia = run.sol.scene.inertia
+        return [msgs.body_markers(s, frame, q, inertia) for s, q in zip(st, data['q'].tolist())]
+    if topic == '/imu':
+        return [msgs.imu(s, body, w, v) for s, w, v in zip(st, data['w'], data['var'].tolist())]
+    if topic == '/star_tracker':
+        return [msgs.star_tracker(s, frame, q, c) for s, q, c in zip(st, data['q'], data['cov'])]
+    raise AssertionError(topic)
+
+
+def _serialized(run, order, topic, stamps, data):
+    """Serialize one stream (:mod:`rigidrot_ros.io.cdr`), a list of ``bytes``."""
+    frame, body = run.frame, run.body
+    if topic == '/attitude':
+        return cdr.attitude(stamps, data['q'], frame).tolist()
+    if topic in ('/angular_velocity', '/delta_angle', '/delta_rotation'):
+        return cdr.vector(stamps, data['v'], body).tolist()
+    if topic == '/transform':
+        return cdr.transform(stamps, data['q'], frame, body).tolist()
+    if topic == '/odom':
+        return cdr.odometry(stamps, data['q'], data['w'], data['av'], data['rv'], frame,
+                            body).tolist()
+    if topic == '/imu':
+        return cdr.imu(stamps, data['w'], data['var'], body).tolist()
+    if topic == '/star_tracker':
+        return cdr.star_tracker(stamps, data['q'], data['cov'], frame).tolist()
+    from rclpy.serialization import serialize_message     # ~/run, markers: not fixed-size
+    return [serialize_message(m) for m in _messages(run, order, topic, stamps, data)]
+
+
+def iter_run(values, duration_s, start_ns=0):
+    """Yield ``(topic, stamp_ns, msg)`` of the run in stamp order, as the node publishes.
+
+    Parameters
+    ----------
+    values : dict
+        Parameter overrides by the node's dotted names (``-p name:=value``), merged over
+        the defaults and validated as the node validates them.
+    duration_s : float
+        Scene seconds to cover: every stamp lies in ``[start_ns, start_ns + duration_s /
+        time_scale)``.
+    start_ns : int
+        Clock stamp of scene time 0 (the node's ``t_start``, ``start_ns`` of its ``~/run``).
+
+    Raises
+    ------
+    GenerationError
+        Before the first message, for invalid parameters or arguments (one line).
+    """
+    run = _Run(values, duration_s, start_ns)
+    return _iter(run)
+
+
+def _iter(run):
+    for _, _, streams in run.blocks():
+        built = [_messages(run, *st) for st in streams]
+        for i, j in zip(*_order(streams)):
+            yield streams[i][1], int(streams[i][2][j]), built[i][j]
+
+
+def _qos_yamls(p):
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rigidrot_ros.io.recorder import qos_to_yaml
+    qos = QoSProfile(depth=int(p['qos_depth']), reliability=ReliabilityPolicy.RELIABLE)
+    run = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    return qos_to_yaml([qos]), qos_to_yaml([run])
+
+
+def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
+    """Write the run's bag to ``out_dir`` (created; must not exist or be empty); its path.
+
+    ``progress(done_s, total_s)`` (scene seconds), if given, is called after each block.
+    A KeyboardInterrupt finishes the bag (summary, index, metadata.yaml) with what was
+    written so far, then propagates.
+    """
+    from rigidrot_ros.io.bag import BagWriter
+    run = _Run(values, duration_s, start_ns)
+    qos, run_qos = _qos_yamls(run.p)
+    try:
+        writer = BagWriter(None, 'attitude_node', flush_period=0.5, path=out_dir,
+                           split_seconds=0.0)
+    except OSError as exc:
+        raise GenerationError(f'cannot write the bag to {out_dir}: '
+                              f'{" ".join(str(exc).split())}') from None
+    stop = []
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        # SIGINT between blocks, never inside a write: the bag is always finished whole
+        previous = signal.signal(signal.SIGINT, lambda *_: stop.append(True))
+    try:
+        for topic, type_name in run.topics:
+            writer.add_topic(topic, type_name, qos)
+        writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String', run_qos)
+        total = run.span_ns * 1e-9 * run.time_scale
+        for lo, hi, streams in run.blocks():
+            raws = [_serialized(run, *st) for st in streams]
+            for i, j in zip(*_order(streams)):
+                topic = streams[i][1]
+                if topic == RUN_TOPIC:          # as the node's recorder: a metadata record
+                    writer.add_run(run.description())
+                writer.write(topic, raws[i][j], int(streams[i][2][j]))
+            if progress is not None:
+                progress(hi * 1e-9 * run.time_scale, total)
+            if stop:
+                break
+    finally:
+        writer.close()
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    if stop:
+        raise KeyboardInterrupt
+    return writer.path
