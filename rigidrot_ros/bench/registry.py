@@ -41,6 +41,7 @@ PARTS = (
     'triaxial',
     'node_tick',
     'random_access',
+    'generate',
 )
 
 
