@@ -40,6 +40,7 @@ PARTS = (
     'soak',
     'triaxial',
     'node_tick',
+    'node_khz',
 )
 
 
