@@ -132,6 +132,7 @@ def run_rate(rate, seconds, log, domain, warmup=WARMUP_S, start_timeout=60.0):
         ``level``, ``message``, ``values``), ``bag`` (the figures of :func:`bag_figures`, or
         None), ``exit_code``, ``stderr_tail``.
     """
+    from rosbags.highlevel import AnyReaderError
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                ROS_DOMAIN_ID=str(domain))
     env.setdefault('FASTDDS_BUILTIN_TRANSPORTS', 'UDPv4')
@@ -186,6 +187,9 @@ def run_rate(rate, seconds, log, domain, warmup=WARMUP_S, start_timeout=60.0):
             bags = [os.path.join(tmp, d) for d in sorted(os.listdir(tmp))]
             if bags:
                 out['bag'] = bag_figures(bags[0], rate, warmup, seconds)
+        except (OSError, ValueError, AnyReaderError) as exc:
+            log(f'node_khz {rate:g} Hz: the bag does not read: {exc}')
+            out['stderr_tail'] += f'\nbag: {exc}'
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     return out
@@ -207,9 +211,11 @@ def bag_figures(bag, rate, warmup, seconds):
     The span is ``[t0 + warmup, t0 + warmup + seconds)``, ``t0`` the first ``/attitude``
     stamp, cut at the last stamp recorded (``measured_s`` says how much was covered).
     """
+    from pathlib import Path
+
     from rosbags.highlevel import AnyReader
     streams = {'/attitude': ([], []), '/imu': ([], [])}
-    with AnyReader([bag]) as reader:
+    with AnyReader([Path(bag)]) as reader:
         conns = [c for c in reader.connections if c.topic in streams]
         for conn, log_ns, raw in reader.messages(connections=conns):
             m = reader.deserialize(raw, conn.msgtype)
