@@ -57,37 +57,16 @@ WARMUP_S = 2.0
 _SENSOR_LATENCY = re.compile(r'^(?:latency_(\w+)_p99_us|(\w+)_latency_p99_us)$')
 
 
-def _positive(text):
-    import argparse
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a positive number, got {text!r}')
-    if not (value > 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f'must be a positive number, got {value}')
-    return value
-
-
 def add_arguments(ap):
     """Add ``--khz-seconds``, ``--khz-rate`` and ``--khz-domain`` to the parser ``ap``."""
-    ap.add_argument('--khz-seconds', type=_positive, metavar='S',
+    ap.add_argument('--khz-seconds', type=common.positive_number, metavar='S',
                     help='node_khz: measured seconds per rate after the 2 s warm-up '
                          '(default 60, 5 with --quick)')
-    ap.add_argument('--khz-rate', type=_positive, action='append', metavar='HZ',
+    ap.add_argument('--khz-rate', type=common.positive_number, action='append', metavar='HZ',
                     help='node_khz: a rate to measure (repeatable; default 1000 2000 4000)')
     ap.add_argument('--khz-domain', type=int, metavar='ID',
                     help='node_khz: ROS_DOMAIN_ID of the node and the diagnostics '
                          'subscriber (default: $ROS_DOMAIN_ID, else 0)')
-
-
-def _script(name):
-    path = os.path.join(os.path.dirname(sys.executable), name)
-    if os.path.exists(path):
-        return path
-    found = shutil.which(name)
-    if found is None:
-        raise FileNotFoundError(f'{name} is not installed (pip install -e . in this checkout)')
-    return found
 
 
 # -- the run ------------------------------------------------------------------------------
@@ -138,7 +117,7 @@ def run_rate(rate, seconds, log, domain, warmup=WARMUP_S, start_timeout=60.0):
     env.setdefault('FASTDDS_BUILTIN_TRANSPORTS', 'UDPv4')
     node_name = f'rigidrot_khz_{os.getpid()}_{int(rate)}'
     tmp = tempfile.mkdtemp(prefix='rigidrot_khz_')
-    cmd = [_script('attitude_node'), '--ros-args', '-r', f'__node:={node_name}',
+    cmd = [common.script('attitude_node'), '--ros-args', '-r', f'__node:={node_name}',
            '-p', 'imu.enable:=true', '-p', f'publish_rate:={float(rate)}',
            '-p', f'imu.rate:={float(rate)}', '-p', 'record:=true', '-p', f'record_path:={tmp}']
     diags = []
@@ -299,7 +278,8 @@ def diag_figures(diags, rate, warmup, seconds):
         off = next(((s, v) for s, v in ahead if not v or v.startswith('off')), None)
         out['lookahead'] = {'on_throughout': off is None, 'last': ahead[-1][1],
                             'off_after_s': None if off is None else (off[0] - t0) / 1e9,
-                            'off_reason': None if off is None else (off[1] or 'absent')}
+                            'off_reason': None if off is None else
+                            (off[1].removeprefix('off: ') or 'absent')}
     return out
 
 
@@ -397,7 +377,7 @@ def render_md(results):
     for r in res['rates']:
         b, d = r['bag'], r['diagnostics']
         rows.append([
-            f'{common.fmt(r["rate_hz"])}', _na(b.get('delivered_pct'), 4, ' %'),
+            f'{r["rate_hz"]:g}', _na(b.get('delivered_pct'), 4, ' %'),
             f'{b.get("ticks_missed", "n/a")} ({_na(d.get("ticks_missed"))})',
             f'{b.get("gyro_late", "n/a")} ({b.get("gyro_absent", "n/a")})',
             _na(b.get('gyro_log_delay_p99_us')), _w(d.get('tick_p99_us')),
