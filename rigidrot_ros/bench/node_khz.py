@@ -211,7 +211,7 @@ def bag_figures(bag, rate, warmup, seconds):
     hi = min(lo + int(round(seconds * 1e9)), int(att.max()) + period)
     asked, present = _slots(att, int(att.min()), rate, lo, hi) if hi > lo else (0, 0)
     out = {'attitude_messages': int(len(att)), 'imu_messages': int(len(imu)),
-           'measured_s': max(hi - lo, 0) / 1e9, 'ticks_asked': asked,
+           't0_ns': int(att.min()), 'measured_s': max(hi - lo, 0) / 1e9, 'ticks_asked': asked,
            'ticks_delivered': present, 'ticks_missed': asked - present,
            'delivered_pct': 100.0 * present / asked if asked else math.nan}
     sel = (imu >= lo) & (imu < hi)
@@ -239,13 +239,20 @@ def _windows(diags, key):
     return {'median': float(np.median(vals)), 'worst': float(max(vals))} if vals else None
 
 
-def diag_figures(diags, rate, warmup, seconds):
-    """The diagnostics' figures: p99 windows past the warm-up, missed ticks, look-ahead."""
+def diag_figures(diags, rate, warmup, seconds, t0_ns=None):
+    """The diagnostics' figures: p99 windows past the warm-up, missed ticks, look-ahead.
+
+    ``t0_ns`` is the first tick's stamp (from the bag); without it, it is estimated from
+    the first report that counts ticks. The missed ticks and the delivery are counted
+    between the last report before the warm-up's end and the first at or after the span's
+    end (``span_s`` between them).
+    """
     ticked = [d for d in diags if (_int(d['values'], 'ticks_published') or 0) > 0]
     if not ticked:
         return {'windows': 0}
     first = ticked[0]
-    t0 = first['stamp_ns'] - int(_int(first['values'], 'ticks_published') * 1e9 / rate)
+    t0 = t0_ns if t0_ns is not None else \
+        first['stamp_ns'] - int(_int(first['values'], 'ticks_published') * 1e9 / rate)
     w_ns, end_ns = t0 + int(warmup * 1e9), t0 + int((warmup + seconds) * 1e9)
     # windows entirely past the warm-up (a report covers the second before its stamp)
     after = [d for d in ticked if w_ns + 1e9 <= d['stamp_ns'] <= end_ns + 1e9]
@@ -260,16 +267,16 @@ def diag_figures(diags, rate, warmup, seconds):
     out['sensor_latency_p99_us'] = sensors
     before = [d for d in ticked if d['stamp_ns'] <= w_ns]
     base = before[-1] if before else None
-    last = after[-1] if after else None
-    missed = [_int(d['values'], 'ticks_missed') for d in (base, last) if d is not None]
-    out['ticks_missed'] = (missed[1] - missed[0]) if len(missed) == 2 and None not in missed \
-        else None
-    pub = [_int(d['values'], 'ticks_published') for d in (base, last) if d is not None]
-    if len(pub) == 2 and None not in pub and last['stamp_ns'] > base['stamp_ns']:
-        out['delivered_pct'] = 100.0 * (pub[1] - pub[0]) / (
-            rate * (last['stamp_ns'] - base['stamp_ns']) / 1e9)
-    else:
-        out['delivered_pct'] = None
+    last = next((d for d in ticked if d['stamp_ns'] >= end_ns), ticked[-1])
+    out.update(ticks_missed=None, delivered_pct=None, span_s=None)
+    if base is not None and last['stamp_ns'] > base['stamp_ns']:
+        out['span_s'] = (last['stamp_ns'] - base['stamp_ns']) / 1e9
+        missed = [_int(d['values'], 'ticks_missed') for d in (base, last)]
+        if None not in missed:
+            out['ticks_missed'] = missed[1] - missed[0]
+        pub = [_int(d['values'], 'ticks_published') for d in (base, last)]
+        if None not in pub:
+            out['delivered_pct'] = 100.0 * (pub[1] - pub[0]) / (rate * out['span_s'])
     ahead = [(d['stamp_ns'], d['values']['lookahead']) for d in ticked
              if 'lookahead' in d['values']]
     if not ahead:
@@ -321,8 +328,8 @@ def _look(look):
 def summarize(raw):
     """Return a rate's result: its raw run reduced to figures (no per-report list)."""
     rate, warmup, seconds = raw['rate_hz'], raw['warmup_s'], raw['seconds']
-    diag = diag_figures(raw['diags'], rate, warmup, seconds)
     bag = raw['bag'] or {}
+    diag = diag_figures(raw['diags'], rate, warmup, seconds, bag.get('t0_ns'))
     target, verdict = _verdict(rate, bag, diag)
     return {'rate_hz': rate, 'seconds': seconds, 'warmup_s': warmup, 'bag': bag,
             'diagnostics': diag, 'target': target, 'verdict': verdict,
@@ -334,7 +341,8 @@ def _log_rate(r, log):
     log(f'node_khz {r["rate_hz"]:6g} Hz: delivered {_na(b.get("delivered_pct"), 4, " %")} '
         f'({b.get("ticks_delivered", "n/a")}/{b.get("ticks_asked", "n/a")} in '
         f'{_na(b.get("measured_s"))} s), missed after warm-up {b.get("ticks_missed", "n/a")} '
-        f'(diagnostics {_na(d.get("ticks_missed"))}), late gyro {b.get("gyro_late", "n/a")} '
+        f'(diagnostics {_na(d.get("ticks_missed"))} over {_na(d.get("span_s"))} s), '
+        f'late gyro {b.get("gyro_late", "n/a")} '
         f'(absent {b.get("gyro_absent", "n/a")}, log delay p99 '
         f'{_na(b.get("gyro_log_delay_p99_us"))} us)')
     sensors = ', '.join(f'{k} {_w(v)}' for k, v in
