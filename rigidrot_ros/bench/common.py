@@ -310,6 +310,12 @@ def fmt(x, digits=3):
     return f'{x:.{digits}g}'
 
 
+def sci(x):
+    """Format a power of ten as people write it: ``1e-9``, ``1e5`` (not ``1e-09``)."""
+    m, e = f'{x:.0e}'.split('e')
+    return f'{m}e{int(e)}'
+
+
 def span(values, digits=3, unit=''):
     """``'a–b unit'`` over the finite ``values`` (one value: ``'a unit'``; none: '—')."""
     vals = [v for v in values if v is not None and math.isfinite(v)]
@@ -337,6 +343,11 @@ def md_columns(columns, items):
     """Return a table of ``items``, a line each: ``columns`` lists ``(title, cell(item))``."""
     return md_table([title for title, _ in columns],
                     [[cell(item) for _, cell in columns] for item in items])
+
+
+def md_bullets(lines):
+    """Return a Markdown bullet list of ``lines`` (a blank line after it), '' for none."""
+    return ''.join(f'- {line}\n' for line in lines) + '\n' if lines else ''
 
 
 def part_md(results, name, title, body):

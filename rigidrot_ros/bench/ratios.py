@@ -183,12 +183,42 @@ _LATENCY = (
 )
 
 
+def summary(rows):
+    """Summary lines: per timed part the ranges over scenes, the checks, the scalar calls."""
+    lines = []
+    timed = [r for r in rows if math.isfinite(r['exact_cpu_s'])]
+    for part in dict.fromkeys(r['part'] for r in timed):
+        mine = [r for r in timed if r['part'] == part]
+        lines.append(
+            f'{part} ({len(mine)} scene{"s" if len(mine) > 1 else ""}, {mine[0]["samples"]} '
+            f'sample{"s" if mine[0]["samples"] > 1 else ""} to T = '
+            f'{common.fmt(mine[0]["horizon_s"])} s): exact '
+            f'{common.span([1e3 * r["exact_cpu_s"] for r in mine], unit="ms")}, DOP853 '
+            f'{common.span([1e3 * r["dop853_cpu_s"] for r in mine], unit="ms")}: '
+            f'{common.span([r["speedup_vs_dop853"] for r in mine])}× faster, '
+            f'{common.span([r["speedup_vs_dop853_lean"] for r in mine])}× against the lean '
+            'DOP853')
+    if timed:
+        held = sum(bool(r['bounds_hold']) for r in timed)
+        lines.append(f'every exact answer checked against single evaluations at the reference '
+                     f'tol: largest error {common.fmt(common.worst(timed, "exact_error_rad"))} '
+                     'rad, largest bound '
+                     f'{common.fmt(common.worst(timed, "exact_max_bound_rad"))} rad, bounds held in {held} of {len(timed)} runs; DOP853 errors '
+                     f'{common.span([r["dop853_error_rad"] for r in timed])} rad')
+    for part in dict.fromkeys(r['part'] for r in rows if math.isfinite(r['p50_us'])):
+        mine = [r for r in rows if r['part'] == part]
+        lines.append(f'{part} ({mine[0]["samples"]} calls to T = '
+                     f'{common.fmt(mine[0]["horizon_s"])} s): p50 {common.span([r["p50_us"] for r in mine], unit="µs")}, p99 '
+                     f'{common.span([r["p99_us"] for r in mine], unit="µs")} over the scenes')
+    return lines
+
+
 def render_md(results):
     """Per timed part and scene: exact, DOP853 (both forms), speed-ups, errors, bounds."""
     rows = results.get('ratios')
     if not rows:
         return None
-    body = common.md_columns(_TIMED, [r for r in rows if math.isfinite(r['exact_cpu_s'])])
+    body = common.md_bullets(summary(rows)) + common.md_columns(_TIMED, [r for r in rows if math.isfinite(r['exact_cpu_s'])])
     lat = [r for r in rows if math.isfinite(r['p50_us'])]
     if lat:
         body += '\n' + common.md_columns(_LATENCY, lat)
