@@ -240,7 +240,7 @@ def _windows(diags, key):
 
 
 def diag_figures(diags, rate, warmup, seconds, t0_ns=None):
-    """The diagnostics' figures: p99 windows past the warm-up, missed ticks, look-ahead.
+    """Return the diagnostics' figures: p99 windows past the warm-up, missed ticks, look-ahead.
 
     ``t0_ns`` is the first tick's stamp (from the bag); without it, it is estimated from
     the first report that counts ticks. The missed ticks and the delivery are counted

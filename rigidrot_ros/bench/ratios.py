@@ -203,12 +203,14 @@ def summary(rows):
         lines.append(f'every exact answer checked against single evaluations at the reference '
                      f'tol: largest error {common.fmt(common.worst(timed, "exact_error_rad"))} '
                      'rad, largest bound '
-                     f'{common.fmt(common.worst(timed, "exact_max_bound_rad"))} rad, bounds held in {held} of {len(timed)} runs; DOP853 errors '
+                     f'{common.fmt(common.worst(timed, "exact_max_bound_rad"))} rad, '
+                     f'bounds held in {held} of {len(timed)} runs; DOP853 errors '
                      f'{common.span([r["dop853_error_rad"] for r in timed])} rad')
     for part in dict.fromkeys(r['part'] for r in rows if math.isfinite(r['p50_us'])):
         mine = [r for r in rows if r['part'] == part]
         lines.append(f'{part} ({mine[0]["samples"]} calls to T = '
-                     f'{common.fmt(mine[0]["horizon_s"])} s): p50 {common.span([r["p50_us"] for r in mine], unit="µs")}, p99 '
+                     f'{common.fmt(mine[0]["horizon_s"])} s): p50 '
+                     f'{common.span([r["p50_us"] for r in mine], unit="µs")}, p99 '
                      f'{common.span([r["p99_us"] for r in mine], unit="µs")} over the scenes')
     return lines
 
@@ -218,7 +220,8 @@ def render_md(results):
     rows = results.get('ratios')
     if not rows:
         return None
-    body = common.md_bullets(summary(rows)) + common.md_columns(_TIMED, [r for r in rows if math.isfinite(r['exact_cpu_s'])])
+    body = common.md_bullets(summary(rows)) + common.md_columns(
+        _TIMED, [r for r in rows if math.isfinite(r['exact_cpu_s'])])
     lat = [r for r in rows if math.isfinite(r['p50_us'])]
     if lat:
         body += '\n' + common.md_columns(_LATENCY, lat)
