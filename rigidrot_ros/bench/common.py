@@ -14,6 +14,8 @@ import math
 import os
 import platform
 import shutil
+import signal
+import subprocess
 import sys
 import time
 
@@ -260,6 +262,17 @@ def script(name):
     if found is None:
         raise FileNotFoundError(f'{name} is not installed (pip install -e . in this checkout)')
     return found
+
+
+def stop(proc, timeout):
+    """SIGINT ``proc`` if it runs, wait ``timeout`` s for it, else kill it; its status."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
 
 
 def positive_number(text):

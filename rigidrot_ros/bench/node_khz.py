@@ -33,7 +33,6 @@ import math
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -148,13 +147,7 @@ def run_rate(rate, seconds, log, domain, warmup=WARMUP_S, start_timeout=60.0):
             log(f'node_khz {rate:g} Hz: attitude_node exited early with status '
                 f'{proc.returncode}')
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=120)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        common.stop(proc, 120)
         ex.shutdown()
         sub.destroy_node()
         ctx.try_shutdown()

@@ -125,13 +125,7 @@ def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
     finally:
         if sub is not None:
             sub.send_signal(signal.SIGINT)
-        if node.poll() is None:
-            node.send_signal(signal.SIGINT)
-        try:
-            node.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            node.kill()
-            node.wait()
+        common.stop(node, 60)
         if sub is not None:
             try:
                 sub.wait(timeout=30)
