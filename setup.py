@@ -31,7 +31,7 @@ setup(
     extras_require={
         'plot': ['matplotlib>=3.7'],
         'estimator': ['ahrs>=0.3'],
-        'bench': ['scipy>=1.10', 'matplotlib>=3.7'],
+        'bench': ['scipy>=1.10', 'matplotlib>=3.7', 'rosbags>=0.10'],
         'test': [
             'pytest>=7',
             'rosbags>=0.10',

@@ -113,3 +113,59 @@ def test_registry_parts_follow_the_convention():
         assert isinstance(mod.NEEDS, tuple)
     with pytest.raises(KeyError):
         registry.load('no_such_part')
+
+
+def _khz_bag(tmp_path, late_imu, missing_ticks):
+    """A 1 kHz bag: /attitude on the grid but ``missing_ticks``, /imu logged on time but
+    ``late_imu`` (logged 2.5 periods after their stamp)."""
+    from rclpy.serialization import serialize_message
+
+    from rigidrot_ros.io import messages as msgs
+    from rigidrot_ros.io.bag import BagWriter
+    w = BagWriter(str(tmp_path), 'khz')
+    w.add_topic('/attitude', 'geometry_msgs/msg/QuaternionStamped')
+    w.add_topic('/imu', 'sensor_msgs/msg/Imu')
+    t0, period = 1_700_000_000 * 10**9, 10**6
+    for k in range(400):
+        ns = t0 + k * period
+        if k not in missing_ticks:
+            w.write('/attitude', serialize_message(
+                msgs.attitude(msgs.stamp(ns), 'n', (0.0, 0.0, 0.0, 1.0))), ns + 1000)
+        if k:
+            log = ns + (5 * period // 2 if k in late_imu else 800_000)
+            w.write('/imu', serialize_message(
+                msgs.imu(msgs.stamp(ns), 'b', (0.0, 0.0, 0.1), 1e-6)), log)
+    w.close()
+    return w.path
+
+
+def test_node_khz_counts_missed_ticks_and_late_gyro_from_a_bag(tmp_path):
+    """Missed slots and late samples inside the span count; those in the warm-up do not."""
+    from rigidrot_ros.bench import node_khz
+    bag = _khz_bag(tmp_path, late_imu={50, 150, 151, 390}, missing_ticks={20, 120, 200, 201})
+    got = node_khz.bag_figures(bag, 1000.0, warmup=0.1, seconds=0.25)
+    assert got['ticks_asked'] == 250 and got['ticks_missed'] == 3      # 120, 200, 201
+    assert got['ticks_delivered'] == 247 and got['delivered_pct'] == pytest.approx(98.8)
+    assert got['gyro_late'] == 2 and got['gyro_absent'] == 0          # 150, 151
+    assert got['gyro_log_delay_max_us'] == pytest.approx(2500.0)
+
+
+def test_node_khz_diagnostics_without_keys_read_na():
+    """Absent keys give None (printed n/a); a look-ahead that goes off is found and dated."""
+    from rigidrot_ros.bench import node_khz
+    t0 = 10**18
+    diags = [{'stamp_ns': t0 + s * 10**9, 'level': 0, 'message': '',
+              'values': {'ticks_published': str(1000 * s), 'ticks_missed': str(7 * s),
+                         'lookahead': '8 samples a batch' if s < 4 else 'off: too slow',
+                         'latency_imu_p99_us': str(100.0 + s)}} for s in range(1, 9)]
+    got = node_khz.diag_figures(diags, 1000.0, 2.0, 4.0, t0_ns=t0)
+    assert got['tick_p99_us'] is None and got['latency_p99_us'] is None
+    assert got['sensor_latency_p99_us'] == {'imu': {'median': 105.0, 'worst': 107.0}}
+    assert got['ticks_missed'] == 28 and got['span_s'] == 4.0
+    assert got['lookahead'] == {'on_throughout': False, 'last': 'off: too slow',
+                                'off_after_s': 4.0, 'off_reason': 'too slow'}
+    res = {'node_khz': {'seconds': 4.0, 'warmup_s': 2.0, 'rates': [node_khz.summarize(
+        {'rate_hz': 1000.0, 'seconds': 4.0, 'warmup_s': 2.0, 'diags': diags, 'bag': None,
+         'exit_code': 0, 'stderr_tail': ''})]}, 'footer': {}}
+    md = node_khz.render_md(res)
+    assert '| 1000 | n/a |' in md and 'off after 4.0 s (too slow)' in md

@@ -6,12 +6,17 @@ peers (:mod:`rigidrot_ros.bench.peers`) are imported by the functions that run t
 parts without peers run without the ``bench`` extra.
 """
 
+import argparse
 import csv
 import datetime
 import json
 import math
 import os
 import platform
+import shutil
+import signal
+import subprocess
+import sys
 import time
 
 import mpmath
@@ -246,6 +251,41 @@ def ratio_scenes():
     return out
 
 
+# -- processes ---------------------------------------------------------------------------
+
+def script(name):
+    """Return the path of console script ``name``: beside this Python first, else on PATH."""
+    path = os.path.join(os.path.dirname(sys.executable), name)
+    if os.path.exists(path):
+        return path
+    found = shutil.which(name)
+    if found is None:
+        raise FileNotFoundError(f'{name} is not installed (pip install -e . in this checkout)')
+    return found
+
+
+def stop(proc, timeout):
+    """SIGINT ``proc`` if it runs, wait ``timeout`` s for it, else kill it; its status."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def positive_number(text):
+    """Parse a positive finite number for an option (argparse ``type``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a positive number, got {text!r}')
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f'must be a positive number, got {value}')
+    return value
+
+
 # -- results files ------------------------------------------------------------------------
 
 def write_csv(path, rows, foot):
@@ -283,6 +323,12 @@ def fmt(x, digits=3):
     return f'{x:.{digits}g}'
 
 
+def sci(x):
+    """Format a power of ten as people write it: ``1e-9``, ``1e5`` (not ``1e-09``)."""
+    m, e = f'{x:.0e}'.split('e')
+    return f'{m}e{int(e)}'
+
+
 def span(values, digits=3, unit=''):
     """``'a–b unit'`` over the finite ``values`` (one value: ``'a unit'``; none: '—')."""
     vals = [v for v in values if v is not None and math.isfinite(v)]
@@ -298,6 +344,28 @@ def md_table(header, rows):
     lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
     lines += ['| ' + ' | '.join(str(c) for c in row) + ' |' for row in rows]
     return '\n'.join(lines) + '\n'
+
+
+def worst(rows, key):
+    """Return the largest finite ``row[key]`` over ``rows`` (a missing key: none), or NaN."""
+    vals = [r.get(key) for r in rows]
+    return max((v for v in vals if v is not None and math.isfinite(v)), default=math.nan)
+
+
+def md_columns(columns, items):
+    """Return a table of ``items``, a line each: ``columns`` lists ``(title, cell(item))``."""
+    return md_table([title for title, _ in columns],
+                    [[cell(item) for _, cell in columns] for item in items])
+
+
+def md_bullets(lines):
+    """Return a Markdown bullet list of ``lines`` (a blank line after it), '' for none."""
+    return ''.join(f'- {line}\n' for line in lines) + '\n' if lines else ''
+
+
+def part_md(results, name, title, body):
+    """Return part ``name``'s fragment: ``body`` under ``title``, with the part's footer."""
+    return md_fragment(title, part_footer(results, name), body)
 
 
 def md_fragment(title, foot, body):

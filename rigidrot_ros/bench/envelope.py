@@ -132,32 +132,32 @@ def write(res, out, foot, log):
     common.write_csv(os.path.join(out, 'envelope.csv'), res['envelope'], foot)
 
 
+#: The envelope table's columns: (title, cell of one method's (name, rows)).
+_COLUMNS = (
+    ('method', lambda g: g[0]),
+    ('scenes', lambda g: str(len(g[1]))),
+    ('within tol', lambda g: str(sum(r['status'] == 'ok' for r in g[1]))),
+    ('p50 per tick', lambda g: common.span([r.get('p50_us', math.nan) for r in g[1]],
+                                           unit='µs')),
+    ('worst p99 [µs]', lambda g: common.fmt(common.worst(g[1], 'p99_us'))),
+    ('worst bound [rad]', lambda g: common.fmt(common.worst(g[1], 'max_bound_rad'))),
+    ('worst first query [s]', lambda g: common.fmt(common.worst(g[1], 'first_query_s'))),
+    ('vs other representation [rad]',
+     lambda g: common.fmt(common.worst(g[1], 'vs_other_representation_rad'))),
+)
+
+
 def render_md(results):
     """Per evaluation method: scenes, cost per tick, worst bound, second representation."""
     rows = results.get('envelope')
     if not rows:
         return None
-    lines = []
-    for method in sorted({r['method'] for r in rows}):
-        mine = [r for r in rows if r['method'] == method]
-        ok = [r for r in mine if r['status'] == 'ok']
-        lines.append([
-            method, str(len(mine)), str(len(ok)),
-            common.span([r.get('p50_us', math.nan) for r in mine], unit='µs'),
-            common.fmt(max((r.get('p99_us', math.nan) for r in mine), default=math.nan)),
-            common.fmt(max((r.get('max_bound_rad', math.nan) for r in mine),
-                           default=math.nan)),
-            common.fmt(max((r.get('first_query_s', math.nan) for r in mine),
-                           default=math.nan)),
-            common.fmt(max((r.get('vs_other_representation_rad', math.nan) for r in mine
-                            if math.isfinite(r.get('vs_other_representation_rad',
-                                                   math.nan))), default=math.nan))])
-    return common.md_fragment(
+    groups = [(m, [r for r in rows if r['method'] == m])
+              for m in sorted({r['method'] for r in rows})]
+    return common.part_md(
+        results, NAME,
         f'Envelope: {len(rows)} seeded random scenes streamed at 100 Hz, tol 1e-12',
-        common.part_footer(results, NAME),
-        common.md_table(['method', 'scenes', 'within tol', 'p50 per tick',
-                         'worst p99 [µs]', 'worst bound [rad]', 'worst first query [s]',
-                         'vs other representation [rad]'], lines))
+        common.md_columns(_COLUMNS, groups))
 
 
 def main(argv=None):

@@ -72,14 +72,43 @@ def table(rows):
     return common.md_table(['method'] + [f'T = {T:g} s' for T in horizons], out)
 
 
+def summary(rows):
+    """Summary lines: the exact solution's cost over every T, how far each peer reaches."""
+    ok = [r for r in rows if r['status'] == 'ok' and math.isfinite(r['cpu_s'])]
+    horizons = sorted({r['T_s'] for r in rows})
+    lines = []
+    for method in dict.fromkeys(r['method'] for r in rows):
+        mine = [r for r in ok if r['method'] == method]
+        if method.startswith('exact'):
+            cells = {(r['T_s'], r['target_rad']) for r in mine}
+            cost = common.span([1e3 * r['cpu_s'] for r in mine], unit='ms')
+            lines.append(f'{method}: {cost} at every T from {horizons[0]:g} s to '
+                         f'{horizons[-1]:g} s, at both targets' if len(cells) == 2 * len(
+                             horizons) else f'{method}: {cost} where it reaches, '
+                         f'{len(cells)} of {2 * len(horizons)} (T, target) cells')
+            continue
+        reach = []
+        for target in (1e-9, 1e-12):
+            ts = [r['T_s'] for r in mine if r['target_rad'] == target]
+            reach.append(f'{common.sci(target)} up to T = {max(ts):g} s' if ts else
+                         f'{common.sci(target)} at no T')
+        lines.append(f'{method} reaches {" and ".join(reach)}')
+    peers = [r['T_s'] for r in ok if not r['method'].startswith('exact')
+             and r['target_rad'] == 1e-9]
+    beyond = [T for T in horizons if not peers or T > max(peers)]
+    if beyond:
+        lines.append(f'past T = {max(peers) if peers else 0:g} s no peer reaches 1e-9 rad')
+    return lines
+
+
 def render_md(results):
-    """Render the horizon table from the results, or None where they hold none."""
+    """Render the horizon summary and table from the results, or None where they hold none."""
     if not results.get('horizon'):
         return None
     return common.md_fragment(
         'Horizon scaling, axial-torque scene: CPU time [ms] of one query at T at the '
         'cheapest setting meeting 1e-9 / 1e-12 rad (— not reached)', results['footer'],
-        table(results['horizon']))
+        common.md_bullets(summary(results['horizon'])) + table(results['horizon']))
 
 
 def main(argv=None):

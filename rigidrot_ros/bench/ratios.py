@@ -157,36 +157,81 @@ def _ms(x):
     return f'{common.fmt(1e3 * x)} ms' if math.isfinite(x) else '—'
 
 
+def _times(x):
+    return f'{common.fmt(x)}×'
+
+
+#: The ratios table's columns: (title, cell of one timed row).
+_TIMED = (
+    ('part', lambda r: r['part']), ('scene', lambda r: r['scene']),
+    ('samples', lambda r: str(r['samples'])), ('to T [s]', lambda r: common.fmt(r['horizon_s'])),
+    ('exact', lambda r: _ms(r['exact_cpu_s'])), ('DOP853', lambda r: _ms(r['dop853_cpu_s'])),
+    ('lean DOP853', lambda r: _ms(r['dop853_lean_cpu_s'])),
+    ('speed-up', lambda r: _times(r['speedup_vs_dop853'])),
+    ('vs lean', lambda r: _times(r['speedup_vs_dop853_lean'])),
+    ('exact error [rad]', lambda r: common.fmt(r['exact_error_rad'])),
+    ('exact bound [rad]', lambda r: common.fmt(r['exact_max_bound_rad'])),
+    ('bounds held', lambda r: 'yes' if r['bounds_hold'] else 'NO'),
+    ('DOP853 error [rad]', lambda r: common.fmt(r['dop853_error_rad'])),
+)
+#: The scalar calls' columns.
+_LATENCY = (
+    ('scalar calls', lambda r: r['part']), ('scene', lambda r: r['scene']),
+    ('calls', lambda r: str(r['samples'])), ('mean [µs]', lambda r: common.fmt(r['mean_us'])),
+    ('p50 [µs]', lambda r: common.fmt(r['p50_us'])),
+    ('p99 [µs]', lambda r: common.fmt(r['p99_us'])),
+)
+
+
+def summary(rows):
+    """Summary lines: per timed part the ranges over scenes, the checks, the scalar calls."""
+    lines = []
+    timed = [r for r in rows if math.isfinite(r['exact_cpu_s'])]
+    for part in dict.fromkeys(r['part'] for r in timed):
+        mine = [r for r in timed if r['part'] == part]
+        lines.append(
+            f'{part} ({len(mine)} scene{"s" if len(mine) > 1 else ""}, {mine[0]["samples"]} '
+            f'sample{"s" if mine[0]["samples"] > 1 else ""} to T = '
+            f'{common.fmt(mine[0]["horizon_s"])} s): exact '
+            f'{common.span([1e3 * r["exact_cpu_s"] for r in mine], unit="ms")}, DOP853 '
+            f'{common.span([1e3 * r["dop853_cpu_s"] for r in mine], unit="ms")}: '
+            f'{common.span([r["speedup_vs_dop853"] for r in mine])}× faster, '
+            f'{common.span([r["speedup_vs_dop853_lean"] for r in mine])}× against the lean '
+            'DOP853')
+    if timed:
+        held = sum(bool(r['bounds_hold']) for r in timed)
+        lines.append(f'every exact answer checked against single evaluations at the reference '
+                     f'tol: largest error {common.fmt(common.worst(timed, "exact_error_rad"))} '
+                     'rad, largest bound '
+                     f'{common.fmt(common.worst(timed, "exact_max_bound_rad"))} rad, '
+                     f'bounds held in {held} of {len(timed)} runs; DOP853 errors '
+                     f'{common.span([r["dop853_error_rad"] for r in timed])} rad')
+    for part in dict.fromkeys(r['part'] for r in rows if math.isfinite(r['p50_us'])):
+        mine = [r for r in rows if r['part'] == part]
+        lines.append(f'{part} ({mine[0]["samples"]} calls to T = '
+                     f'{common.fmt(mine[0]["horizon_s"])} s): p50 '
+                     f'{common.span([r["p50_us"] for r in mine], unit="µs")}, p99 '
+                     f'{common.span([r["p99_us"] for r in mine], unit="µs")} over the scenes')
+    return lines
+
+
 def render_md(results):
     """Per timed part and scene: exact, DOP853 (both forms), speed-ups, errors, bounds."""
     rows = results.get('ratios')
     if not rows:
         return None
-    timed = [r for r in rows if math.isfinite(r['exact_cpu_s'])]
-    lines = [[r['part'], r['scene'], str(r['samples']), common.fmt(r['horizon_s']),
-              _ms(r['exact_cpu_s']), _ms(r['dop853_cpu_s']), _ms(r['dop853_lean_cpu_s']),
-              f'{common.fmt(r["speedup_vs_dop853"])}×',
-              f'{common.fmt(r["speedup_vs_dop853_lean"])}×',
-              common.fmt(r['exact_error_rad']), common.fmt(r['exact_max_bound_rad']),
-              'yes' if r['bounds_hold'] else 'NO', common.fmt(r['dop853_error_rad'])]
-             for r in timed]
-    body = common.md_table(
-        ['part', 'scene', 'samples', 'to T [s]', 'exact', 'DOP853', 'lean DOP853',
-         'speed-up', 'vs lean', 'exact error [rad]', 'exact bound [rad]', 'bounds held',
-         'DOP853 error [rad]'], lines)
+    body = common.md_bullets(summary(rows)) + common.md_columns(
+        _TIMED, [r for r in rows if math.isfinite(r['exact_cpu_s'])])
     lat = [r for r in rows if math.isfinite(r['p50_us'])]
     if lat:
-        body += '\n' + common.md_table(
-            ['scalar calls', 'scene', 'calls', 'mean [µs]', 'p50 [µs]', 'p99 [µs]'],
-            [[r['part'], r['scene'], str(r['samples']), common.fmt(r['mean_us']),
-              common.fmt(r['p50_us']), common.fmt(r['p99_us'])] for r in lat])
-    mem = [r for r in rows if math.isfinite(r['memory_ratio'])]
-    for r in mem:
-        body += (f'\nPeak memory of the {r["samples"]}-sample batch (tracemalloc): '
-                 f'{common.fmt(r["memory_ratio"])}× its output arrays.\n')
-    return common.md_fragment(
-        'Speed ratios: the exact solution (tol 1e-12, solve included) against scipy DOP853 '
-        '(rtol = atol = 1e-12), CPU time', common.part_footer(results, NAME), body)
+        body += '\n' + common.md_columns(_LATENCY, lat)
+    for r in rows:
+        if math.isfinite(r['memory_ratio']):
+            body += (f'\nPeak memory of the {r["samples"]}-sample batch (tracemalloc): '
+                     f'{common.fmt(r["memory_ratio"])}× its output arrays.\n')
+    return common.part_md(
+        results, NAME, 'Speed ratios: the exact solution (tol 1e-12, solve included) against '
+        'scipy DOP853 (rtol = atol = 1e-12), CPU time', body)
 
 
 def main(argv=None):

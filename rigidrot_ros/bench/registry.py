@@ -42,6 +42,7 @@ PARTS = (
     'node_tick',
     'random_access',
     'generate',
+    'node_khz',
 )
 
 

@@ -9,8 +9,6 @@ gives the growth in MB per minute. SIGINT ends it; the node must then exit 0 and
 its bag.
 """
 
-import argparse
-import math
 import os
 import shutil
 import signal
@@ -30,19 +28,9 @@ NEEDS = ()
 KEYS = ('soak',)
 
 
-def _minutes(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a positive number, got {text!r}')
-    if not (value > 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f'must be a positive number, got {value}')
-    return value
-
-
 def add_arguments(ap):
     """Add ``--soak-minutes`` to the parser ``ap``."""
-    ap.add_argument('--soak-minutes', type=_minutes, default=10.0, metavar='MIN',
+    ap.add_argument('--soak-minutes', type=common.positive_number, default=10.0, metavar='MIN',
                     help='length of the soak part (--only soak), minutes (default 10)')
 
 
@@ -77,16 +65,6 @@ def slope_mb_per_min(samples, warmup_s):
     return float(coef[0]), 1.96 * float(np.sqrt(var_slope))
 
 
-def _script(name):
-    path = os.path.join(os.path.dirname(sys.executable), name)
-    if os.path.exists(path):
-        return path
-    found = shutil.which(name)
-    if found is None:
-        raise FileNotFoundError(f'{name} is not installed (pip install -e . in this checkout)')
-    return found
-
-
 def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
     """Run the node for ``minutes`` and return a dict with RSS samples and the slope.
 
@@ -114,7 +92,7 @@ def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     env.setdefault('FASTDDS_BUILTIN_TRANSPORTS', 'UDPv4')
     tmp = tempfile.mkdtemp(prefix='rigidrot_soak_')
-    cmd = [_script('attitude_node'), '--ros-args', '-p', f'publish_rate:={float(rate)}',
+    cmd = [common.script('attitude_node'), '--ros-args', '-p', f'publish_rate:={float(rate)}',
            '-p', f'record:={"true" if record else "false"}', '-p', f'record_path:={tmp}']
     duration = 60.0 * float(minutes)
     warmup = min(120.0, duration / 5.0)
@@ -124,7 +102,7 @@ def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
     node = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=errf)
     try:
         if subscriber:
-            sub = subprocess.Popen([_script('rigidrot_echo')], env=env,
+            sub = subprocess.Popen([common.script('rigidrot_echo')], env=env,
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         t0 = time.monotonic()
         next_log = 0.0
@@ -147,13 +125,7 @@ def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
     finally:
         if sub is not None:
             sub.send_signal(signal.SIGINT)
-        if node.poll() is None:
-            node.send_signal(signal.SIGINT)
-        try:
-            node.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            node.kill()
-            node.wait()
+        common.stop(node, 60)
         if sub is not None:
             try:
                 sub.wait(timeout=30)

@@ -396,7 +396,8 @@ def render_md(results):
              for r in res['work_precision']]) + '\n'
     if res.get('horizon'):
         body += ('CPU time [ms] of one query at T at the cheapest setting meeting 1e-9 / '
-                 '1e-12 rad (— not reached):\n\n' + horizon.table(res['horizon']) + '\n')
+                 '1e-12 rad (— not reached):\n\n' + common.md_bullets(horizon.summary(
+                     res['horizon'])) + horizon.table(res['horizon']) + '\n')
     if res.get('stability'):
         body += ('Across the separatrix, cells per status:\n\n'
                  + stability.status_counts(res['stability'], 'delta x horizons'))

@@ -84,6 +84,52 @@ def draw(results, out):
     return paths
 
 
+def summary(rows):
+    """Summary lines per workload: the exact cost at any tol, DOP853 to 1e-9, who meets 1e-12.
+
+    The speed-up per scene is DOP853's cheapest run within 1e-9 rad over the exact
+    solution's costliest run (flint, any tol) on that scene.
+    """
+    fine = [r for r in rows if r['status'] in ('ok', 'claim violated')
+            and math.isfinite(r['error_rad'])]
+    lines = []
+    for workload in dict.fromkeys(r['workload'] for r in rows):
+        mine = [r for r in fine if r['workload'] == workload]
+        scenes = list(dict.fromkeys(r['scene'] for r in mine))
+        horizon = mine[0]['horizon_s'] if mine else math.nan
+        what = (f'one query at T = {horizon:g} s' if workload == 'query' else
+                f'{mine[0]["samples"] / horizon:g} Hz {workload} over {horizon:g} s')
+        exact = {be: [r for r in mine if r['method'] == f'exact ({be})']
+                 for be in ('flint', 'mpmath')}
+        text = (f'{what}: the exact solution costs '
+                f'{common.span([1e3 * r["cpu_s"] for r in exact["flint"]], unit="ms")} at any '
+                f'requested tol (flint; mpmath '
+                f'{common.span([1e3 * r["cpu_s"] for r in exact["mpmath"]], unit="ms")}), '
+                f'error ≤ '
+                f'{common.fmt(common.worst(exact["flint"] + exact["mpmath"], "error_rad"))} rad')
+        dop, ratio = [], []
+        for sc in scenes:
+            met = [r['cpu_s'] for r in mine if r['scene'] == sc and r['method'] == 'DOP853'
+                   and r['error_rad'] <= 1e-9]
+            ex = [r['cpu_s'] for r in exact['flint'] if r['scene'] == sc]
+            if met and ex:
+                dop.append(1e3 * min(met))
+                ratio.append(min(met) / max(ex))
+        if dop:
+            text += (f'; DOP853 at the rtol that reaches 1e-9 costs '
+                     f'{common.span(dop, unit="ms")}, {common.span(ratio)}× the exact')
+        lines.append(text)
+        tight = []
+        for method in dict.fromkeys(r['method'] for r in mine):
+            got = [r for r in mine if r['method'] == method and r['error_rad'] <= 1e-12]
+            n = len({r['scene'] for r in got})
+            tight.append(f'{method} on {n} of {len(scenes)} scenes'
+                         + (f' ({common.span([1e3 * r["cpu_s"] for r in got], unit="ms")})'
+                            if n else ''))
+        lines.append(f'{what}, within 1e-12 rad: ' + ', '.join(tight))
+    return lines
+
+
 def render_md(results):
     """Per scene and workload: the exact solution's cost and error, and each peer's best.
 
@@ -111,7 +157,7 @@ def render_md(results):
                 f'{common.fmt(cheap["value"])})' if cheap else 'not reached',
                 common.fmt(best['error_rad']), f'{common.fmt(1e3 * best["cpu_s"])} ms'])
     first = rows[0]
-    body = common.md_table(
+    body = common.md_bullets(summary(rows)) + common.md_table(
         ['scene', 'workload', 'method', 'cheapest run within 1e-9 rad',
          'smallest error [rad]', 'its CPU time'], table)
     return common.md_fragment(
