@@ -31,6 +31,7 @@ setup(
     extras_require={
         'plot': ['matplotlib>=3.7'],
         'estimator': ['ahrs>=0.3'],
+        'campaign': ['dask[distributed]>=2023.1', 'matplotlib>=3.7', 'scipy>=1.10'],
         'bench': ['scipy>=1.10', 'matplotlib>=3.7'],
         'test': [
             'pytest>=7',
@@ -67,6 +68,8 @@ setup(
             'rigidrot_record = rigidrot_ros.tools.record:main',
             'rigidrot_reindex = rigidrot_ros.tools.reindex:main',
             'rigidrot_bench = rigidrot_ros.bench.run:main',
+            'rigidrot_mekf = rigidrot_ros.estimators.mekf_node:main',
+            'rigidrot_campaign = rigidrot_ros.tools.campaign:main',
         ],
     },
 )
