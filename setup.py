@@ -68,6 +68,7 @@ setup(
             'rigidrot_record = rigidrot_ros.tools.record:main',
             'rigidrot_reindex = rigidrot_ros.tools.reindex:main',
             'rigidrot_bench = rigidrot_ros.bench.run:main',
+            'rigidrot_generate = rigidrot_ros.tools.generate:main',
             'rigidrot_mekf = rigidrot_ros.estimators.mekf_node:main',
             'rigidrot_campaign = rigidrot_ros.tools.campaign:main',
         ],
