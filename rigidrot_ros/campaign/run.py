@@ -41,12 +41,18 @@ class RunFailed(Exception):
         self.log = log
 
 
-def score_bag(path, topic):
-    """Score ``topic`` of the bag at ``path`` against the exact truth: the series and row."""
+def score_bag(path, topic, runs=None):
+    """Score ``topic`` of the bag at ``path`` against the exact truth: the series and row.
+
+    ``runs`` (the run descriptions of the input bag) give the truth when the bag holds
+    none (a recorder that joined after the replay published ``~/run``).
+    """
     from rigidrot_ros.io.bag import BagError, read_bag
     from rigidrot_ros.io.score import extract_streams, score_against_runs, ScoreError
     try:
         bag = read_bag(path)
+        if not bag.runs and runs:
+            bag.runs = list(runs)
         if topic not in bag.topics or not any(m[0] == topic for m in bag.messages):
             raise RunFailed(f'the estimator published nothing on {topic}')
         streams, _ = extract_streams(bag, [topic])
@@ -174,7 +180,8 @@ def _ros(spec, values, work):
     est = spec['estimator']
     bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
     from rigidrot_ros.io.bag import read_bag
-    names = sorted(t for t in read_bag(bag).topics
+    contents = read_bag(bag)
+    names = sorted(t for t in contents.topics
                    if t.rsplit('/', 1)[-1] in ('imu', 'star_tracker', 'run'))
     rec_dir = os.path.join(work, 'recorded')
     deadline = time.monotonic() + spec['timeout']
@@ -188,7 +195,8 @@ def _ros(spec, values, work):
         procs = {}
         try:
             procs['recorder'] = subprocess.Popen(
-                _script('rigidrot_record') + ['-o', rec_dir] + est['topics'], env=env,
+                _script('rigidrot_record') + ['-o', rec_dir] + est['topics']
+                + [f'{t}:std_msgs/msg/String' for t in names if t.endswith('/run')], env=env,
                 stdout=logs['recorder'], stderr=subprocess.STDOUT)
             try:
                 procs['estimator'] = subprocess.Popen(
@@ -197,6 +205,9 @@ def _ros(spec, values, work):
             except OSError as exc:
                 raise RunFailed(f'the estimator command {est["command"][0]} did not start: '
                                 f'{exc.strerror or exc}') from None
+            _wait_for_line(os.path.join(work, 'recorder.log'),
+                           f'recording {est["topics"][0]} ', procs['estimator'],
+                           min(30.0, spec['timeout']))
             procs['replay'] = subprocess.Popen(
                 _script('rigidrot_replay') + [bag, '--clock', '--rate', repr(est['rate']),
                                               '--quiet', '--wait', '10', '--topics'] + names,
@@ -226,7 +237,22 @@ def _ros(spec, values, work):
                 fh.close()
     if not os.path.isdir(rec_dir):
         raise RunFailed('the recorder wrote no bag')
-    return score_bag(rec_dir, est['topics'][0])
+    return score_bag(rec_dir, est['topics'][0], contents.runs)
+
+
+def _wait_for_line(path, text, proc, limit):
+    """Wait (``limit`` s at most) until the log at ``path`` shows ``text``, or proc ends.
+
+    The recorder logs ``recording <topic>`` once the estimator's publisher is in the
+    graph: the estimator is up, and the replay (which waits for its subscribers to match)
+    does not start before it.
+    """
+    end = time.monotonic() + limit
+    while time.monotonic() < end and proc.poll() is None:
+        if text in _tail(path, 1000):
+            return True
+        time.sleep(0.05)
+    return False
 
 
 def run_one(spec, index, bag_root=None):

@@ -5,13 +5,15 @@ Subscribes ``imu`` (sensor_msgs/Imu) and ``star_tracker``
 (nav_msgs/Odometry, orientation covariance of the body error in the rotation block),
 reliable and transient-local (depth 10000), so a recorder that joins late still gets every
 estimate. The two topics arrive on separate subscriptions, so messages are held until the
-other topic has reached their stamp and fed to the filter in stamp order; at shutdown
+other topic has reached their stamp (or for 0.5 s at most) and fed to the filter in stamp
+order; at shutdown
 (SIGINT/SIGTERM) what is held is fed and the last estimates are published. Estimates carry
 the sensors' stamps, so the node runs the same on wall or sim time (``use_sim_time``).
 """
 
 import heapq
 import sys
+import time
 
 from rigidrot_ros.estimators.mekf import MekfParams, PARAMS
 from rigidrot_ros.tools.cli import fail, OneLineParser
@@ -36,31 +38,44 @@ class StampOrder:
     """Feed messages of several topics to ``sink`` in stamp order, as they become safe.
 
     A message is passed on once every topic seen so far has delivered one at least as
-    late (each topic arrives in order on its own subscription); :meth:`drain` passes the
-    rest.
+    late (each topic arrives in order on its own subscription), or once it has been held
+    ``max_hold`` seconds (:meth:`release_old`; a topic that has ended, or fell silent, no
+    longer holds the others back); :meth:`drain` passes the rest.
     """
 
-    def __init__(self, sink):
+    def __init__(self, sink, max_hold=0.5):
         self._sink = sink
         self._heap = []
         self._latest = {}
         self._n = 0
+        self.max_hold = max_hold
 
     def push(self, topic, stamp_ns, msg):
         """Hold one message; pass on those now safe."""
         self._latest[topic] = max(stamp_ns, self._latest.get(topic, stamp_ns))
-        heapq.heappush(self._heap, (stamp_ns, self._n, topic, msg))
+        heapq.heappush(self._heap, (stamp_ns, self._n, topic, msg, time.monotonic()))
         self._n += 1
         safe = min(self._latest.values())
         while self._heap and self._heap[0][0] <= safe:
-            _, _, t, m = heapq.heappop(self._heap)
-            self._sink(t, m)
+            self._pop()
+
+    def _pop(self):
+        _, _, t, m, _ = heapq.heappop(self._heap)
+        self._sink(t, m)
+
+    def release_old(self):
+        """Pass on, in stamp order, everything up to the last message held too long."""
+        now = time.monotonic()
+        old = [item[0] for item in self._heap if now - item[4] >= self.max_hold]
+        if old:
+            last = max(old)
+            while self._heap and self._heap[0][0] <= last:
+                self._pop()
 
     def drain(self):
         """Pass on everything held."""
         while self._heap:
-            _, _, t, m = heapq.heappop(self._heap)
-            self._sink(t, m)
+            self._pop()
 
 
 def main(argv=None):
@@ -113,6 +128,8 @@ def _run(params, ros_args):
     node.create_subscription(Imu, 'imu', on(params.imu_topic), in_qos)
     node.create_subscription(PoseWithCovarianceStamped, 'star_tracker',
                              on(params.star_tracker_topic), in_qos)
+
+    node.create_timer(0.2, order.release_old)
 
     def loop(n):
         while rclpy.ok():
