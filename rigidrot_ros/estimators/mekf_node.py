@@ -37,22 +37,22 @@ def _parser():
 class StampOrder:
     """Feed messages of several topics to ``sink`` in stamp order, as they become safe.
 
-    A message is passed on once every topic seen so far has delivered one at least as
+    A message is passed on once every topic of ``topics`` has delivered one at least as
     late (each topic arrives in order on its own subscription), or once it has been held
     ``max_hold`` seconds (:meth:`release_old`; a topic that has ended, or fell silent, no
     longer holds the others back); :meth:`drain` passes the rest.
     """
 
-    def __init__(self, sink, max_hold=0.5):
+    def __init__(self, sink, topics, max_hold=0.5):
         self._sink = sink
         self._heap = []
-        self._latest = {}
+        self._latest = {t: -1 for t in topics}
         self._n = 0
         self.max_hold = max_hold
 
     def push(self, topic, stamp_ns, msg):
         """Hold one message; pass on those now safe."""
-        self._latest[topic] = max(stamp_ns, self._latest.get(topic, stamp_ns))
+        self._latest[topic] = max(stamp_ns, self._latest.get(topic, -1))
         heapq.heappush(self._heap, (stamp_ns, self._n, topic, msg, time.monotonic()))
         self._n += 1
         safe = min(self._latest.values())
@@ -117,7 +117,7 @@ def _run(params, ros_args):
     def feed(topic, msg):
         for out in filt.receive(topic, msg):
             pub.publish(out)
-    order = StampOrder(feed)
+    order = StampOrder(feed, (params.imu_topic, params.star_tracker_topic))
 
     def on(topic):
         def cb(msg):
