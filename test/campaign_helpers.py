@@ -27,10 +27,10 @@ class Silent:
 
 
 def flaky(params):
-    """Factory of :class:`Flaky`."""
+    """Make a :class:`Flaky`."""
     return Flaky(params)
 
 
 def silent(params):
-    """Factory of :class:`Silent`."""
+    """Make a :class:`Silent`."""
     return Silent()

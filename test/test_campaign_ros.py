@@ -13,7 +13,8 @@ import pytest
 from rigidrot_ros.campaign.engine import run_campaign
 from rigidrot_ros.campaign.spec import load_spec
 from ros_helpers import next_domain_id
-from test_campaign import _write, SPEC
+
+from test_campaign import _write, SPEC  # noqa: I100, I201 - a test module beside it
 
 pytestmark = pytest.mark.ros
 

@@ -23,8 +23,6 @@ import tempfile
 import time
 import traceback
 
-import numpy as np
-
 from rigidrot_ros.campaign.spec import draw_run, load_factory, run_values
 
 __all__ = ['run_one', 'RunFailed', 'score_bag']

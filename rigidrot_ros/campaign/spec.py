@@ -261,7 +261,7 @@ def _triangle_ok(i):
 
 
 def draw_run(spec, index):
-    """The dispersed parameters of run ``index``: ``(draws, redraws)``.
+    """Draw the dispersed parameters of run ``index``: ``(draws, redraws)``.
 
     ``draws`` maps parameter names to plain values (lists, ints); ``redraws`` counts the
     inertia draws rejected for the triangle inequality.
@@ -297,7 +297,7 @@ def draw_run(spec, index):
 
 
 def run_values(spec, draws):
-    """The run's parameter values: the base, then its draws."""
+    """Return the run's parameter values: the base, then its draws."""
     values = dict(spec['base']['values'])
     values.update(draws)
     return values

@@ -49,7 +49,7 @@ __all__ = ['MEKF', 'MekfParams', 'make', 'PARAMS']
 
 #: Parameters of :func:`make`: name -> (default, meaning).
 PARAMS = {
-    'sigma_v': (None, 'assumed gyro angle random walk, rad/s/sqrt(Hz) (the gyro\'s '
+    'sigma_v': (None, "assumed gyro angle random walk, rad/s/sqrt(Hz) (the gyro's "
                       'noise density; required)'),
     'sigma_u': (0.0, 'assumed gyro rate random walk, rad/s^2/sqrt(Hz)'),
     'bias_sigma': (0.0, 'standard deviation of the initial bias per axis, rad/s'),
@@ -133,7 +133,7 @@ class MekfParams:
             setattr(self, name, vals[name])
 
     def as_dict(self):
-        """The parameters as plain values."""
+        """Return the parameters as plain values."""
         return {'sigma_v': self.sigma_v, 'sigma_u': self.sigma_u,
                 'bias_sigma': self.bias_sigma, 'bias0': self.bias0.tolist(),
                 'output_every': self.output_every, 'imu_topic': self.imu_topic,

@@ -27,7 +27,7 @@ def _parser():
     eng.add_argument('--processes', type=int,
                      help='size of the local process pool (the default engine; default: '
                           'one per core)')
-    ap.add_argument('--bags', help='keep each run\'s bags under this directory (a shared '
+    ap.add_argument('--bags', help="keep each run's bags under this directory (a shared "
                                    'path with a cluster); default: temporary, removed')
     ap.add_argument('--quiet', action='store_true', help='no progress bar')
     return ap
