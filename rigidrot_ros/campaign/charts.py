@@ -103,7 +103,7 @@ def compare_chart(reports, prefix):
     ax.set_xlabel('scene time, s')
     ax.set_ylabel('NEES averaged over the runs')
     ax.set_title('Monte Carlo NEES with its 95 % band chi2(3M)/M (shaded)')
-    ax.legend(loc='upper left', fontsize=8)
+    ax.legend(loc='center right', fontsize=8)
     paths = _save(fig, prefix)
     plt.close(fig)
     return paths
