@@ -37,6 +37,7 @@ setup(
             'pytest>=7',
             'rosbags>=0.10',
             'ahrs>=0.3',
+            'allantools>=2019.9',
             'evo>=1.20',
             'matplotlib>=3.7',
             'scipy>=1.10',

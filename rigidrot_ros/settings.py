@@ -1,32 +1,43 @@
-"""Node settings without ROS: the default YAML, and parameters -> scene + solver options.
+"""Run settings without ROS: parameter values -> a validated, tried run (:func:`prepare_run`).
 
-Shared by the node (live parameters) and the recorder/compare tools (logged metadata), so
-that a scene is validated by one piece of code wherever it comes from.
+Each parameter's own rule comes from the table :mod:`rigidrot_ros.params`; this module adds
+the rules across parameters (the scene must be solvable, a sensor rate of 0 means
+``publish_rate``, the imu needs ``time_scale > 0``) and the trial of a run's first samples.
+The node (at start-up, on a parameter change, on ``~/reset``), the offline generator and
+the benchmarks all set a run up through :func:`prepare_run`, so a scene is validated by one
+piece of code wherever it comes from. :func:`load_defaults` reads a params file.
 """
 
+from dataclasses import dataclass
 import math
 import os
 import sys
+import time
+from typing import Optional, Tuple
 
+import numpy as np
 import yaml
 
-from rigidrot_ros.core import MIN_TOL, Scene
-from rigidrot_ros.sensors import AttitudeNoise, GyroNoise
+from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
+from rigidrot_ros.core import Scene
+from rigidrot_ros.params import BY_NAME, check_values
+from rigidrot_ros.sensors import AttitudeNoise, Gyro, GyroNoise, StarTracker
 
-__all__ = ['PACKAGE', 'SCENE_KEYS', 'OUTPUT_KEYS', 'BACKENDS', 'find_config',
-           'load_defaults', 'scene_from_params', 'solver_options', 'sensor_settings',
-           'SensorSettings']
+__all__ = ['PACKAGE', 'SCENE_KEYS', 'OUTPUT_KEYS', 'find_config', 'load_defaults',
+           'scene_from_params', 'solver_options', 'sensor_settings', 'SensorSettings',
+           'build_solution', 'trial', 'check_run', 'TrialError', 'RunSetup', 'prepare_run',
+           'TRIAL_LIMIT_S', 'SAMPLE_BUDGET_S']
 
 PACKAGE = 'rigidrot_ros'
 SCENE_KEYS = ('inertia', 'torque', 'torque_frame', 'omega0', 'attitude0')
-BACKENDS = ('auto', 'flint', 'mpmath')
 #: Output switches (read only).
 OUTPUT_KEYS = ('imu.enable', 'star_tracker.enable', 'odom.enable', 'transform.enable',
                'markers.enable')
-#: Loosest attitude accuracy the node accepts, rad (the lowest is core.MIN_TOL).
-MAX_TOL = 1.0
-#: Highest sensor rate, Hz (the node's publish_rate has the same ceiling).
-MAX_RATE = 1e4
+#: A new scene is refused when one of its trial samples takes longer than this, s.
+TRIAL_LIMIT_S = 1.0
+#: Work one sensor callback may do before it leaves due samples to the next one, s; also
+#: the most one gyro sample's quadrature may take (past it the sample fails, reported).
+SAMPLE_BUDGET_S = 0.02
 
 
 def _share_dirs():
@@ -75,35 +86,17 @@ def _flatten(tree, prefix=''):
     return out
 
 
-def _floats(name, value, size):
-    if isinstance(value, (str, bytes)) or not hasattr(value, '__len__'):
-        raise ValueError(f'parameter {name} must be a list of {size} numbers, got {value!r}')
-    out = []
-    for i, v in enumerate(value):
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f'parameter {name}[{i}] must be a number, got {v!r}')
-        try:
-            out.append(float(v))
-        except OverflowError:                                   # an int beyond 1.8e308
-            raise ValueError(f'parameter {name}[{i}] is beyond the float64 range '
-                             f'(|x| <= 1.8e308)') from None
-    if len(out) != size:
-        raise ValueError(f'parameter {name} must have {size} numbers, got {len(out)}')
-    return tuple(out)
+def _check(name, params):
+    try:
+        return BY_NAME[name].check(params[name])
+    except KeyError:
+        raise ValueError(f'parameter {name} is missing') from None
 
 
 def scene_from_params(params):
     """Build a :class:`Scene` from parameter values; ValueError names the parameter."""
     try:
-        return Scene(
-            inertia=_floats('inertia', params['inertia'], 3),
-            torque=_floats('torque', params['torque'], 3),
-            torque_frame=params['torque_frame'],
-            omega0=_floats('omega0', params['omega0'], 3),
-            attitude0=_floats('attitude0', params['attitude0'], 4),
-        )
-    except KeyError as exc:
-        raise ValueError(f'parameter {exc.args[0]} is missing') from None
+        return Scene(**{name: _check(name, params) for name in SCENE_KEYS})
     except ValueError as exc:
         msg = str(exc)
         raise ValueError(msg if msg.startswith('parameter') else f'parameter {msg}') from None
@@ -111,16 +104,9 @@ def scene_from_params(params):
 
 def solver_options(params):
     """Return ``(tol, backend)`` for :func:`solve`, validated, backend None for 'auto'."""
-    tol = params.get('tol', 1e-12)
-    # the declared range [MIN_TOL, MAX_TOL] binds rclpy only for doubles: check any number
-    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or \
-            not (MIN_TOL <= tol <= MAX_TOL):                    # NaN fails, ints compare exactly
-        raise ValueError(f'parameter tol must be a number in [{MIN_TOL:g}, {MAX_TOL:g}] rad, '
-                         f'got {tol!r}')
-    backend = params.get('backend', 'auto')
-    if backend not in BACKENDS:
-        raise ValueError(f'parameter backend must be one of {BACKENDS}, got {backend!r}')
-    return float(tol), (None if backend == 'auto' else backend)
+    tol = BY_NAME['tol'].check(params.get('tol', BY_NAME['tol'].default))
+    backend = BY_NAME['backend'].check(params.get('backend', BY_NAME['backend'].default))
+    return tol, (None if backend == 'auto' else backend)
 
 
 class SensorSettings:
@@ -139,41 +125,29 @@ class SensorSettings:
     """
 
     def __init__(self, params):
-        p = params
-        for name in OUTPUT_KEYS:
-            if not isinstance(p.get(name), bool):
-                raise ValueError(f'parameter {name} must be true or false, '
-                                 f'got {p.get(name)!r}')
+        p = {name: _check(name, params) for name in OUTPUT_KEYS}
         self.imu, self.star_tracker = p['imu.enable'], p['star_tracker.enable']
         self.odom, self.transform = p['odom.enable'], p['transform.enable']
         self.markers = p['markers.enable']
-        publish_rate = p.get('publish_rate', 100.0)
-        self.imu_rate = _rate('imu.rate', p['imu.rate'], publish_rate)
-        self.star_tracker_rate = _rate('star_tracker.rate', p['star_tracker.rate'],
-                                       publish_rate)
+        publish_rate = params.get('publish_rate', BY_NAME['publish_rate'].default)
+        self.imu_rate = _check('imu.rate', params) or float(publish_rate)
+        self.star_tracker_rate = _check('star_tracker.rate', params) or float(publish_rate)
         try:
-            self.gyro = GyroNoise(p['imu.gyro_noise_density'], p['imu.gyro_random_walk'],
-                                  p['imu.gyro_bias'], p['imu.seed'])
+            self.gyro = GyroNoise(params['imu.gyro_noise_density'],
+                                  params['imu.gyro_random_walk'], params['imu.gyro_bias'],
+                                  params['imu.seed'])
         except ValueError as exc:
             raise ValueError(f'parameter imu.{exc}') from None
         try:
             self.attitude_noise = AttitudeNoise(
-                p['star_tracker.cross_boresight_arcsec'],
-                p['star_tracker.about_boresight_arcsec'], p['star_tracker.boresight'],
-                p['star_tracker.seed'])
+                params['star_tracker.cross_boresight_arcsec'],
+                params['star_tracker.about_boresight_arcsec'], params['star_tracker.boresight'],
+                params['star_tracker.seed'])
         except ValueError as exc:
             raise ValueError(f'parameter star_tracker.{exc}') from None
-        if self.imu and p.get('time_scale', 1.0) == 0.0:
+        if self.imu and params.get('time_scale', 1.0) == 0.0:
             raise ValueError('parameter time_scale = 0 freezes the scene: the imu needs '
                              'scene time to pass (set time_scale > 0 or imu.enable false)')
-
-
-def _rate(name, value, publish_rate):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-            not math.isfinite(value) or not (value == 0 or 1e-3 <= value <= MAX_RATE):
-        raise ValueError(f'parameter {name} must be 0 (= publish_rate) or a rate in '
-                         f'[0.001, {MAX_RATE:g}] Hz, got {value!r}')
-    return float(value) if value else float(publish_rate)
 
 
 def sensor_settings(params):
@@ -188,3 +162,168 @@ def sensor_settings(params):
         return SensorSettings(params)
     except KeyError as exc:
         raise ValueError(f'parameter {exc.args[0]} is missing') from None
+
+
+def build_solution(values):
+    """Return the core solution of checked parameter ``values`` (ValueError if none)."""
+    scene = scene_from_params(values)
+    tol, backend = solver_options(values)
+    try:
+        return solve(scene, tol=tol, backend=backend)
+    except NoExactSolution as exc:
+        raise ValueError(f'no exact solution for this scene: {exc}') from None
+    except PrecisionError as exc:
+        raise ValueError(f'the scene cannot be evaluated to tol: {exc}') from None
+    except Exception as exc:        # whatever else the core raises: refuse the scene
+        raise ValueError(f'the scene cannot be solved: {type(exc).__name__}: {exc} (inertia '
+                         f'{list(scene.inertia)}, torque {list(scene.torque)}, omega0 '
+                         f'{list(scene.omega0)})') from None
+
+
+class TrialError(ValueError):
+    """A run's first samples cannot be evaluated in time (:func:`trial`'s reason)."""
+
+
+def trial(sol, values, cfg=None):
+    """Evaluate the first samples of a candidate run; return None or why it fails (str).
+
+    A scene whose first tick (t = 0) or second (one period in, scaled by ``time_scale``)
+    cannot be evaluated, or costs more than :data:`TRIAL_LIMIT_S`, would leave the node
+    publishing nothing, or blocking its services; it is refused instead. With the sensor
+    settings ``cfg`` (:func:`sensor_settings`), the first gyro sample (one interval,
+    ``time_scale / imu_rate`` s of scene time, its quadrature within :data:`SAMPLE_BUDGET_S`
+    as in the node) and the first star tracker sample are tried the same way, and a gyro
+    sample whose increment bound is not finite refuses the scene too.
+    """
+    time_scale = float(values['time_scale'])
+    t1 = time_scale / float(values['publish_rate'])
+    for t in (0.0, t1):
+        c0 = time.perf_counter()
+        try:
+            sol.at(t)
+        except Exception as exc:    # PrecisionError, ValueError, or anything else
+            return (f'the scene cannot be evaluated at t = {t:g} s (the first ticks): '
+                    f'{type(exc).__name__}: {exc}')
+        cost = time.perf_counter() - c0
+        if cost > TRIAL_LIMIT_S:
+            return (f'one sample of this scene takes {cost:.3g} s to evaluate ({sol.model}, '
+                    f"{sol.method}), beyond the node's limit of {TRIAL_LIMIT_S:g} s; try "
+                    "backend 'auto' or a larger tol")
+    if cfg is None:
+        return None
+    if cfg.imu:
+        dt = time_scale / cfg.imu_rate
+        c0 = time.perf_counter()
+        try:                        # an ideal gyro: the run's own noise stream stays fresh
+            with np.errstate(over='ignore', invalid='ignore'):  # judged below, not warned
+                r = Gyro(sol).read(0.0, dt, budget=SAMPLE_BUDGET_S)
+        except Exception as exc:
+            return (f'the first gyro sample (imu.rate {cfg.imu_rate:g} Hz, time_scale '
+                    f'{time_scale:g}: {dt:g} s of scene time) cannot be evaluated: '
+                    f'{type(exc).__name__}: {exc}; lower time_scale or raise imu.rate')
+        cost = time.perf_counter() - c0
+        if cost > TRIAL_LIMIT_S:
+            return (f'the first gyro sample ({dt:g} s of scene time) takes {cost:.3g} s, '
+                    f"beyond the node's limit of {TRIAL_LIMIT_S:g} s; lower time_scale or "
+                    'raise imu.rate')
+        bound = float(max(r.delta_angle_bound, r.delta_rotation_bound))
+        if not math.isfinite(bound):
+            return (f'the gyro increments of this scene have no finite error bound '
+                    f'({bound!r} rad over the first {dt:g} s; omega0 or torque too large '
+                    'for float64); turn imu.enable off or choose a smaller scene')
+    if cfg.star_tracker:
+        t = time_scale / cfg.star_tracker_rate
+        c0 = time.perf_counter()
+        try:
+            StarTracker(sol).read(t)
+        except Exception as exc:
+            return (f'the first star tracker sample (t = {t:g} s) cannot be evaluated: '
+                    f'{type(exc).__name__}: {exc}')
+        cost = time.perf_counter() - c0
+        if cost > TRIAL_LIMIT_S:
+            return (f'the first star tracker sample takes {cost:.3g} s, beyond the '
+                    f"node's limit of {TRIAL_LIMIT_S:g} s")
+    return None
+
+
+@dataclass(frozen=True)
+class RunSetup:
+    """Everything a run needs, validated and tried (see :func:`prepare_run`).
+
+    Attributes
+    ----------
+    values : dict
+        The checked parameter values by name (every parameter of the table).
+    solution : Solution or TriaxialSolution
+        The core's exact solution of the scene.
+    sensors : SensorSettings
+        Which outputs are on, the sensor rates (Hz, 0 resolved) and error models.
+    gyro, star_tracker : Gyro or None, StarTracker or None
+        The run's sensor models with fresh noise streams (None where off).
+    time_scale : float
+        Scene seconds per clock second.
+    publish_rate : float
+        Truth rate, Hz.
+    frames : tuple of str
+        ``(frame_id, body_frame_id)``: the frames N and B of the messages.
+    """
+
+    values: dict
+    solution: object
+    sensors: SensorSettings
+    gyro: Optional[Gyro]
+    star_tracker: Optional[StarTracker]
+    time_scale: float
+    publish_rate: float
+    frames: Tuple[str, str]
+
+
+def check_run(values):
+    """Validate parameter ``values`` without solving: the checked values (ValueError else).
+
+    Each value by its table entry, then the scene, the solver options and the sensor
+    settings; what :func:`prepare_run` checks before it solves. For a change that the
+    running scene does not depend on (frames, rates of what is running).
+    """
+    p = check_values(values)
+    scene_from_params(p)
+    solver_options(p)
+    sensor_settings(p)
+    return p
+
+
+def prepare_run(values, try_samples=True):
+    """Validate parameter ``values`` and set a run up: a :class:`RunSetup`.
+
+    Each value is checked by its entry of :data:`rigidrot_ros.params.PARAMS`, the scene is
+    solved, the sensor settings validated, and (``try_samples``) the first samples tried
+    (:func:`trial`). The node calls this at start-up, for a parameter change and on
+    ``~/reset``; the offline generator calls it for its run.
+
+    Parameters
+    ----------
+    values : dict
+        Every parameter of the table by its dotted name (e.g. ``params.defaults()`` updated
+        with overrides).
+
+    Raises
+    ------
+    TrialError
+        The first samples cannot be evaluated in time (the reason, without the scene).
+    ValueError
+        Naming the parameter and the rule it breaks.
+    """
+    p = check_values(values)
+    solution = build_solution(p)
+    sensors = sensor_settings(p)
+    if try_samples:
+        reason = trial(solution, p, sensors)
+        if reason is not None:
+            raise TrialError(reason)
+    return RunSetup(
+        values=p, solution=solution, sensors=sensors,
+        gyro=Gyro(solution, sensors.gyro) if sensors.imu else None,
+        star_tracker=(StarTracker(solution, sensors.attitude_noise) if sensors.star_tracker
+                      else None),
+        time_scale=p['time_scale'], publish_rate=p['publish_rate'],
+        frames=(p['frame_id'], p['body_frame_id']))

@@ -23,8 +23,8 @@ def test_preset_selects_its_model(name, model):
 
 
 def test_default_file_declares_every_node_parameter():
-    from rigidrot_ros.node.attitude_node import _DESCRIPTIONS
-    assert set(load_defaults()) == set(_DESCRIPTIONS)
+    from rigidrot_ros.params import BY_NAME
+    assert set(load_defaults()) == set(BY_NAME)
 
 
 def test_bad_params_files_are_named(tmp_path):

@@ -103,7 +103,7 @@ def test_extreme_values_are_refused_or_published_sound(params, word):
 
 def test_a_failing_solver_is_a_refusal_not_a_crash(monkeypatch):
     """Whatever solve() raises (here ZeroDivisionError) reaches the caller as a reason."""
-    import rigidrot_ros.node.attitude_node as mod
+    import rigidrot_ros.settings as mod
     node = AttitudeNode()
 
     def broken(*a, **k):
@@ -119,9 +119,9 @@ def test_a_failing_solver_is_a_refusal_not_a_crash(monkeypatch):
 
 def test_a_scene_too_slow_to_evaluate_is_refused(monkeypatch):
     """A first sample over the limit is refused with its cost, and the scene is unchanged."""
-    import rigidrot_ros.node.attitude_node as mod
+    import rigidrot_ros.settings as mod
     node = AttitudeNode()
-    monkeypatch.setattr(mod, '_TRIAL_LIMIT_S', 0.0)       # every sample is "too slow"
+    monkeypatch.setattr(mod, 'TRIAL_LIMIT_S', 0.0)       # every sample is "too slow"
     try:
         res = node.set_parameters_atomically([Parameter('omega0', value=[0.1, 0.2, 0.3])])
         omega0 = list(node.get_parameter('omega0').value)
@@ -145,15 +145,15 @@ def test_diagnostics_keep_every_warn_reason():
     import time
     node = AttitudeNode()
     try:
-        node._rate_window = (time.monotonic() - 1.0, node._stats.published, node._period_hz)
-        node._stats.skipped = 7
+        node._rate_window = (time.monotonic() - 1.0, node._counters.published, node._period_hz)
+        node._counters.skipped = 7
         node._last_sample = (0.0, 1.0)
         st = _diagnostics_of(node)
         assert st.level == DiagnosticStatus.WARN
         for words in ('delivering 0 Hz', 'sensor samples skipped', 'error bound above tol'):
             assert words in st.message, st.message
-        node._stats.errors, node._stats.last_error = 1, 'boom'
-        node._stats.skipped = 8
+        node._counters.errors, node._counters.last_error = 1, 'boom'
+        node._counters.skipped = 8
         st = _diagnostics_of(node)
         assert st.level == DiagnosticStatus.ERROR
         assert 'evaluation failed: boom' in st.message and 'skipped' in st.message, st.message

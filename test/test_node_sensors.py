@@ -214,7 +214,7 @@ def test_bad_sensor_parameters_are_refused_and_state_kept(name, value, words):
     node = _all_on()
     names = [n for n in node._parameters if n.startswith(('imu.', 'star_tracker.'))]
     before = {n: node.get_parameter(n).value for n in names}
-    sensors = node._sensors
+    setup = node._setup
     result = node.set_parameters([Parameter(name, value=value)])[0]
     assert not result.successful
     assert words in result.reason, result.reason
@@ -223,7 +223,7 @@ def test_bad_sensor_parameters_are_refused_and_state_kept(name, value, words):
             for k, v in after.items()} == \
         {k: list(v) if hasattr(v, '__len__') and not isinstance(v, str) else v
          for k, v in before.items()}
-    assert node._sensors is sensors
+    assert node._setup is setup
     node.destroy_node()
 
 
@@ -278,13 +278,24 @@ def test_unknown_override_is_named_not_dropped_in_silence():
 
 
 def test_a_clock_jump_restarts_the_sensor_grid_and_is_counted():
+    """5 s of backlog at 100 Hz: the stream jumps to the newest sample, 499 counted."""
+    from rigidrot_ros.node.diagnostics import Counters
+    from rigidrot_ros.node.streams import ImuStream
     node = _node(**{'imu.enable': True, 'imu.rate': 100.0})
-    node._t_start = rclpy.time.Time(nanoseconds=1_000_000_000)
-    first, last = node._grid(100.0, 0, 1_000_000_000 + 5_000_000_000)     # 5 s of backlog
-    assert (first, last) == (500, 500) and node._stats.skipped == 499
-    assert node._grid(100.0, 500, 1_000_000_000 + 5_029_999_999) == (501, 502)
-    assert node._grid(100.0, 502, 1_000_000_000 + 5_029_999_999) == (503, 502)   # none due
-    assert node._grid(100.0, 502, 0)[1] < 503                     # clock before t_start
+    stream = node._streams[0]
+    assert isinstance(stream, ImuStream) and stream.last == 0
+    counters, failed = Counters(), []
+    t0 = 1_000_000_000
+    items = stream.take(t0, t0 + 5_000_000_000, 2.0, ('inertial', 'body'), counters,
+                        lambda t, exc: failed.append(exc))
+    assert not failed and counters.skipped == 499 and counters.samples == {'imu': 1}
+    assert stream.last == 500 and [topic for topic, _ in items] == \
+        ['imu', 'delta_angle', 'delta_rotation']
+    assert stamp_ns(items[0][1]) == t0 + 5_000_000_000
+    stream.take(t0, t0 + 5_029_999_999, 2.0, ('inertial', 'body'), counters, failed.append)
+    assert stream.last == 502 and counters.samples == {'imu': 3}
+    assert stream.take(t0, 0, 2.0, ('inertial', 'body'), counters, failed.append) == []
+    assert stream.last == 502 and counters.skipped == 499       # clock before t_start
     node.destroy_node()
 
 
@@ -363,8 +374,8 @@ def test_a_gyro_interval_too_long_to_integrate_is_refused():
 
 def test_an_infinite_gyro_bound_is_refused_and_the_bound_is_per_run(monkeypatch):
     """omega0 = [1e300, ...] gives an infinite increment bound: refused with the imu on."""
-    import rigidrot_ros.node.attitude_node as mod
-    monkeypatch.setattr(mod, '_BUDGET_S', 10.0)     # let the quadrature end (bound = inf)
+    import rigidrot_ros.settings as mod
+    monkeypatch.setattr(mod, 'SAMPLE_BUDGET_S', 10.0)     # let the quadrature end (bound = inf)
     node = _node(**{'imu.enable': True, 'time_scale': 1.0})
     huge = {**AXIAL, 'omega0': [1e300, -0.2, 0.5]}     # the truth itself is sound
     try:
@@ -374,7 +385,7 @@ def test_an_infinite_gyro_bound_is_refused_and_the_bound_is_per_run(monkeypatch)
         assert 'omega0' in result.reason and 'no finite error bound' in result.reason, \
             result.reason
         # a bound seen in one run is reported (WARN) and forgotten at ~/reset
-        node._stats.increment_bound = math.inf
+        node._streams[0].bound = math.inf
         sent = []
         node._pub_diag.publish = sent.append
         node._publish_diagnostics()
@@ -382,7 +393,7 @@ def test_an_infinite_gyro_bound_is_refused_and_the_bound_is_per_run(monkeypatch)
         assert st.level == DiagnosticStatus.WARN and 'gyro increment' in st.message, st.message
         response = node._on_reset(None, type('R', (), {})())
         assert response.success, response.message
-        assert node._stats.increment_bound == 0.0
+        assert node._streams[0].bound == 0.0
     finally:
         node.destroy_node()
     with pytest.raises(SceneError, match='no finite error bound'):

@@ -13,7 +13,6 @@ with ``k(t)`` the spherical-body kernel in K (starting at the identity) and
 ``f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2)``, ``A = (I - I3)/I3`` (Eq. 27, 36, 50, 60).
 """
 
-from dataclasses import dataclass
 from fractions import Fraction
 import math
 import reprlib
@@ -31,15 +30,13 @@ from .kernel import (
 )
 from .method import DELTA_SWITCH, spinor_kernel  # noqa: F401  (DELTA_SWITCH re-exported)
 from .scene import Scene
+from .solution import BaseSolution, FLOAT_FLOOR, Samples
 from .taylor import TaylorKernel
+from .triaxial import TriaxialSolution
 
 __all__ = ['solve', 'Solution', 'Samples', 'NoExactSolution', 'MODELS', 'FLOAT_FLOOR', 'MIN_TOL',
            'MAX_PREC']
 
-#: Attitude error (rad) of composing float64 quaternions, included in every error bound.
-#: Some 30 roundings of 1.1e-16 (products, sines, the reduced angles) stay below 4e-15;
-#: the floor also covers the first ddphase.IN_FLOOR (1e-18 rad) of each phase's bound.
-FLOAT_FLOOR = 1e-14
 #: The smallest tol accepted, rad: twice the float64 floor.
 MIN_TOL = 2 * FLOAT_FLOOR
 #: Batches of at least this many times use dense output (:mod:`.dense`): one exact
@@ -58,8 +55,8 @@ _SPINOR_KERNELS = (HyperKernel, TaylorKernel, AdiabaticKernel)
 #: seconds to minutes a value; beyond that a request would effectively hang.
 MAX_PREC = 65536
 
-#: Model names and the paper's results they evaluate.
-MODELS = {
+#: Romano's models (Solution evaluates these) and the paper's results they evaluate.
+ROMANO_MODELS = {
     'fixed-axis': 'rotation about one principal axis (omega0 and torque along it)',
     'torque-free-sphere': 'spherical body, no torque: constant rotation (Eq. 6, 62-64)',
     'torque-free-axisymmetric': 'axisymmetric body, no torque (Theorem 5, Eq. 58-64)',
@@ -70,43 +67,11 @@ MODELS = {
     'transverse-body': 'axisymmetric body, body-fixed transverse torque, r0 = 0 (Theorem 4)',
     'oblique-virtual': 'axisymmetric body, oblique torque fixed in the virtual sphere '
                        '(Theorems 2 and 3 combined by the reduction theorem, Eq. 22-25)',
-    # torque-free triaxial body: rigidrot_ros/core/triaxial.py
-    'torque-free-triaxial': 'three different moments, no torque (Euler-Poinsot): Jacobi '
-                            'elliptic functions, angle about h by their integral',
 }
 
 
 class NoExactSolution(ValueError):
     """The scene is outside every exact solution this package evaluates."""
-
-
-@dataclass(frozen=True)
-class Samples:
-    """The exact motion at the times ``t``.
-
-    Attributes
-    ----------
-    t : ndarray (...,)
-        Seconds since t = 0.
-    quaternion : ndarray (..., 4)
-        ``q_NB``, order (x, y, z, w), active (rotates body vectors into N); continuous
-        in t (no sign flips between samples).
-    omega : ndarray (..., 3)
-        Angular velocity of B relative to N, in B, rad/s.
-    error_bound : ndarray (...,)
-        Bound on the attitude error, rad (certified with the flint backend, a running
-        error estimate with mpmath).
-    """
-
-    t: np.ndarray
-    quaternion: np.ndarray
-    omega: np.ndarray
-    error_bound: np.ndarray
-
-    @property
-    def rotation(self):
-        """``R_NB`` (..., 3, 3): ``v_N = R_NB @ v_B``."""
-        return quat.to_matrix(self.quaternion)
 
 
 def _cyclic(k):
@@ -226,20 +191,11 @@ def _mag(x):
     return -100000 if x == 0 else int(mpmath.mag(x))
 
 
-def _times(t):
-    """``t`` as a float array, or ValueError naming the problem."""
-    try:
-        return np.asarray(t, dtype=float)
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise ValueError(f't must be a float or a 1-D array of floats (seconds), got '
-                         f'{reprlib.repr(t)}: {exc}') from None
-
-
 def _default_backend():
     return available_backends()[0]
 
 
-class Solution:
+class Solution(BaseSolution):
     """The exact motion of a scene; evaluate it with :meth:`at`.
 
     Attributes
@@ -259,12 +215,13 @@ class Solution:
         Attitude accuracy asked, rad.
     """
 
+    MODELS = ROMANO_MODELS
+
     def __init__(self, scene, tol, backend, max_prec):
         self.scene = scene
         self.tol = tol
         self.backend = backend
         self.model, k = _classify(scene)
-        self.reference = MODELS[self.model]
         perm = _cyclic(k)                                      # R_B'B
         self._perm_T = perm.T
         q_b1b = quat.from_matrix(perm)                         # q_B'B
@@ -386,6 +343,7 @@ class Solution:
         self._left_t, self._p0_t, self._p1_t = (
             tuple(float(v) for v in x) for x in (self._left, self._p0, self._p1))
         self._r0 = float(w0[2])
+        self._m_b1 = tuple(float(v) for v in m)               # torque in B' (= S) at t = 0
         self._perm_idx = [int(np.argmax(np.abs(row))) for row in self._perm_T]
         self._floats = (float(self._w_s0[0]), float(self._w_s0[1]), float(self._m_over_I[0]),
                         float(self._m_over_I[1]))
@@ -463,39 +421,8 @@ class Solution:
         """Return the bits of working precision used by the last kernel evaluation."""
         return self._kernel.prec
 
-    def at(self, t):
-        """Evaluate the exact motion at time(s) t.
-
-        Parameters
-        ----------
-        t : float or 1-D array of float
-            Seconds since t = 0.
-
-        Returns
-        -------
-        Samples
-            ``quaternion`` q_NB (x, y, z, w), ``rotation`` R_NB, ``omega`` (rad/s, B
-            relative to N, in B) and ``error_bound`` (rad), shaped like ``t``.
-
-        Raises
-        ------
-        PrecisionError
-            When the special functions cannot reach ``tol`` within the precision ceiling.
-
-        Examples
-        --------
-        >>> sol = solve(Scene(inertia=(1, 1, 1), omega0=(0, 0, 1.0)))
-        >>> round(float(sol.at(math.pi).quaternion[2]), 12)
-        1.0
-        """
-        t_arr = _times(t)
-        if t_arr.ndim == 0:
-            return self._at_scalar(float(t_arr))
-        if t_arr.ndim > 1:
-            raise ValueError(f't must be a float or a 1-D array, got shape {t_arr.shape}')
-        tt = np.atleast_1d(t_arr)
-        if not np.all(np.isfinite(tt)):
-            raise ValueError('t must be finite')
+    def _at_array(self, tt):
+        """:meth:`at` at a finite 1-D float array of times (sorted or not)."""
         n = len(tt)
         if self._kin:                                          # refuse before the work
             self._check(tt, 2.0 * self._input_error(tt) + FLOAT_FLOOR, np.zeros(3))
@@ -558,20 +485,33 @@ class Solution:
         err = 2.0 * np.arcsin(np.minimum(kerr, 1.0)) + ferr + FLOAT_FLOOR
         return q, omega, err
 
-    def omega_at(self, t):
-        """Angular velocity of B relative to N, in B, rad/s, at t (float or 1-D array).
+    def _omega(self, tt):
+        """Omega in B at checked times: the dynamics alone, in closed form.
 
-        The dynamics alone, in closed form (Eq. 39, 47, 56, 58): no special function is
-        evaluated, so this is cheap.
+        Eq. 39, 47, 56, 58: no special function is evaluated, so this is cheap.
         """
-        tt = _times(t)
-        if not np.all(np.isfinite(tt)):
-            raise ValueError('t must be finite')
         f = self._f.angles(tt)[0]
         omega = self._omega_b1(tt, f)
         if not np.all(np.isfinite(omega)):
             raise ValueError(self._omega_overflow(tt, omega))
         return omega
+
+    def _torque_body(self, tt):
+        """Torque in B (N m) at checked times.
+
+        'body': constant. 'virtual': constant in S, which turns relative to B' about the
+        symmetry axis by ``-f(t)``, so ``M_B' = (m1 cos f + m2 sin f, m2 cos f - m1 sin f,
+        m3)`` (the rotation that takes omega_S to omega_B').
+        """
+        shape = np.shape(tt) + (3,)
+        if self.scene.torque_frame == 'body' or self._f.zero:
+            return np.broadcast_to(np.array(self.scene.torque, dtype=float), shape).copy()
+        f = self._f.angles(tt)[0]
+        m = self._m_b1
+        c, s = np.cos(f), np.sin(f)
+        m_b1 = np.stack([m[0] * c + m[1] * s, m[1] * c - m[0] * s,
+                         np.full(np.shape(tt), m[2])], axis=-1)
+        return m_b1[..., self._perm_idx]
 
     def _kernel_scalar(self, t):
         """Kernel at one time as a float 4-tuple; the node's stream reuses dense windows."""
@@ -623,6 +563,15 @@ class Solution:
                        np.array((w_b1[pi[0]], w_b1[pi[1]], w_b1[pi[2]])), np.float64(err))
 
 
+#: The solution class of every model (as scipy's ``integrate._ivp`` METHODS): :func:`solve`
+#: classifies the scene and builds ``SOLUTIONS[model]``. Every class is a
+#: :class:`~.solution.BaseSolution` and lists its models in its ``MODELS``.
+SOLUTIONS = {**{name: Solution for name in Solution.MODELS},
+             **{name: TriaxialSolution for name in TriaxialSolution.MODELS}}
+#: Model names and the paper's results they evaluate.
+MODELS = {name: cls.MODELS[name] for name, cls in SOLUTIONS.items()}
+
+
 def solve(scene, tol=1e-12, backend=None, max_prec=4096):
     """Choose the cheapest exact model for ``scene`` and prepare its constants.
 
@@ -672,7 +621,4 @@ def solve(scene, tol=1e-12, backend=None, max_prec=4096):
             not 64 <= max_prec <= MAX_PREC:
         raise ValueError(f'max_prec must be an integer from 64 to {MAX_PREC} bits (a higher '
                          f'ceiling could run for hours), got {max_prec!r}')
-    if _classify(scene)[0] == 'torque-free-triaxial':       # core/triaxial.py
-        from .triaxial import TriaxialSolution
-        return TriaxialSolution(scene, tol_f, backend, max_prec, FLOAT_FLOOR)
-    return Solution(scene, tol_f, backend, max_prec)
+    return SOLUTIONS[_classify(scene)[0]](scene, tol_f, backend, max_prec)

@@ -62,12 +62,13 @@ import numpy as np
 
 from . import quaternion as quat
 from .kernel import PrecisionError
+from .solution import BaseSolution, FLOAT_FLOOR, Samples
 
 __all__ = ['TriaxialSolution', 'MODEL', 'REFERENCE']
 
 MODEL = 'torque-free-triaxial'
 REFERENCE = ('three different moments, no torque (Euler-Poinsot): Jacobi elliptic '
-             'functions and the angle about the angular momentum')
+             'functions, angle about h by their integral')
 
 _U = 2.0 ** -53                 # unit roundoff of float64
 _H = 0.125                      # cell width of the table, in u
@@ -394,15 +395,6 @@ def _q_mp_mul(a, b):
             aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz]
 
 
-def _times_1d(t):
-    """``t`` as a float array of at most one dimension, or ValueError (as Solution.at)."""
-    from .models import _times
-    tt = _times(t)
-    if tt.ndim > 1:
-        raise ValueError(f't must be a float or a 1-D array, got shape {tt.shape}')
-    return tt
-
-
 class _Turns:
     """A phase ``rho t + offset`` in turns, reduced to [-1/2, 1/2] from exact float t.
 
@@ -485,7 +477,7 @@ def _frame(inertia, w):
     return rows, e2 == 0
 
 
-class TriaxialSolution:
+class TriaxialSolution(BaseSolution):
     """The exact torque-free motion of a triaxial body; evaluate it with :meth:`at`.
 
     Same interface as :class:`rigidrot_ros.core.models.Solution`.
@@ -510,15 +502,10 @@ class TriaxialSolution:
         Bits used for the per-scene constants.
     """
 
+    MODELS = {MODEL: REFERENCE}
     model = MODEL
 
-    @property
-    def reference(self):
-        """Return what the model evaluates (its entry in ``models.MODELS``)."""
-        from .models import MODELS
-        return MODELS.get(MODEL, REFERENCE)
-
-    def __init__(self, scene, tol, backend, max_prec, floor):
+    def __init__(self, scene, tol, backend, max_prec, floor=FLOAT_FLOOR):
         self.scene = scene
         self.tol = tol
         self.backend = backend
@@ -893,7 +880,6 @@ class TriaxialSolution:
 
     def _separatrix_scalar(self, t, txi, exi):
         """:meth:`at` on the separatrix for one time, in plain floats (as :meth:`at`)."""
-        from .models import Samples
         sech, tanh, fint, f_err = self._sep1(t)
         c0 = self._sep_c[0]
         ut = self._ut
@@ -908,9 +894,8 @@ class TriaxialSolution:
                                  f'above tol = {self.tol!r}')
         return Samples(np.asarray(t), np.array(qq), omega, np.float64(bound))
 
-    def omega_at(self, t):
-        """Angular velocity of B relative to N, in B, rad/s, at t (float or 1-D array)."""
-        tt = _times_1d(t)
+    def _omega(self, tt):
+        """Angular velocity of B relative to N, in B, rad/s, at checked times."""
         flat = np.atleast_1d(tt)
         self._check_t(flat)
         if tt.ndim == 0:            # the scalar path of at(), bit for bit
@@ -941,30 +926,8 @@ class TriaxialSolution:
             raise PrecisionError(f't = {bad:.3g} s is beyond |t| = {_T_MAX:g} s, where the '
                                  f'phase of the triaxial model can be reduced exactly')
 
-    def at(self, t):
-        """Evaluate the exact motion at time(s) t.
-
-        Parameters
-        ----------
-        t : float or 1-D array of float
-            Seconds since t = 0.
-
-        Returns
-        -------
-        Samples
-            ``quaternion`` q_NB (x, y, z, w), ``rotation`` R_NB, ``omega`` (rad/s, B
-            relative to N, in B) and ``error_bound`` (rad), shaped like ``t``.
-
-        Raises
-        ------
-        PrecisionError
-            When a sample's bound would exceed ``tol`` (|t| far beyond 1e15 s).
-        """
-        from .models import Samples
-        t_arr = _times_1d(t)
-        if t_arr.ndim == 0:
-            return self._at_scalar(float(t_arr))
-        tt = t_arr
+    def _at_array(self, tt):
+        """:meth:`at` at a finite 1-D float array of times."""
         self._check_t(tt)
         txi, exi = self._xi_turns.reduce(tt)
         if self._sep:
@@ -1035,7 +998,6 @@ class TriaxialSolution:
 
     def _at_scalar(self, t):
         """:meth:`at` for one time, in plain floats."""
-        from .models import Samples
         if not math.isfinite(t):
             raise ValueError('t must be finite')
         if abs(t) > _T_MAX:

@@ -22,11 +22,16 @@ memory stays bounded whatever the duration.
 import difflib
 import json
 import math
+import signal
+import threading
 
 import numpy as np
 import yaml
 
+from rigidrot_ros.io import cdr
 from rigidrot_ros.io import messages as msgs
+from rigidrot_ros.node import grid
+from rigidrot_ros.node.streams import scene_time as _scene_time
 
 __all__ = ['iter_run', 'generate_bag', 'load_values', 'prepare_run', 'parse_override',
            'GenerationError', 'NODE_NAME', 'RUN_TOPIC']
@@ -40,6 +45,7 @@ BLOCK_S = 1.0
 #: The node's look-ahead batches (tick 0 alone, then doubling up to its ceiling).
 _AHEAD = (8, 256)
 _SEC = 1_000_000_000
+_EPS = float(np.finfo(float).eps)
 
 
 class GenerationError(ValueError):
@@ -61,7 +67,7 @@ def parse_override(text):
 
 
 def load_values(params_file=None, overrides=()):
-    """Return the node's defaults, merged with a params file and ``(name, value)`` overrides.
+    """Return the overrides of a params file, then of ``(name, value)`` pairs, as a dict.
 
     Raises
     ------
@@ -69,7 +75,7 @@ def load_values(params_file=None, overrides=()):
         A missing or malformed params file.
     """
     from rigidrot_ros.settings import load_defaults
-    values = load_defaults()
+    values = {}
     if params_file is not None:
         try:
             values.update(load_defaults(params_file))
@@ -80,50 +86,38 @@ def load_values(params_file=None, overrides=()):
     return values
 
 
-def _node():
-    from rigidrot_ros.node import attitude_node
-    return attitude_node
-
-
 def prepare_run(values):
-    """Validate ``values`` (overrides merged over the defaults) as the node does.
+    """Validate ``values`` (overrides by name) as the node does: a ``RunSetup``.
 
-    Returns ``(params, solution, sensor_settings)``; raises :class:`GenerationError` with
-    the node's own one-line reason otherwise. The node's start-up trial (its first ticks
-    and sensor samples) runs too, so a scene the node refuses is refused here, and the
-    solution has evaluated what the node's has before its first tick.
+    The overrides are merged over the parameter table's defaults and set up by
+    :func:`rigidrot_ros.settings.prepare_run`, the node's own function (each value by its
+    table entry, the scene solved, the sensors checked, the first samples tried), so a
+    scene the node refuses is refused here with the same reason, and the solution has
+    evaluated what the node's has before its first tick. A name the node does not
+    declare is refused (the node warns and ignores it; offline, a typo would silently
+    change the run). Raises :class:`GenerationError` (one line).
     """
-    from rigidrot_ros.settings import load_defaults, sensor_settings
-    node = _node()
-    p = load_defaults()
-    known = set(node._DESCRIPTIONS)
-    unknown = sorted(n for n in values if n not in known)
+    from rigidrot_ros import params, settings
+    unknown = sorted(n for n in values if n not in params.BY_NAME)
     if unknown:
-        close = difflib.get_close_matches(unknown[0], sorted(known), n=1)
+        close = difflib.get_close_matches(unknown[0], sorted(params.BY_NAME), n=1)
         hint = f' (did you mean {close[0]}?)' if close else ''
         raise GenerationError(f'unknown parameter(s) {", ".join(unknown)}{hint}: '
                               'attitude_node declares no such parameter')
+    p = params.defaults()
     p.update(values)
-    for name, rng in node._RANGES.items():      # what rclpy checks at declaration
-        v = p[name]
-        if isinstance(v, float) and not rng.from_value <= v <= rng.to_value:
-            raise GenerationError(f'parameter {name}: value {v!r} is outside the range '
-                                  f'[{rng.from_value:g}, {rng.to_value:g}]')
     try:
-        sol = node.build_solution(p)
-        cfg = sensor_settings(p)
-        trial = node._trial(sol, p, cfg)
-        if trial is not None:
-            summary = ', '.join(f'{k} {p[k]!r}' for k in ('inertia', 'torque', 'omega0'))
-            raise ValueError(f'scene {summary}: {trial}')
+        return settings.prepare_run(p)
+    except settings.TrialError as exc:
+        summary = ', '.join(f'{k} {p[k]!r}' for k in ('inertia', 'torque', 'omega0'))
+        raise GenerationError(' '.join(f'scene {summary}: {exc}'.split())) from None
     except ValueError as exc:
         raise GenerationError(' '.join(str(exc).split())) from None
-    return p, sol, cfg
 
 
 # -- the run -----------------------------------------------------------------------------------
 def _grid_count(rate, span_ns, first=0):
-    """Indices k >= first of the grid ``round(k * 1e9 / rate)`` below ``span_ns``: a range."""
+    """Return the range of indices k >= first with ``round(k * 1e9 / rate) < span_ns``."""
     k = max(first, math.floor(span_ns * rate * 1e-9) - 1)
     while round(k * 1e9 / rate) < span_ns:
         k += 1
@@ -133,7 +127,7 @@ def _grid_count(rate, span_ns, first=0):
 
 
 def _stamps(start_ns, rate, ks):
-    return [start_ns + round(k * 1e9 / rate) for k in ks]
+    return [grid.stamp_ns(start_ns, rate, k) for k in ks]
 
 
 class _Run:
@@ -148,10 +142,10 @@ class _Run:
                 not 0 <= start_ns < 2 ** 63:
             raise GenerationError(f'--start-ns must be an integer in [0, 2^63), '
                                   f'got {start_ns!r}')
-        from rigidrot_ros.sensors import Gyro, StarTracker
-        self.p, self.sol, self.cfg = prepare_run(values)
-        p, cfg = self.p, self.cfg
-        self.time_scale = float(p['time_scale'])
+        self.setup = setup = prepare_run(values)
+        self.p, self.sol, self.cfg = setup.values, setup.solution, setup.sensors
+        cfg = self.cfg
+        self.time_scale = float(setup.time_scale)
         if self.time_scale <= 0:
             raise GenerationError('parameter time_scale = 0 freezes the scene: a duration in '
                                   'scene seconds needs time_scale > 0')
@@ -160,15 +154,13 @@ class _Run:
             raise GenerationError(f'--duration {duration_s!r} s at time_scale '
                                   f'{self.time_scale:g} leaves the int64 nanosecond clock')
         self.start_ns = int(start_ns)
-        self.frame, self.body = p['frame_id'], p['body_frame_id']
-        self.rate = float(p['publish_rate'])
+        self.frame, self.body = setup.frames
+        self.rate = float(setup.publish_rate)
         self.truth_k = _grid_count(self.rate, self.span_ns)
-        self.gyro = self.star = None
+        self.gyro, self.star = setup.gyro, setup.star_tracker
         if cfg.imu:
-            self.gyro = Gyro(self.sol, cfg.gyro)
             self.imu_k = _grid_count(cfg.imu_rate, self.span_ns, first=1)
         if cfg.star_tracker:
-            self.star = StarTracker(self.sol, cfg.attitude_noise)
             self.star_k = _grid_count(cfg.star_tracker_rate, self.span_ns)
         self._ahead_next = 0            # the next truth index to evaluate
         self._ahead_size = _AHEAD[0]
@@ -176,8 +168,8 @@ class _Run:
 
     # -- time ------------------------------------------------------------------------------
     def scene_time(self, ns):
-        """Scene time (s) of clock stamp ``ns``, as the node computes it."""
-        return (ns - self.start_ns) * 1e-9 * self.time_scale
+        """Return the scene time (s) of clock stamp ``ns``, by the node's own function."""
+        return _scene_time(ns, self.start_ns, self.time_scale)
 
     @property
     def topics(self):
@@ -200,23 +192,17 @@ class _Run:
         return out
 
     def description(self):
-        """The run description the node publishes on ``~/run`` (a dict)."""
-        from rigidrot_ros import __version__
-        sol = self.sol
+        """Return the run description the node publishes on ``~/run`` (a dict)."""
+        from rigidrot_ros.node.outputs import run_description
         topics = {'/parameter_events': 'rcl_interfaces/msg/ParameterEvent'}
         topics.update(self.topics)
         topics['/diagnostics'] = 'diagnostic_msgs/msg/DiagnosticArray'
         topics[RUN_TOPIC] = 'std_msgs/msg/String'
-        return {
-            'rigidrot_run': 1, 'run': 1, 'start_ns': self.start_ns,
-            'time_scale': self.time_scale, 'scene': sol.scene.as_dict(), 'tol': sol.tol,
-            'backend': sol.backend, 'model': sol.model, 'method': sol.method,
-            'package': f'rigidrot_ros {__version__}', 'node': NODE_NAME, 'topics': topics,
-        }
+        return run_description(self.setup, self.start_ns, 1, NODE_NAME, topics)
 
     # -- truth -----------------------------------------------------------------------------
     def _truth_samples(self, ks):
-        """Samples ``(q, omega, bound)`` (plain floats) of the truth ticks ``ks``, in order.
+        """Return the samples ``(q, omega, bound)`` (floats) of the truth ticks ``ks``, in order.
 
         Evaluated as the node's look-ahead does when it keeps within its budget: tick 0
         alone (a scalar call), then batches from tick 1 doubling from 8 to 256 samples.
@@ -231,7 +217,7 @@ class _Run:
             if self._buf is None or k >= self._ahead_next:
                 n = self._ahead_size
                 start = max(self._ahead_next, k)
-                ts = np.array([self.scene_time(self.start_ns + round(j * 1e9 / self.rate))
+                ts = np.array([self.scene_time(grid.stamp_ns(self.start_ns, self.rate, j))
                                for j in range(start, start + n)])
                 s = self.sol.at(ts)
                 self._buf = (start, s.quaternion.tolist(), s.omega.tolist(),
@@ -245,43 +231,30 @@ class _Run:
 
     # -- one block ---------------------------------------------------------------------------
     def block(self, lo_ns, hi_ns):
-        """Messages with stamps in ``[lo_ns, hi_ns)`` (relative to start): a list of streams.
+        """Return the samples with stamps in ``[lo_ns, hi_ns)`` (relative to start), as arrays.
 
-        Each stream is ``(order, topic, stamps_ns, messages)``; ``order`` ranks the streams
-        of one stamp as the node publishes them.
+        A list of streams ``(order, topic, stamps_ns, data)``: ``order`` ranks the streams
+        of one stamp as the node publishes them; ``data`` a dict of float arrays (one row
+        a sample) that :func:`_messages` and :func:`_serialized` turn into messages.
         """
         streams = []
-        rate = self.rate
+        rate, cfg = self.rate, self.cfg
         ks = _sub(self.truth_k, rate, lo_ns, hi_ns)
         if len(ks):
-            stamps = _stamps(self.start_ns, rate, ks)
-            samples = self._truth_samples(ks)
-            att, vel, tf, odom, mk = [], [], [], [], []
-            cfg = self.cfg
-            eps = float(np.finfo(float).eps)
-            for ns, (q, w, bound) in zip(stamps, samples):
-                stamp = msgs.stamp(ns)
-                att.append(msgs.attitude(stamp, self.frame, q))
-                vel.append(msgs.vector(stamp, self.body, w))
-                if cfg.transform:
-                    tf.append(msgs.transform(stamp, self.frame, self.body, q))
-                if cfg.odom:
-                    rate_sd = 32.0 * eps * float(np.linalg.norm(w))
-                    odom.append(msgs.odometry(stamp, self.frame, self.body, q, w,
-                                              attitude_variance=bound ** 2,
-                                              rate_variance=rate_sd ** 2))
-                if cfg.markers:
-                    mk.append(msgs.body_markers(stamp, self.frame, q,
-                                                self.sol.scene.inertia))
-            streams += [(0, '/attitude', stamps, att), (1, '/angular_velocity', stamps, vel)]
-            for order, topic, lst in ((2, '/transform', tf), (3, '/odom', odom),
-                                      (4, '/markers', mk)):
-                if lst:
-                    streams.append((order, topic, stamps, lst))
+            stamps = np.array(_stamps(self.start_ns, rate, ks), dtype=np.int64)
+            q, w, e = (np.array(c, dtype=float) for c in zip(*self._truth_samples(ks)))
+            streams += [(0, '/attitude', stamps, {'q': q}),
+                        (1, '/angular_velocity', stamps, {'v': w})]
+            if cfg.transform:
+                streams.append((2, '/transform', stamps, {'q': q}))
+            if cfg.odom:
+                rate_sd = 32.0 * _EPS * np.array([float(np.linalg.norm(x)) for x in w])
+                streams.append((3, '/odom', stamps, {'q': q, 'w': w, 'av': e ** 2,
+                                                     'rv': rate_sd ** 2}))
+            if cfg.markers:
+                streams.append((4, '/markers', stamps, {'q': q}))
             if ks[0] == 0:      # ~/run goes out with the first tick, after its truth
-                from std_msgs.msg import String
-                streams.append((5, RUN_TOPIC, stamps[:1],
-                                [String(data=json.dumps(self.description()))]))
+                streams.append((5, RUN_TOPIC, stamps[:1], {}))
         if self.gyro is not None:
             streams += self._gyro_block(lo_ns, hi_ns)
         if self.star is not None:
@@ -293,30 +266,33 @@ class _Run:
         ks = _sub(self.imu_k, rate, lo_ns, hi_ns)
         if not len(ks):
             return []
-        stamps = _stamps(self.start_ns, rate, ks)
-        imu, da, dr = [], [], []
-        for k, ns1 in zip(ks, stamps):
-            ns0 = self.start_ns + round((k - 1) * 1e9 / rate)
-            r = self.gyro.read(self.scene_time(ns0), self.scene_time(ns1))
-            stamp = msgs.stamp(ns1)
-            imu.append(msgs.imu(stamp, self.body, r.omega, r.variance))
-            da.append(msgs.vector(stamp, self.body, r.delta_angle))
-            dr.append(msgs.vector(stamp, self.body, r.delta_rotation))
-        return [(6, '/imu', stamps, imu), (7, '/delta_angle', stamps, da),
-                (8, '/delta_rotation', stamps, dr)]
+        ns = np.array(_stamps(self.start_ns, rate, range(ks.start - 1, ks.stop)),
+                      dtype=np.int64)
+        t = [self.scene_time(int(x)) for x in ns]
+        n = len(ks)
+        omega, da, dr = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        var = np.empty(n)
+        read = self.gyro.read
+        for i in range(n):
+            r = read(t[i], t[i + 1])
+            omega[i], da[i], dr[i], var[i] = r.omega, r.delta_angle, r.delta_rotation, \
+                r.variance
+        stamps = ns[1:]
+        return [(6, '/imu', stamps, {'w': omega, 'var': var}),
+                (7, '/delta_angle', stamps, {'v': da}),
+                (8, '/delta_rotation', stamps, {'v': dr})]
 
     def _star_block(self, lo_ns, hi_ns):
         rate = self.cfg.star_tracker_rate
         ks = _sub(self.star_k, rate, lo_ns, hi_ns)
         if not len(ks):
             return []
-        stamps = _stamps(self.start_ns, rate, ks)
-        out = []
-        for ns in stamps:
-            r = self.star.read(self.scene_time(ns))
-            out.append(msgs.star_tracker(msgs.stamp(ns), self.frame, r.quaternion,
-                                         r.covariance))
-        return [(9, '/star_tracker', stamps, out)]
+        stamps = np.array(_stamps(self.start_ns, rate, ks), dtype=np.int64)
+        q, cov = np.empty((len(ks), 4)), np.empty((len(ks), 3, 3))
+        for i, ns in enumerate(stamps):
+            r = self.star.read(self.scene_time(int(ns)))
+            q[i], cov[i] = r.quaternion, r.covariance
+        return [(9, '/star_tracker', stamps, {'q': q, 'cov': cov})]
 
     def blocks(self):
         """Yield ``(lo_ns, hi_ns, streams)`` over the run, :data:`BLOCK_S` of clock each."""
@@ -329,19 +305,69 @@ class _Run:
 
 
 def _sub(krange, rate, lo_ns, hi_ns):
-    """The indices of ``krange`` whose grid offsets lie in ``[lo_ns, hi_ns)``."""
+    """Return the indices of ``krange`` whose grid offsets lie in ``[lo_ns, hi_ns)``."""
     a = _grid_count(rate, lo_ns, first=krange.start).stop if lo_ns > 0 else krange.start
     b = _grid_count(rate, hi_ns, first=krange.start).stop
     return range(max(a, krange.start), min(b, krange.stop))
 
 
-def _merged(streams):
-    """``(topic, stamp_ns, msg)`` of a block's streams in stamp order (node order within)."""
-    rows = []
-    for order, topic, stamps, items in streams:
-        rows += [(ns, order, i, topic, m) for i, (ns, m) in enumerate(zip(stamps, items))]
-    rows.sort(key=lambda r: (r[0], r[1], r[2]))
-    return rows
+def _order(streams):
+    """Merge order of a block's messages: ``(stream index, row)`` pairs by stamp, then rank."""
+    if not streams:
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+    which = np.concatenate([np.full(len(st), i) for i, (_, _, st, _) in enumerate(streams)])
+    row = np.concatenate([np.arange(len(st)) for _, _, st, _ in streams])
+    stamp = np.concatenate([st for _, _, st, _ in streams])
+    rank = np.concatenate([np.full(len(st), o) for o, _, st, _ in streams])
+    order = np.lexsort((row, rank, stamp))
+    return which[order], row[order]
+
+
+def _messages(run, order, topic, stamps, data):
+    """Build the ROS messages of one stream, built by :mod:`rigidrot_ros.io.messages`."""
+    frame, body = run.frame, run.body
+    st = [msgs.stamp(int(ns)) for ns in stamps]
+    if topic == RUN_TOPIC:
+        from std_msgs.msg import String
+        return [String(data=json.dumps(run.description()))]
+    if topic in ('/attitude',):
+        return [msgs.attitude(s, frame, q) for s, q in zip(st, data['q'].tolist())]
+    if topic in ('/angular_velocity', '/delta_angle', '/delta_rotation'):
+        return [msgs.vector(s, body, v) for s, v in zip(st, data['v'].tolist())]
+    if topic == '/transform':
+        return [msgs.transform(s, frame, body, q) for s, q in zip(st, data['q'].tolist())]
+    if topic == '/odom':
+        return [msgs.odometry(s, frame, body, q, w, attitude_variance=av, rate_variance=rv)
+                for s, q, w, av, rv in zip(st, data['q'].tolist(), data['w'].tolist(),
+                                           data['av'].tolist(), data['rv'].tolist())]
+    if topic == '/markers':
+        inertia = run.sol.scene.inertia
+        return [msgs.body_markers(s, frame, q, inertia) for s, q in zip(st, data['q'].tolist())]
+    if topic == '/imu':
+        return [msgs.imu(s, body, w, v) for s, w, v in zip(st, data['w'], data['var'].tolist())]
+    if topic == '/star_tracker':
+        return [msgs.star_tracker(s, frame, q, c) for s, q, c in zip(st, data['q'], data['cov'])]
+    raise AssertionError(topic)
+
+
+def _serialized(run, order, topic, stamps, data):
+    """Serialize one stream (:mod:`rigidrot_ros.io.cdr`), a list of ``bytes``."""
+    frame, body = run.frame, run.body
+    if topic == '/attitude':
+        return cdr.attitude(stamps, data['q'], frame).tolist()
+    if topic in ('/angular_velocity', '/delta_angle', '/delta_rotation'):
+        return cdr.vector(stamps, data['v'], body).tolist()
+    if topic == '/transform':
+        return cdr.transform(stamps, data['q'], frame, body).tolist()
+    if topic == '/odom':
+        return cdr.odometry(stamps, data['q'], data['w'], data['av'], data['rv'], frame,
+                            body).tolist()
+    if topic == '/imu':
+        return cdr.imu(stamps, data['w'], data['var'], body).tolist()
+    if topic == '/star_tracker':
+        return cdr.star_tracker(stamps, data['q'], data['cov'], frame).tolist()
+    from rclpy.serialization import serialize_message     # ~/run, markers: not fixed-size
+    return [serialize_message(m) for m in _messages(run, order, topic, stamps, data)]
 
 
 def iter_run(values, duration_s, start_ns=0):
@@ -369,8 +395,9 @@ def iter_run(values, duration_s, start_ns=0):
 
 def _iter(run):
     for _, _, streams in run.blocks():
-        for ns, _, _, topic, msg in _merged(streams):
-            yield topic, ns, msg
+        built = [_messages(run, *st) for st in streams]
+        for i, j in zip(*_order(streams)):
+            yield streams[i][1], int(streams[i][2][j]), built[i][j]
 
 
 def _qos_yamls(p):
@@ -389,8 +416,6 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
     A KeyboardInterrupt finishes the bag (summary, index, metadata.yaml) with what was
     written so far, then propagates.
     """
-    from rclpy.serialization import serialize_message
-
     from rigidrot_ros.io.bag import BagWriter
     run = _Run(values, duration_s, start_ns)
     qos, run_qos = _qos_yamls(run.p)
@@ -400,18 +425,31 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
     except OSError as exc:
         raise GenerationError(f'cannot write the bag to {out_dir}: '
                               f'{" ".join(str(exc).split())}') from None
+    stop = []
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        # SIGINT between blocks, never inside a write: the bag is always finished whole
+        previous = signal.signal(signal.SIGINT, lambda *_: stop.append(True))
     try:
         for topic, type_name in run.topics:
             writer.add_topic(topic, type_name, qos)
         writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String', run_qos)
         total = run.span_ns * 1e-9 * run.time_scale
         for lo, hi, streams in run.blocks():
-            for ns, _, _, topic, msg in _merged(streams):
+            raws = [_serialized(run, *st) for st in streams]
+            for i, j in zip(*_order(streams)):
+                topic = streams[i][1]
                 if topic == RUN_TOPIC:          # as the node's recorder: a metadata record
-                    writer.add_run(json.loads(msg.data))
-                writer.write(topic, serialize_message(msg), ns)
+                    writer.add_run(run.description())
+                writer.write(topic, raws[i][j], int(streams[i][2][j]))
             if progress is not None:
                 progress(hi * 1e-9 * run.time_scale, total)
+            if stop:
+                break
     finally:
         writer.close()
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    if stop:
+        raise KeyboardInterrupt
     return writer.path

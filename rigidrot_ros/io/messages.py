@@ -27,13 +27,13 @@ from geometry_msgs.msg import (
 )
 from nav_msgs.msg import Odometry
 import numpy as np
-from sensor_msgs.msg import Imu
+from sensor_msgs.msg import Imu, MagneticField
 from visualization_msgs.msg import Marker, MarkerArray
 
 from rigidrot_ros.core.quaternion import multiply_floats
 
 __all__ = ['stamp', 'attitude', 'vector', 'imu', 'odometry', 'transform', 'star_tracker',
-           'body_markers', 'box_size', 'UNUSED']
+           'body_markers', 'box_size', 'delta_velocity', 'magnetic_field', 'UNUSED']
 
 #: Diagonal value that marks a covariance block as "not provided".
 UNUSED = -1.0
@@ -74,8 +74,9 @@ def vector(stamp_msg, frame_id, v):
     return msg
 
 
-def imu(stamp_msg, body_frame_id, omega, variance):
-    """``sensor_msgs/Imu`` of a gyro sample: rate in B, rad/s; no orientation, no accel.
+def imu(stamp_msg, body_frame_id, omega, variance, linear_acceleration=None,
+        accel_variance=None):
+    """``sensor_msgs/Imu`` of a gyro sample (and an accelerometer's): no orientation.
 
     Parameters
     ----------
@@ -85,13 +86,46 @@ def imu(stamp_msg, body_frame_id, omega, variance):
         Measured rate of B relative to N, in B, rad/s.
     variance : float
         Per-axis variance of the rate, (rad/s)^2, on the covariance diagonal.
+    linear_acceleration : 3 floats, optional
+        Measured specific force in B, m/s^2 (acceleration minus gravity). Without it the
+        field stays zero with ``linear_acceleration_covariance[0] = -1`` (not provided).
+    accel_variance : float, optional
+        Per-axis variance of the specific force, (m/s^2)^2, on the diagonal of
+        ``linear_acceleration_covariance`` (in B); needed with ``linear_acceleration``.
     """
     msg = _header(Imu(), stamp_msg, body_frame_id)
     msg.orientation_covariance[0] = UNUSED
     _set_vector(msg.angular_velocity, omega)
     v = float(variance)
     msg.angular_velocity_covariance = [v, 0.0, 0.0, 0.0, v, 0.0, 0.0, 0.0, v]
-    msg.linear_acceleration_covariance[0] = UNUSED
+    if linear_acceleration is None:
+        msg.linear_acceleration_covariance[0] = UNUSED
+        return msg
+    if accel_variance is None:
+        raise ValueError('imu: linear_acceleration needs accel_variance (its covariance)')
+    _set_vector(msg.linear_acceleration, linear_acceleration)
+    a = float(accel_variance)
+    msg.linear_acceleration_covariance = [a, 0.0, 0.0, 0.0, a, 0.0, 0.0, 0.0, a]
+    return msg
+
+
+def delta_velocity(stamp_msg, body_frame_id, dv):
+    """``geometry_msgs/Vector3Stamped`` of a Δv = ∫ f_B dt over one interval, m/s, in B."""
+    return vector(stamp_msg, body_frame_id, dv)
+
+
+def magnetic_field(stamp_msg, body_frame_id, field, covariance):
+    """``sensor_msgs/MagneticField``: the field in B (tesla) and its covariance (T^2, in B).
+
+    ``covariance`` is a 3x3 matrix (or a per-axis variance for a diagonal one); all zero
+    would mean "unknown" to a consumer, so a zero-noise sensor still states the attitude's
+    error (see :class:`rigidrot_ros.sensors.Magnetometer`).
+    """
+    msg = _header(MagneticField(), stamp_msg, body_frame_id)
+    _set_vector(msg.magnetic_field, field)
+    c = np.asarray(covariance, dtype=float)
+    c = c * np.eye(3) if c.ndim == 0 else c.reshape(3, 3)
+    msg.magnetic_field_covariance = [float(x) for x in c.ravel()]
     return msg
 
 

@@ -10,7 +10,15 @@ from .increments import delta_angle, delta_rotation, DELTA_TOL, RateBound
 from .increments import rotvec_from_quaternion
 from .noise import ARCSEC, AttitudeNoise, GyroNoise
 from .sensors import Gyro, GyroReading, StarTracker, StarTrackerReading
+from .imu_noise import ImuNoise, ImuSample
+from .accel import (
+    Accelerometer, AccelReading, delta_velocity, DV_TOL, specific_force, STANDARD_GRAVITY,
+)
+from .mag import EARTH_FIELD, Magnetometer, MagReading
+from .kalibr import load_kalibr_imu
 
 __all__ = ['delta_angle', 'delta_rotation', 'rotvec_from_quaternion', 'RateBound',
            'DELTA_TOL', 'ARCSEC', 'GyroNoise', 'AttitudeNoise', 'Gyro', 'GyroReading',
-           'StarTracker', 'StarTrackerReading']
+           'StarTracker', 'StarTrackerReading', 'ImuNoise', 'ImuSample', 'Accelerometer',
+           'AccelReading', 'delta_velocity', 'specific_force', 'DV_TOL', 'STANDARD_GRAVITY',
+           'Magnetometer', 'MagReading', 'EARTH_FIELD', 'load_kalibr_imu']

@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 
+from .imu_noise import ImuNoise
 from .increments import delta_angle, delta_rotation, DELTA_TOL, RateBound
 from .noise import AttitudeNoise, GyroNoise
 
@@ -38,6 +39,9 @@ class GyroReading:
         rate's error bound (so that an ideal gyro still states a nonzero variance).
     quaternion : ndarray (4,)
         True ``q_NB`` at t.
+    delta_angle_measured : ndarray (3,) or None
+        Measured Δθ (rad, in B), quantised with the carried residual if the noise is an
+        :class:`ImuNoise` with ``increment_quantum``; None with a :class:`GyroNoise`.
     """
 
     t: float
@@ -51,6 +55,7 @@ class GyroReading:
     bias: np.ndarray
     variance: float
     quaternion: np.ndarray
+    delta_angle_measured: np.ndarray = None
 
 
 class Gyro:
@@ -59,8 +64,10 @@ class Gyro:
     Parameters
     ----------
     solution : rigidrot_ros.core.Solution
-    noise : GyroNoise, optional
-        Its error model (default: an ideal gyro).
+    noise : GyroNoise or ImuNoise, optional
+        Its error model (default: an ideal gyro); an :class:`ImuNoise` of
+        ``kind='gyro'`` adds scale factor, misalignment, quantisation, Gauss–Markov and
+        turn-on bias (with those zero its stream is :class:`GyroNoise`'s, bit for bit).
     tol : float
         Target of the delta-angle error bound, rad.
 
@@ -110,11 +117,18 @@ class Gyro:
                                    deadline=deadline)
         dr, dr_bound = delta_rotation(q0, q1, e0, e1)
         avg = da / dt
-        before = self.noise.bias.copy()
-        meas = self.noise.corrupt(avg, dt)
-        bias = 0.5 * (before + self.noise.bias)
+        measured_increment = None
+        if isinstance(self.noise, ImuNoise):
+            sample = self.noise.apply(avg[None, :], dt)
+            meas, bias = sample.value[0], sample.bias[0]
+            measured_increment = sample.increment[0]
+        else:
+            before = self.noise.bias.copy()
+            meas = self.noise.corrupt(avg, dt)
+            bias = 0.5 * (before + self.noise.bias)
         var = self.noise.white_variance(dt) + (da_bound / dt) ** 2
-        return GyroReading(t1, dt, meas, avg, da, da_bound, dr, dr_bound, bias, var, q1)
+        return GyroReading(t1, dt, meas, avg, da, da_bound, dr, dr_bound, bias, var, q1,
+                           measured_increment)
 
 
 @dataclass(frozen=True)

@@ -5,9 +5,8 @@ Every script exits 0 after ``--help``, and 2 with one line on stderr for a bad a
 """
 
 import argparse
-import sys
 
-__all__ = ['OneLineParser', 'fail']
+__all__ = ['OneLineParser']
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -17,8 +16,3 @@ class OneLineParser(argparse.ArgumentParser):
         """Print ``<prog>: error: <message> (see <prog> --help)`` and exit with status 2."""
         self.exit(2, f'{self.prog}: error: {message} (see {self.prog} --help)\n')
 
-
-def fail(prog, message, status=2):
-    """Print ``<prog>: <message>`` on one line to stderr and return ``status``."""
-    print(f'{prog}: {" ".join(str(message).split())}', file=sys.stderr)
-    return status

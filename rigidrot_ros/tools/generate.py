@@ -9,7 +9,7 @@ finishes a readable bag with what was generated so far (exit status 130).
 import sys
 import time
 
-from rigidrot_ros.tools.cli import fail, OneLineParser
+from rigidrot_ros.tools.cli import OneLineParser
 
 __all__ = ['main']
 
@@ -29,9 +29,15 @@ def _parser():
     ap.add_argument('-p', dest='overrides', action='append', default=[],
                     metavar='NAME:=VALUE', help='a parameter override (repeatable)')
     ap.add_argument('--start-ns', type=int, default=0,
-                    help='clock stamp (ns) of scene time 0, the node\'s t_start (default 0)')
+                    help="clock stamp (ns) of scene time 0, the node's t_start (default 0)")
     ap.add_argument('--quiet', action='store_true', help='no progress on stderr')
     return ap
+
+
+def fail(message):
+    """Print ``rigidrot_generate: <message>`` on one line to stderr; return status 2."""
+    print(f'{PROG}: {" ".join(str(message).split())}', file=sys.stderr)
+    return 2
 
 
 class _Progress:
@@ -64,13 +70,13 @@ def main(argv=None):
         overrides = [parse_override(o) for o in opts.overrides]
         values = load_values(opts.params_file, overrides)
     except GenerationError as exc:
-        return fail(PROG, exc)
+        return fail(exc)
     progress = None if opts.quiet else _Progress()
     try:
         path = generate_bag(values, opts.duration, opts.output, start_ns=opts.start_ns,
                             progress=progress)
     except GenerationError as exc:
-        return fail(PROG, exc)
+        return fail(exc)
     except KeyboardInterrupt:
         print(f'{PROG}: interrupted: the bag {opts.output} is finished with what was '
               'generated so far', file=sys.stderr)

@@ -1,0 +1,177 @@
+"""The node's diagnostics: counters, and the report as a pure function of them (no rclpy).
+
+The node counts into one :class:`Counters`; once a second it takes a :class:`Window` of
+them (:meth:`Counters.window`, which starts the next window) and publishes
+:func:`report` of it as one ``diagnostic_msgs/DiagnosticStatus`` (levels :data:`OK`,
+:data:`WARN`, :data:`ERROR` are DiagnosticStatus's).
+
+Keys of the report: ``model``, ``method``, ``backend``, ``tol_rad``, ``error_bound_rad``
+(the last tick's bound); ``multiprecision_bits`` (the solution's ``precision``: the
+mpmath/Arb working precision its model last used, at set-up for a closed form or a table,
+or in its last multiprecision evaluation; the samples themselves are float64);
+``eval_*`` (getting a tick's sample: from the look-ahead buffer, or evaluated then),
+``tick_*`` (the whole truth callback up to its messages' publication) and ``latency_*``
+(from a tick's stamp to the start of its callback, node clock), each mean, p99 and max
+over the window, µs; ``lookahead*``; per sensor stream ``<name>_samples`` (since start-up)
+and ``<name>_sample_mean_us``/``_max_us`` (building one sample over the window);
+``increment_error_bound_rad`` (the largest bound of this run's gyro increments);
+``sensor_samples_skipped``, ``ticks_published``, ``ticks_late``, ``ticks_missed``,
+``publish_rate_hz`` and ``delivered_rate_hz``.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ['Counters', 'Window', 'report', 'OK', 'WARN', 'ERROR']
+
+#: Levels, as diagnostic_msgs/DiagnosticStatus numbers them.
+OK, WARN, ERROR = 0, 1, 2
+
+
+def _summary(values, scale=1.0):
+    """Return (mean, p99, max) of ``values`` times ``scale`` (zeros if empty)."""
+    a = np.array(values) * scale if values else np.zeros(1)
+    return float(a.mean()), float(np.percentile(a, 99)), float(a.max())
+
+
+@dataclass
+class Window:
+    """What the counters held over one diagnostics window (plain numbers, seconds)."""
+
+    eval_s: tuple
+    tick_s: tuple
+    latency_s: tuple
+    streams: dict           # name -> (samples since start-up, mean s, max s) of this window
+    published: int
+    late: int
+    missed: int
+    skipped: int
+    new_skips: bool
+    errors: int
+    last_error: str
+
+
+@dataclass
+class Counters:
+    """Tick and sample accounting of a node; times of the current window.
+
+    ``times``: evaluation seconds per tick; ``tick_times`` and ``latencies``: ns.
+    """
+
+    times: list = field(default_factory=list)
+    tick_times: list = field(default_factory=list)
+    latencies: list = field(default_factory=list)
+    samples: dict = field(default_factory=dict)        # stream name -> count
+    sample_times: dict = field(default_factory=dict)   # stream name -> seconds, this window
+    published: int = 0
+    skipped: int = 0
+    skipped_reported: int = 0
+    late: int = 0
+    missed: int = 0
+    errors: int = 0
+    last_error: str = ''
+
+    def sampled(self, name, seconds):
+        """Count one sample of stream ``name`` that took ``seconds`` to build."""
+        self.samples[name] = self.samples.get(name, 0) + 1
+        self.sample_times.setdefault(name, []).append(seconds)
+
+    def failed(self, text):
+        """Count one failed evaluation, ``text`` saying why."""
+        self.errors += 1
+        self.last_error = text
+
+    def window(self, stream_names):
+        """Return the :class:`Window` since the last call, and start the next one."""
+        streams = {}
+        for name in stream_names:
+            mean, _, mx = _summary(self.sample_times.get(name, []))
+            streams[name] = (self.samples.get(name, 0), mean, mx)
+        out = Window(eval_s=_summary(self.times), tick_s=_summary(self.tick_times, 1e-9),
+                     latency_s=_summary(self.latencies, 1e-9), streams=streams,
+                     published=self.published, late=self.late, missed=self.missed,
+                     skipped=self.skipped, new_skips=self.skipped > self.skipped_reported,
+                     errors=self.errors, last_error=self.last_error)
+        self.times, self.tick_times, self.latencies, self.sample_times = [], [], [], {}
+        self.skipped_reported = self.skipped
+        self.errors = 0
+        return out
+
+
+def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_bound,
+           lookahead=None, batches=()):
+    """Return ``(level, message, values)`` of one diagnostics window (pure).
+
+    Parameters
+    ----------
+    w : Window
+        The counters of the window.
+    sol : Solution
+        The solution being published (model, method, backend, precision, tol).
+    period_hz : float
+        The truth rate asked, Hz.
+    delivered : float or None
+        Ticks published per second over the window (None: too short a window to judge).
+    error_bound : float
+        The last tick's error bound, rad (0.0 before the first tick).
+    scene_time : float or None
+        The last tick's scene time, s.
+    increment_bound : float
+        The largest error bound of this run's gyro increments, rad.
+    lookahead : Lookahead or None
+        The truth look-ahead (its size, why it is off, its cost per sample).
+    batches : sequence of float
+        The look-ahead's batch times in the window, s.
+    """
+    mean, p99, mx = w.eval_s
+    warns = []                  # every reason of this window, not only the last
+    if mx > 1.0 / period_hz:
+        warns.append('evaluation slower than the timer period')
+    if delivered is not None and delivered < 0.9 * period_hz:
+        warns.append(f'delivering {delivered:.4g} Hz of the {period_hz:g} Hz asked '
+                     '(publish_rate beyond what this machine and executor deliver)')
+    if error_bound > sol.tol:
+        warns.append('error bound above tol')
+    if not increment_bound <= sol.tol:      # also NaN and inf
+        warns.append(f'gyro increment error bound {increment_bound:.3g} rad above tol')
+    if w.new_skips:
+        warns.append('sensor samples skipped (a clock jump, or sensor rates above what '
+                     'this CPU keeps up)')
+    level, msg = OK, f'exact solution: {sol.model}'
+    if warns:
+        level, msg = WARN, '; '.join(warns)
+    if w.errors:
+        level, msg = ERROR, '; '.join([f'evaluation failed: {w.last_error}'] + warns)
+    ahead = lookahead
+    values = {
+        'model': sol.model, 'method': sol.method, 'backend': sol.backend,
+        'multiprecision_bits': str(sol.precision), 'tol_rad': f'{sol.tol:.3g}',
+        'error_bound_rad': f'{error_bound:.3g}',
+        'scene_time_s': '' if scene_time is None else f'{scene_time:.6f}',
+        'eval_mean_us': f'{mean * 1e6:.1f}', 'eval_p99_us': f'{p99 * 1e6:.1f}',
+        'eval_max_us': f'{mx * 1e6:.1f}',
+    }
+    for name, (m, p, x) in (('tick', w.tick_s), ('latency', w.latency_s)):
+        values.update({f'{name}_mean_us': f'{m * 1e6:.1f}', f'{name}_p99_us': f'{p * 1e6:.1f}',
+                       f'{name}_max_us': f'{x * 1e6:.1f}'})
+    values.update({
+        'lookahead': ('' if ahead is None else f'{ahead.size} samples a batch'
+                      if ahead.size else f'off: {ahead.off_reason}'),
+        'lookahead_batches': str(len(batches)),
+        'lookahead_batch_max_us': f'{max(batches, default=0.0) * 1e6:.1f}',
+        'lookahead_sample_us': f'{(ahead.last_per_sample if ahead else 0.0) * 1e6:.2f}',
+    })
+    for name, (count, s_mean, s_max) in w.streams.items():
+        values.update({f'{name}_samples': str(count),
+                       f'{name}_sample_mean_us': f'{s_mean * 1e6:.1f}',
+                       f'{name}_sample_max_us': f'{s_max * 1e6:.1f}'})
+    values.update({
+        'sensor_samples_skipped': str(w.skipped),
+        'increment_error_bound_rad': f'{increment_bound:.3g}',
+        'ticks_published': str(w.published),
+        'ticks_late': str(w.late), 'ticks_missed': str(w.missed),
+        'publish_rate_hz': f'{period_hz:g}',
+        'delivered_rate_hz': '' if delivered is None else f'{delivered:.4g}',
+    })
+    return level, msg, values

@@ -1,0 +1,374 @@
+"""An accelerometer on the exact motion: the specific force at the IMU and its exact Δv.
+
+Frames: N inertial, B body; ``R_NB`` means ``v_N = R_NB @ v_B`` (so ``R_BN = R_NB^T``).
+Quaternions (x, y, z, w), active, ``q_NB``; ``omega`` is the rate of B relative to N, in
+B, rad/s. The body turns about a point O that does not accelerate (its centre of mass
+in free flight, or the supported pivot of an air-bearing table or a gimbal); the IMU
+sits at ``r`` (the lever arm, m, in B) from O. Its specific force (what an
+accelerometer measures, acceleration minus gravity), in B, m/s^2::
+
+    f_B = omega_dot x r + omega x (omega x r) - R_BN g_N
+
+with ``omega_dot`` exact from Euler's equations with the model's torque
+(:meth:`Solution.omega_dot_at`) and ``g_N`` the gravity in N (m/s^2): ``(0, 0, 0)`` for a
+free-flying body (only the lever-arm terms remain), ``(0, 0, -9.80665)`` for a body on
+a supported point with N's z up, so that an accelerometer at rest reads +9.80665 m/s^2
+along the up axis (REP 145).
+
+Over an interval ``[t0, t1]`` a rate-integrating accelerometer reports
+``Δv = ∫ f_B dt`` (m/s, in B), evaluated here exactly:
+
+- ``∫ omega_dot x r dt = (omega(t1) - omega(t0)) x r``, no quadrature;
+- ``∫ omega x (omega x r) dt`` and ``∫ R_BN g_N dt`` by Gauss–Legendre quadrature
+  with a proved truncation bound (Trefethen, *ATAP*, Thm 19.3, as
+  :mod:`.increments` for Δθ): on the Bernstein ellipse ``E_rho`` the complex rate obeys
+  ``|omega| <= W(rho)`` (from the closed forms of Romano 2008, or Cauchy's majorant of
+  Euler's equations; :func:`rate_bound_on_ellipse`), so the centripetal integrand is at
+  most ``2 |r| W^2``; ``h = R_BN g_N`` solves ``h' = -omega x h`` with ``|h| = |g|`` on
+  the real axis, so by Grönwall along vertical segments
+  ``|h| <= |g| exp(sqrt(2) W hh B_rho)`` (``hh`` the half interval, ``B_rho`` the
+  ellipse's semi-minor axis, ``sqrt(2)`` the complex cross product's norm).
+  The attitude's own error bound ``e`` (rad) adds ``|g| e (t1 - t0)``, float64 rounding
+  a few ulp per node.
+"""
+
+from dataclasses import dataclass
+import math
+import time
+
+import numpy as np
+
+from rigidrot_ros.core import quaternion as quat
+from .imu_noise import ImuNoise
+from .increments import _A_RHO, _B_RHO, _LOG_C, _LOG_RHO, _MAX_PIECES, _NODES, _RHO, _RULES
+from .increments import RateBound
+from .noise import check_vector
+
+__all__ = ['Accelerometer', 'AccelReading', 'specific_force', 'delta_velocity',
+           'rate_bound_on_ellipse', 'DV_TOL', 'STANDARD_GRAVITY', 'MAX_LEVER_ARM',
+           'MAX_GRAVITY']
+
+#: Default target of the Δv error bound, m/s.
+DV_TOL = 1e-13
+#: Standard gravity (CGPM 1901), m/s^2.
+STANDARD_GRAVITY = 9.80665
+#: Largest accepted lever-arm component, m; largest gravity component, m/s^2.
+MAX_LEVER_ARM = 1e3
+MAX_GRAVITY = 1e3
+_EPS = np.finfo(float).eps
+_RHO_FULL = _A_RHO + _B_RHO          # = rho: |t - tm| <= hh rho on the ellipse's box
+
+
+def check_lever_arm(value, name='accel.lever_arm'):
+    """Return the lever arm (m, in B) as a float 3-vector, |r_i| <= 1e3 m."""
+    return check_vector(name, value, MAX_LEVER_ARM)
+
+
+def check_gravity(value, name='accel.gravity'):
+    """Return gravity (m/s^2, in N) as a float 3-vector, |g_i| <= 1e3 m/s^2."""
+    return check_vector(name, value, MAX_GRAVITY)
+
+
+def rate_bound_on_ellipse(bound, t0, t1):
+    """Bound ``W(rho)`` of the complex rate norm on the box around each Bernstein ellipse.
+
+    Parameters
+    ----------
+    bound : RateBound
+        The solution's rate constants (:mod:`.increments`).
+    t0, t1 : float
+        The real interval; the ellipses ``E_rho`` (``rho`` in ``increments._RHO``) have
+        foci t0, t1, and the bound holds on the box ``|Re t - tm| <= hh A_rho``,
+        ``|Im t| <= hh B_rho`` that contains each (so also on vertical segments from the
+        real axis).
+
+    Returns
+    -------
+    ndarray
+        ``W`` per rho (rad/s; inf where no bound exists).
+    """
+    hh, tm = 0.5 * (t1 - t0), 0.5 * (t0 + t1)
+    reach = abs(tm) + hh * _RHO_FULL
+    scene = bound.solution.scene
+    with np.errstate(over='ignore', invalid='ignore'):
+        if bound.kind == 'linear':
+            w0 = float(np.linalg.norm(scene.omega0))
+            wd = float(np.linalg.norm(np.asarray(scene.torque) / np.asarray(scene.inertia)))
+            return w0 + wd * reach
+        if bound.kind == 'closed-form':
+            y = hh * _B_RHO * (bound.c1 + bound.c2 * reach)           # max |Im f|
+            trans = (bound.w_t + bound.m_t * reach) * np.cosh(y)
+            axial = bound.r0 + bound.rdot * reach
+            return np.sqrt(2.0 * trans * trans + axial * axial)
+        w = float(np.max(np.abs(bound.solution.omega_at(tm))))
+        w = w * (1 + 1e-12) + 1e-300
+        r = hh * _RHO_FULL
+        if bound.c == 0.0:
+            y = w + bound.mu * r
+        elif bound.mu == 0.0:
+            y = np.where(bound.c * w * r < 1.0, w / (1.0 - bound.c * w * r), np.inf)
+        else:
+            s = math.sqrt(bound.mu / bound.c)
+            phase = math.sqrt(bound.mu * bound.c) * r + math.atan(w / s)
+            y = np.where(phase < 0.5 * math.pi, s * np.tan(phase), np.inf)
+        return math.sqrt(3.0) * y
+
+
+def _truncation(bound, t0, t1, n, lever, grav):
+    """Best bound over rho of the n-point Gauss error of the two quadratures, m/s."""
+    hh = 0.5 * (t1 - t0)
+    w = rate_bound_on_ellipse(bound, t0, t1)
+    log_scale = _LOG_C - (2 * n - 2) * _LOG_RHO + math.log(math.sqrt(3.0) * hh)
+    with np.errstate(over='ignore', divide='ignore', invalid='ignore'):
+        terms = np.zeros_like(_RHO)
+        if lever > 0.0 and not (bound.kind == 'linear' and n >= 2):
+            # a linear rate makes the centripetal term a quadratic: exact for n >= 2
+            terms = terms + np.exp(np.log(2.0 * lever) + 2.0 * np.log(w) + log_scale)
+        if grav > 0.0:
+            terms = terms + np.exp(math.log(grav) + math.sqrt(2.0) * w * hh * _B_RHO
+                                   + log_scale)
+        terms = np.where(np.isnan(terms), np.inf, terms)
+    return float(np.min(terms, initial=np.inf))
+
+
+def _nodes(t0, t1, pieces, n):
+    edges = np.linspace(t0, t1, pieces + 1)
+    edges[0], edges[-1] = t0, t1
+    x, wts = _RULES[n]
+    hh = 0.5 * (edges[1:] - edges[:-1])
+    tm = 0.5 * (edges[1:] + edges[:-1])
+    ts = (tm[:, None] + hh[:, None] * x[None, :]).ravel()
+    ws = (hh[:, None] * wts[None, :]).ravel()
+    return edges, ts, ws
+
+
+def delta_velocity(solution, t0, t1, lever_arm, gravity, tol=DV_TOL, bound=None,
+                   deadline=None):
+    """Return the exact ``Δv = ∫_{t0}^{t1} f_B dt`` (m/s, in B) and its error bound.
+
+    Parameters
+    ----------
+    solution : rigidrot_ros.core.Solution
+        The exact motion (``omega_at``, ``at``).
+    t0, t1 : float
+        The interval, s, ``t0 <= t1``, finite.
+    lever_arm : 3 floats
+        ``r``, the IMU's position in B from the point the body turns about, m.
+    gravity : 3 floats
+        ``g_N``, gravity in N, m/s^2.
+    tol : float
+        Target of the truncation bound, m/s (default 1e-13).
+    bound : RateBound, optional
+        Reuse the per-solution constants across calls.
+    deadline : float, optional
+        A :func:`time.perf_counter` value past which the call gives up (ValueError).
+
+    Returns
+    -------
+    (ndarray (3,), float)
+        Δv in B (m/s) and a bound on the Euclidean norm of its error (truncation,
+        proved; the attitude's error bound carried; float64 rounding).
+
+    Examples
+    --------
+    >>> from rigidrot_ros.core import Scene, solve
+    >>> sol = solve(Scene(omega0=(0.0, 0.0, 2.0)))
+    >>> dv, err = delta_velocity(sol, 0.0, 0.5, (1.0, 0.0, 0.0), (0.0, 0.0, -9.80665))
+    >>> [round(float(v), 12) for v in dv]       # centripetal -omega^2 r t, gravity along z
+    [-2.0, 0.0, 4.903325]
+    """
+    t0, t1 = float(t0), float(t1)
+    if not (math.isfinite(t0) and math.isfinite(t1)):
+        raise ValueError(f'delta_velocity needs finite times, got [{t0!r}, {t1!r}]')
+    if t1 < t0:
+        raise ValueError(f'delta_velocity needs t0 <= t1, got [{t0!r}, {t1!r}]')
+    r = check_lever_arm(lever_arm)
+    g = check_gravity(gravity)
+    if t1 == t0:
+        return np.zeros(3), 0.0
+    lever, grav = float(np.linalg.norm(r)), float(np.linalg.norm(g))
+    w_ends = np.asarray(solution.omega_at(np.array([t0, t1])), dtype=float)
+    # the angular-acceleration term integrates in closed form
+    tangential = np.cross(w_ends[1] - w_ends[0], r)
+    w_max = float(np.max(np.linalg.norm(w_ends, axis=-1)))
+    rnd = (64.0 * _EPS * w_max + 2 * _EPS * float(np.linalg.norm(w_ends[1] - w_ends[0]))) \
+        * lever
+    if lever == 0.0 and grav == 0.0:
+        return tangential, rnd
+    bound = bound or RateBound(solution)
+    pieces = 1
+    while pieces <= _MAX_PIECES:
+        for n in _NODES:
+            if deadline is not None and time.perf_counter() > deadline:
+                raise ValueError(f'delta_velocity over [{t0}, {t1}] s ran out of its time '
+                                 f'budget ({pieces} subintervals of {n} nodes)')
+            edges = np.linspace(t0, t1, pieces + 1)
+            trunc = sum(_truncation(bound, a, b, n, lever, grav)
+                        for a, b in zip(edges[:-1], edges[1:]))
+            if trunc <= 0.5 * tol:
+                return _evaluate(solution, t0, t1, pieces, n, r, g, tangential,
+                                 trunc + rnd)
+        pieces *= 2
+    raise ValueError(f'delta_velocity over [{t0}, {t1}] s cannot reach {tol:g} m/s within '
+                     f'{_MAX_PIECES} subintervals; shorten the interval')
+
+
+def _evaluate(solution, t0, t1, pieces, n, r, g, tangential, err):
+    _, ts, ws = _nodes(t0, t1, pieces, n)
+    h = t1 - t0
+    total = tangential.copy()
+    scale = 0.0
+    if np.any(r != 0.0):
+        om = np.asarray(solution.omega_at(ts), dtype=float)
+        cen = np.cross(om, np.cross(om, r))
+        total = total + ws @ cen
+        w = float(np.max(np.linalg.norm(om, axis=-1)))
+        # rate rounding (32 eps |w| per node, as in increments) through 2 |w| |r|
+        err += h * 64.0 * _EPS * w * w * float(np.linalg.norm(r))
+        scale = max(scale, w * w * float(np.linalg.norm(r)))
+    if np.any(g != 0.0):
+        s = solution.at(ts)
+        r_nb = quat.to_matrix(np.asarray(s.quaternion, dtype=float))
+        g_b = np.einsum('kji,j->ki', r_nb, g)             # R_BN g_N = R_NB^T g_N
+        total = total - ws @ g_b
+        gn = float(np.linalg.norm(g))
+        err += h * gn * float(np.max(s.error_bound))      # the attitude's own error
+        scale = max(scale, gn)
+    err += math.sqrt(3.0) * h * (len(ts) + 24) * _EPS * scale \
+        + 4 * _EPS * float(np.linalg.norm(total))
+    return total, err
+
+
+def specific_force(solution, t, lever_arm, gravity):
+    """Return ``f_B(t) = omega_dot x r + omega x (omega x r) - R_BN g_N`` (m/s^2, in B).
+
+    Parameters
+    ----------
+    solution : rigidrot_ros.core.Solution
+        Needs ``omega_at``, ``omega_dot_at`` and ``at``.
+    t : float or 1-D array
+        Seconds since t = 0.
+    lever_arm, gravity : 3 floats
+        ``r`` in B (m) and ``g_N`` in N (m/s^2).
+
+    Returns
+    -------
+    (ndarray (..., 3), ndarray (...,))
+        The specific force and a bound on its error norm: the attitude's error bound
+        times ``|g|``, plus a rounding allowance of 64 ulp of the largest term.
+    """
+    r = check_lever_arm(lever_arm)
+    g = check_gravity(gravity)
+    tt = np.asarray(t, dtype=float)
+    w = np.asarray(solution.omega_at(tt), dtype=float)
+    wd = np.asarray(solution.omega_dot_at(tt), dtype=float)
+    f = np.cross(wd, r) + np.cross(w, np.cross(w, r))
+    lever = float(np.linalg.norm(r))
+    size = (np.linalg.norm(wd, axis=-1) + np.sum(w * w, axis=-1)) * lever
+    err = np.zeros(np.shape(tt))
+    if np.any(g != 0.0):
+        s = solution.at(tt)
+        r_nb = quat.to_matrix(np.asarray(s.quaternion, dtype=float))
+        f = f - np.einsum('...ji,j->...i', r_nb, g)
+        gn = float(np.linalg.norm(g))
+        err = err + gn * np.asarray(s.error_bound, dtype=float)
+        size = size + gn
+    return f, err + 64.0 * _EPS * size
+
+
+@dataclass(frozen=True)
+class AccelReading:
+    """One accelerometer sample over ``[t - dt, t]`` (all vectors in B).
+
+    Attributes
+    ----------
+    t, dt : float
+        End of the interval and its length, s.
+    specific_force : ndarray (3,)
+        Measured specific force, m/s^2: the error model applied to ``specific_force_avg``
+        (what goes into ``Imu.linear_acceleration``).
+    specific_force_avg : ndarray (3,)
+        True ``Δv / dt``, m/s^2.
+    specific_force_true : ndarray (3,)
+        True instantaneous ``f_B(t)``, m/s^2.
+    delta_velocity, delta_velocity_bound : ndarray (3,), float
+        Exact ``∫ f_B dt`` (m/s) and the bound on its error norm.
+    delta_velocity_measured : ndarray (3,)
+        Measured Δv (m/s), quantised with the carried residual if asked.
+    bias : ndarray (3,)
+        The bias in this sample, m/s^2.
+    variance : float
+        Per-axis variance of ``specific_force``, (m/s^2)^2: the white part of the error
+        model plus the square of the true average's error bound.
+    """
+
+    t: float
+    dt: float
+    specific_force: np.ndarray
+    specific_force_avg: np.ndarray
+    specific_force_true: np.ndarray
+    delta_velocity: np.ndarray
+    delta_velocity_bound: float
+    delta_velocity_measured: np.ndarray
+    bias: np.ndarray
+    variance: float
+
+
+class Accelerometer:
+    """A rate-integrating accelerometer at ``lever_arm`` on the exact motion.
+
+    Parameters
+    ----------
+    solution : rigidrot_ros.core.Solution
+    noise : ImuNoise, optional
+        Its error model, ``kind='accel'`` (default: ideal).
+    lever_arm : 3 floats
+        The IMU's position in B from the point the body turns about, m.
+    gravity : 3 floats
+        Gravity in N, m/s^2 (default zero: a free-flying body).
+    tol : float
+        Target of the Δv truncation bound, m/s.
+
+    Examples
+    --------
+    >>> from rigidrot_ros.core import Scene, solve
+    >>> acc = Accelerometer(solve(Scene()), gravity=(0.0, 0.0, -STANDARD_GRAVITY))
+    >>> [float(v) for v in acc.read(0.0, 0.01).specific_force]     # at rest: +g up
+    [0.0, 0.0, 9.80665]
+    """
+
+    def __init__(self, solution, noise=None, lever_arm=(0.0, 0.0, 0.0),
+                 gravity=(0.0, 0.0, 0.0), tol=DV_TOL):
+        self.solution = solution
+        self.noise = noise if noise is not None else ImuNoise(kind='accel')
+        if not isinstance(self.noise, ImuNoise) or self.noise.kind != 'accel':
+            raise ValueError('an Accelerometer needs ImuNoise(kind=\'accel\') as its noise')
+        self.lever_arm = check_lever_arm(lever_arm)
+        self.gravity = check_gravity(gravity)
+        self.tol = tol
+        self._bound = RateBound(solution)
+
+    def reset(self):
+        """Restart the noise stream."""
+        self.noise.reset()
+
+    def read(self, t0, t1, budget=None):
+        """Sample ``[t0, t1]`` (s, ``t0 < t1``): an :class:`AccelReading`.
+
+        ``budget`` (s, optional) bounds the quadrature's time; past it the read raises
+        ValueError and leaves the noise stream untouched.
+        """
+        t0, t1 = float(t0), float(t1)
+        if not t1 > t0:
+            raise ValueError(f'an accelerometer interval needs t0 < t1, got [{t0!r}, '
+                             f'{t1!r}]')
+        dt = t1 - t0
+        deadline = None if budget is None else time.perf_counter() + budget
+        dv, dv_bound = delta_velocity(self.solution, t0, t1, self.lever_arm, self.gravity,
+                                      tol=self.tol, bound=self._bound, deadline=deadline)
+        f_true = specific_force(self.solution, t1, self.lever_arm, self.gravity)[0]
+        avg = dv / dt
+        sample = self.noise.apply(avg[None, :], dt)
+        var = self.noise.white_variance(dt) + (dv_bound / dt) ** 2
+        return AccelReading(t1, dt, sample.value[0], avg, f_true, dv, dv_bound,
+                            sample.increment[0], sample.bias[0], var)

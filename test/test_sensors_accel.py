@@ -1,0 +1,216 @@
+"""Accelerometer: specific force and Δv against a 30-digit integration of the motion.
+
+The reference integrates Euler's equations and the quaternion kinematics with mpmath's
+Taylor ODE solver at 30 digits, takes the IMU's position ``p_N = R_NB r`` and
+differentiates it twice numerically (the acceleration comes from the
+motion alone, not from the formula ``omega_dot x r + omega x (omega x r)``; 7-point
+central differences at 30 digits). Δv is
+checked against mpmath.quad of the specific force of that 30-digit motion.
+"""
+
+import math
+
+import mpmath
+from mpmath import mp
+import numpy as np
+from numpy.testing import assert_allclose, assert_array_equal
+import pytest
+
+from conftest import random_scene
+from rigidrot_ros.core import Scene, solve
+from rigidrot_ros.sensors import (
+    Accelerometer, delta_velocity, DV_TOL, ImuNoise, specific_force, STANDARD_GRAVITY,
+)
+from rigidrot_ros.sensors.accel import _evaluate, _truncation
+from rigidrot_ros.sensors.increments import RateBound
+
+G_UP = (0.0, 0.0, -STANDARD_GRAVITY)
+
+
+def _sym_axis(inertia):
+    for k in range(3):
+        if inertia[(k + 1) % 3] == inertia[(k + 2) % 3]:
+            return k
+    return 2
+
+
+def _mp_motion(scene):
+    """30-digit Taylor solution of I w' = m_B - w x I w, q' = q ⊗ (w, 0) / 2 (x, y, z, w).
+
+    A 'virtual' torque turns in B by -f, f' = ((I - I3) / I) w_k (the scene's definition).
+    Returns (motion(t) -> mp state, rhs) at 30 digits.
+    """
+    virtual = scene.torque_frame == 'virtual'
+    k = _sym_axis(scene.inertia)
+    i1, i2 = (k + 1) % 3, (k + 2) % 3
+    with mp.workdps(30):
+        inertia = [mpmath.mpf(v) for v in scene.inertia]
+        torque = [mpmath.mpf(v) for v in scene.torque]
+        y0 = [mpmath.mpf(v) for v in scene.omega0] + \
+            [mpmath.mpf(v) for v in scene.attitude0] + [mpmath.mpf(0)]
+
+    def rhs(t, y):
+        w, (x, yy, z, s), f = y[:3], y[3:7], y[7]
+        m = list(torque)
+        if virtual:
+            c, sn = mpmath.cos(f), mpmath.sin(f)
+            m[i1] = c * torque[i1] + sn * torque[i2]
+            m[i2] = -sn * torque[i1] + c * torque[i2]
+        iw = [inertia[j] * w[j] for j in range(3)]
+        cross = [w[1] * iw[2] - w[2] * iw[1], w[2] * iw[0] - w[0] * iw[2],
+                 w[0] * iw[1] - w[1] * iw[0]]
+        dw = [(m[j] - cross[j]) / inertia[j] for j in range(3)]
+        dq = [0.5 * (s * w[0] + yy * w[2] - z * w[1]), 0.5 * (s * w[1] + z * w[0] - x * w[2]),
+              0.5 * (s * w[2] + x * w[1] - yy * w[0]), -0.5 * (x * w[0] + yy * w[1] + z * w[2])]
+        df = (inertia[i1] - inertia[k]) / inertia[i1] * w[k] if virtual else mpmath.mpf(0)
+        return dw + dq + [df]
+    with mp.workdps(30):
+        return mpmath.odefun(rhs, 0, y0), rhs
+
+
+def _mp_matrix(q):
+    x, y, z, w = q
+    return [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+
+
+def _mp_specific_force_by_differences(motion, t, r, g):
+    """f_B = R_NB^T (d^2/dt^2 (R_NB r) - g_N), the second derivative by differences.
+
+    The 7-point central difference (error h^6 f^(8) / 560, with h = 1e-3 s below 1e-17
+    here; rounding 30 digits / h^2 ~ 1e-24).
+    """
+    with mp.workdps(30):
+        coef = [mpmath.mpf(1) / 90, -mpmath.mpf(3) / 20, mpmath.mpf(3) / 2,
+                -mpmath.mpf(49) / 18, mpmath.mpf(3) / 2, -mpmath.mpf(3) / 20,
+                mpmath.mpf(1) / 90]
+        tm, h = mpmath.mpf(t), mpmath.mpf('1e-3')
+        pos = [[sum(_mp_matrix(motion(tm + k * h)[3:7])[i][j] * r[j] for j in range(3))
+                for i in range(3)] for k in range(-3, 4)]
+        acc = [sum(c * p[i] for c, p in zip(coef, pos)) / (h * h) for i in range(3)]
+        rm = _mp_matrix(motion(tm)[3:7])
+        return np.array([float(sum(rm[j][i] * (acc[j] - g[j]) for j in range(3)))
+                         for i in range(3)])
+
+
+def _mp_delta_v(motion, rhs, t0, t1, r, g):
+    """∫ f_B dt by mpmath.quad at 30 digits, f_B from the 30-digit motion."""
+    def f(t, i):
+        y = motion(t)
+        w, dw = y[:3], rhs(t, y)[:3]
+        wr = [w[1] * r[2] - w[2] * r[1], w[2] * r[0] - w[0] * r[2], w[0] * r[1] - w[1] * r[0]]
+        cen = [w[1] * wr[2] - w[2] * wr[1], w[2] * wr[0] - w[0] * wr[2],
+               w[0] * wr[1] - w[1] * wr[0]]
+        tan = [dw[1] * r[2] - dw[2] * r[1], dw[2] * r[0] - dw[0] * r[2],
+               dw[0] * r[1] - dw[1] * r[0]]
+        rm = _mp_matrix(y[3:7])
+        return tan[i] + cen[i] - sum(rm[j][i] * g[j] for j in range(3))
+    with mp.workdps(30):
+        return [mpmath.quad(lambda t, i=i: f(t, i), [mpmath.mpf(t0), mpmath.mpf(t1)])
+                for i in range(3)]
+
+
+def _scene(model, rng):
+    if model == 'torque-free-triaxial':
+        return Scene(inertia=(1.0, 1.6, 2.1), omega0=tuple(rng.uniform(-1, 1, 3)),
+                     attitude0=tuple(rng.normal(size=4)))
+    return random_scene(model, rng)
+
+
+@pytest.mark.parametrize('model', ['axial-torque', 'transverse-virtual', 'transverse-body',
+                                   'sphere', 'oblique-virtual', 'torque-free-triaxial'])
+def test_specific_force_and_delta_v_against_the_30_digit_motion(model, rng):
+    scene = _scene(model, rng)
+    sol = solve(scene)
+    motion, rhs = _mp_motion(scene)
+    r = tuple(rng.uniform(-0.5, 0.5, 3))
+    with mp.workdps(30):
+        rm = [mpmath.mpf(v) for v in r]
+        gm = [mpmath.mpf(v) for v in G_UP]
+    for t in (0.35, 1.2):
+        ref = _mp_specific_force_by_differences(motion, t, rm, gm)
+        got, bound = specific_force(sol, t, r, G_UP)
+        err = float(np.linalg.norm(got - ref))
+        assert err <= 1e-12 and err <= bound, (t, err, bound)
+    for t0, t1 in ((0.2, 0.21), (0.9, 1.4)):
+        for g in (G_UP, (0.0, 0.0, 0.0)):
+            with mp.workdps(30):
+                ref = _mp_delta_v(motion, rhs, t0, t1, rm, [mpmath.mpf(v) for v in g])
+            dv, bound = delta_velocity(sol, t0, t1, r, g)
+            with mp.workdps(30):
+                err = float(mpmath.sqrt(sum((mpmath.mpf(float(a)) - b) ** 2
+                                            for a, b in zip(dv, ref))))
+            assert err <= 1e-13 and err <= bound, (t0, t1, g, err, bound)
+            assert bound <= 1e-12, (t0, t1, bound)
+
+
+def test_the_delta_v_truncation_bound_holds_for_coarse_rules(rng):
+    """Force 2-6 node rules on long intervals: truncation + rounding stay above the error."""
+    for model in ('oblique-virtual', 'transverse-virtual', 'torque-free-triaxial'):
+        scene = _scene(model, rng)
+        sol = solve(scene)
+        rb = RateBound(sol)
+        r = np.array([0.3, -0.4, 0.2])
+        g = np.array(G_UP)
+        ref, _ = delta_velocity(sol, 0.0, 2.0, r, g, tol=1e-15)
+        tangential = np.cross(sol.omega_at(2.0) - sol.omega_at(0.0), r)
+        for n in (2, 3, 4, 6):
+            trunc = _truncation(rb, 0.0, 2.0, n, float(np.linalg.norm(r)),
+                                float(np.linalg.norm(g)))
+            got, stated = _evaluate(sol, 0.0, 2.0, 1, n, r, g, tangential, trunc)
+            err = float(np.linalg.norm(got - ref))
+            assert err <= stated, (model, n, err, stated)
+
+
+def test_zero_noise_reproduces_the_truth_to_the_float64_floor(rng):
+    sol = solve(random_scene('oblique-virtual', rng))
+    acc = Accelerometer(sol, lever_arm=(0.1, -0.2, 0.05), gravity=G_UP)
+    for k in range(5):
+        r = acc.read(0.01 * k, 0.01 * (k + 1))
+        assert_array_equal(r.specific_force, r.specific_force_avg)
+        assert_allclose(r.delta_velocity_measured, r.delta_velocity, rtol=2 ** -52, atol=0)
+        assert_array_equal(r.bias, np.zeros(3))
+        assert 0 < r.variance < 1e-20                # only the truth's own bound
+    # a body at rest on a supported point reads +g along N's up axis, in B
+    rest = Accelerometer(solve(Scene(attitude0=(0.0, 0.0, 0.0, 1.0))), gravity=G_UP)
+    assert_array_equal(rest.read(0.0, 0.01).specific_force, [0.0, 0.0, STANDARD_GRAVITY])
+    # a free body at the pivot reads exactly zero
+    free = Accelerometer(sol)
+    assert_array_equal(free.read(1.0, 1.01).specific_force, np.zeros(3))
+    # a uniformly spinning body: exactly the centripetal -w^2 r
+    spin = Accelerometer(solve(Scene(omega0=(0.0, 0.0, 2.0))), lever_arm=(0.5, 0.0, 0.0))
+    assert_allclose(spin.read(0.3, 0.31).specific_force, [-2.0, 0.0, 0.0], rtol=1e-15,
+                    atol=1e-15)
+
+
+def test_noise_statistics_match_the_stated_variance():
+    sol = solve(Scene(omega0=(0.1, -0.2, 0.3)))            # cheap: constant rotation
+    noise = ImuNoise(2e-3, 1e-4, (0.01, 0.0, -0.02), seed=5, kind='accel')
+    acc = Accelerometer(sol, noise, lever_arm=(0.2, 0.0, 0.1), gravity=G_UP)
+    dt = 0.01
+    reads = [acc.read(dt * k, dt * (k + 1)) for k in range(3000)]
+    err = np.array([r.specific_force - r.specific_force_avg - r.bias for r in reads])
+    assert err.var() == pytest.approx(reads[0].variance, rel=0.05)
+    assert reads[0].variance == pytest.approx(noise.white_variance(dt), rel=1e-12)
+    assert_allclose(reads[0].bias, [0.01, 0.0, -0.02], rtol=0, atol=1e-4)
+
+
+@pytest.mark.parametrize('kwargs, words', [
+    (dict(lever_arm=(1e300, 0.0, 0.0)), 'accel.lever_arm[0] must be finite'),
+    (dict(lever_arm=(0.0, math.nan, 0.0)), 'accel.lever_arm[1] must be finite'),
+    (dict(gravity=(0.0, 0.0, math.inf)), 'accel.gravity[2] must be finite'),
+    (dict(gravity=(0.0, 9.8)), 'accel.gravity must be a list of 3'),
+    (dict(noise=ImuNoise()), "needs ImuNoise(kind='accel')"),
+])
+def test_bad_values_are_refused_naming_the_parameter(kwargs, words):
+    sol = solve(Scene(omega0=(0.0, 0.0, 1.0)))
+    with pytest.raises(ValueError) as err:
+        Accelerometer(sol, **kwargs)
+    assert words in str(err.value)
+    acc = Accelerometer(sol)
+    with pytest.raises(ValueError, match='t0 < t1'):
+        acc.read(1.0, 1.0)
+    with pytest.raises(ValueError, match='delta_velocity needs finite'):
+        delta_velocity(sol, math.nan, 1.0, (0, 0, 0), G_UP)
+    assert DV_TOL > 0
