@@ -31,6 +31,7 @@ setup(
     extras_require={
         'plot': ['matplotlib>=3.7'],
         'estimator': ['ahrs>=0.3'],
+        'campaign': ['dask[distributed]>=2023.1', 'matplotlib>=3.7', 'scipy>=1.10'],
         'bench': ['scipy>=1.10', 'matplotlib>=3.7', 'rosbags>=0.10'],
         'test': [
             'pytest>=7',
@@ -52,6 +53,7 @@ setup(
             'ros-jazzy-ament-package',
             'sphinx>=7.2',
             'myst-parser>=2',
+            'dask[distributed]>=2023.1',
         ],
     },
     zip_safe=True,
@@ -71,6 +73,8 @@ setup(
             'rigidrot_reindex = rigidrot_ros.tools.reindex:main',
             'rigidrot_bench = rigidrot_ros.bench.run:main',
             'rigidrot_generate = rigidrot_ros.tools.generate:main',
+            'rigidrot_mekf = rigidrot_ros.estimators.mekf_node:main',
+            'rigidrot_campaign = rigidrot_ros.tools.campaign:main',
         ],
     },
 )

@@ -1,0 +1,1 @@
+"""Monte Carlo campaigns: spec, runs, engines, aggregation, charts (issue 18)."""

@@ -1,0 +1,131 @@
+"""Campaign charts (PNG and SVG), each with its band and its count of runs.
+
+``python -m rigidrot_ros.campaign.charts DIR [DIR ...] -o PREFIX`` draws the Monte Carlo
+NEES of several campaigns (e.g. a tuned and a mistuned filter) on one chart.
+"""
+
+import argparse
+import json
+import os
+import sys
+
+__all__ = ['write_charts', 'compare_chart']
+
+_META = {'png': {'Software': None}, 'svg': {'Date': None, 'Creator': None}}
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _save(fig, prefix):
+    paths = []
+    for ext in ('png', 'svg'):
+        tmp = f'{prefix}.tmp.{ext}'
+        kw = {'metadata': _META[ext]}
+        if ext == 'svg':
+            import matplotlib
+            matplotlib.rcParams['svg.hashsalt'] = 'rigidrot'
+        fig.savefig(tmp, dpi=110, bbox_inches='tight', **kw)
+        os.replace(tmp, f'{prefix}.{ext}')
+        paths.append(f'{prefix}.{ext}')
+    return paths
+
+
+def _label(rep):
+    return rep.get('name') or os.path.basename(rep.get('_dir', '')) or 'campaign'
+
+
+def write_charts(report, out_dir):
+    """Write nees, rms_error and anees_hist charts of one campaign; their paths."""
+    if 'mc_nees' not in report:
+        return []
+    plt = _plt()
+    paths = []
+    m, mc = report['runs_ok'], report['mc_nees']
+    lo, hi = mc['band_95']
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.axhspan(lo, hi, color='tab:green', alpha=0.2,
+               label=f'95 % band chi2(3M)/M = [{lo:.2f}, {hi:.2f}]')
+    ax.axhline(3.0, color='k', lw=0.8, ls=':')
+    ax.plot(mc['t_s'], mc['nees'], lw=1.0, color='tab:blue',
+            label=f'NEES averaged over runs ({100 * mc["fraction_inside"]:.0f} % of steps '
+                  f'inside)')
+    ax.set_yscale('log')
+    ax.set_xlabel('scene time, s')
+    ax.set_ylabel('Monte Carlo NEES')
+    ax.set_title(f'{_label(report)}: M = {m} runs, ANEES {report["anees"]["value"]:.2f}')
+    ax.legend(loc='upper right', fontsize=8)
+    paths += _save(fig, os.path.join(out_dir, 'nees'))
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    rms = report['rms_error']
+    ax.plot(rms['t_s'], [r * 206264.806 for r in rms['rad']], lw=1.0)
+    ax.set_xlabel('scene time, s')
+    ax.set_ylabel('RMS attitude error over runs, arcsec')
+    ax.set_title(f'{_label(report)}: M = {m} runs')
+    paths += _save(fig, os.path.join(out_dir, 'rms_error'))
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    pr = report['per_run_anees']
+    ax.hist(pr['values'], bins=max(10, min(50, m // 3)), color='tab:blue', alpha=0.8)
+    for b in pr['bounds_95']:
+        ax.axvline(b, color='tab:green', ls='--')
+    ax.set_xlabel(f'ANEES of one run (K = {report["steps"]} steps); dashed: chi2(3K)/K 95 %')
+    ax.set_ylabel('runs')
+    ax.set_title(f'{_label(report)}: M = {m} runs, {100 * pr["fraction_inside"]:.0f} % inside')
+    paths += _save(fig, os.path.join(out_dir, 'anees_hist'))
+    plt.close(fig)
+    return paths
+
+
+def compare_chart(reports, prefix):
+    """One Monte Carlo NEES chart of several campaigns, with their bands; the paths."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    colors = ['tab:blue', 'tab:red', 'tab:purple', 'tab:orange']
+    for i, rep in enumerate(reports):
+        mc = rep['mc_nees']
+        lo, hi = mc['band_95']
+        c = colors[i % len(colors)]
+        ax.axhspan(lo, hi, color=c, alpha=0.12)
+        ax.plot(mc['t_s'], mc['nees'], lw=1.0, color=c,
+                label=f'{_label(rep)}: M = {rep["runs_ok"]}, ANEES '
+                      f'{rep["anees"]["value"]:.2f}, {100 * mc["fraction_inside"]:.0f} % of '
+                      f'steps in [{lo:.2f}, {hi:.2f}]')
+    ax.axhline(3.0, color='k', lw=0.8, ls=':')
+    ax.set_yscale('log')
+    ax.set_xlabel('scene time, s')
+    ax.set_ylabel('NEES averaged over the runs')
+    ax.set_title('Monte Carlo NEES with its 95 % band chi2(3M)/M (shaded)')
+    ax.legend(loc='center right', fontsize=8)
+    paths = _save(fig, prefix)
+    plt.close(fig)
+    return paths
+
+
+def main(argv=None):
+    """Draw campaigns' Monte Carlo NEES on one chart."""
+    ap = argparse.ArgumentParser(prog='python -m rigidrot_ros.campaign.charts',
+                                 description=__doc__.splitlines()[0])
+    ap.add_argument('dirs', nargs='+', help='campaign output directories')
+    ap.add_argument('-o', '--output', required=True, help='chart path without extension')
+    opts = ap.parse_args(argv)
+    reps = []
+    for d in opts.dirs:
+        with open(os.path.join(d, 'report.json'), encoding='utf-8') as fh:
+            rep = json.load(fh)
+        rep['_dir'] = d
+        reps.append(rep)
+    for p in compare_chart(reps, opts.output):
+        print(p)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,303 @@
+"""One campaign run: generate it, run the estimator, score its output (worker side).
+
+:func:`run_one` returns a plain dict (JSON-serialisable) and writes nothing the client
+owns: the client writes each result atomically, so a worker on another machine needs no
+shared disk (bags go to ``bag_root`` if given, else to a temporary directory that is
+removed). The result holds no wall time (that goes in ``timing``, kept apart by the
+client), so the same spec and seed give the same result bytes on any engine.
+
+Scoring is the project's scorer, on a bag: the estimator's messages (in process) or the
+recorder's bag (ROS) with the run's description (``~/run``), read back by
+:func:`rigidrot_ros.io.bag.read_bag` and scored by
+:func:`rigidrot_ros.io.score.score_against_runs`.
+"""
+
+import contextlib
+import fcntl
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+
+from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, load_factory, run_values
+from rigidrot_ros.io.generate import GenerationError
+
+__all__ = ['run_one', 'RunFailed', 'score_bag']
+
+_SEC = 1_000_000_000
+
+
+class RunFailed(Exception):
+    """A run that produced no score; ``reason`` one line, ``log`` the details."""
+
+    def __init__(self, reason, log=''):
+        super().__init__(reason)
+        self.reason = reason
+        self.log = log
+
+
+def score_bag(path, topic, runs=None):
+    """Score ``topic`` of the bag at ``path`` against the exact truth: the series and row.
+
+    ``runs`` (the run descriptions of the input bag) give the truth when the bag holds
+    none (a recorder that joined after the replay published ``~/run``).
+    """
+    from rigidrot_ros.io.bag import BagError, read_bag
+    from rigidrot_ros.io.score import extract_streams, score_against_runs, ScoreError
+    try:
+        bag = read_bag(path)
+        if not bag.runs and runs:
+            bag.runs = list(runs)
+        if topic not in bag.topics or not any(m[0] == topic for m in bag.messages):
+            raise RunFailed(f'the estimator published nothing on {topic}')
+        streams, _ = extract_streams(bag, [topic])
+        res = score_against_runs(bag, [s for s in streams if s.field == 'orientation'])
+    except (BagError, ScoreError) as exc:
+        raise RunFailed(f'scoring failed: {" ".join(str(exc).split())}') from None
+    if not res or not res[0].get('count'):
+        raise RunFailed(f'{topic}: no orientation sample could be scored')
+    r = res[0]
+    if not r.get('nees_count'):
+        raise RunFailed(f'{topic}: no usable orientation covariance (no NEES)')
+    series = {'t_ns': [int(round(t * 1e9)) for t in r['t']], 'nees': r['nees'],
+              'error': r['error']}
+    row = {'count': r['count'], 'nees_count': r['nees_count'], 'anees': r['anees'],
+           'anees_lo': r['anees_bounds_95'][0], 'anees_hi': r['anees_bounds_95'][1],
+           'rms_rad': r['rms'], 'max_rad': r['max'], 'p95_rad': r['p95']}
+    return row, series
+
+
+def _inproc(spec, values, work):
+    """Feed the run's messages to the factory's object; bag its answers; score them."""
+    from rclpy.serialization import serialize_message
+
+    from rigidrot_ros.io.bag import BagWriter
+    from rigidrot_ros.io.generate import iter_run, RUN_TOPIC
+    from rigidrot_ros.io.recorder import type_name_of
+    est = spec['estimator']
+    topic = est['topic']
+    deadline = time.monotonic() + spec['timeout']
+    try:
+        filt = load_factory(est['factory'])(dict(est['params']))
+    except Exception as exc:  # noqa: B902 - the estimator's own failure
+        raise RunFailed(f'the factory failed: {type(exc).__name__}: {exc}',
+                        traceback.format_exc()) from None
+    writer = BagWriter(None, 'campaign', flush_period=60.0,
+                       path=os.path.join(work, 'estimate'), split_seconds=0.0)
+    n_out = 0
+    try:
+        def put(msgs):
+            nonlocal n_out
+            for m in msgs:
+                if not writer.has_topic(topic):
+                    writer.add_topic(topic, type_name_of(m))
+                ns = m.header.stamp.sec * _SEC + m.header.stamp.nanosec
+                writer.write(topic, serialize_message(m), ns)
+                n_out += 1
+        for k, (name, ns, msg) in enumerate(iter_run(values, spec['duration'])):
+            if name == RUN_TOPIC:
+                import json
+                writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String')
+                writer.add_run(json.loads(msg.data))
+                writer.write(RUN_TOPIC, serialize_message(msg), ns)
+                continue
+            try:
+                put(filt.receive(name, msg))
+            except Exception as exc:  # noqa: B902 - the estimator crashed
+                raise RunFailed(f'the estimator crashed on {name} at stamp {ns} ns: '
+                                f'{type(exc).__name__}: {exc}', traceback.format_exc()) from None
+            if k % 256 == 0 and time.monotonic() > deadline:
+                raise RunFailed(f'timeout: the run took longer than {spec["timeout"]:g} s')
+        try:
+            put(filt.finish())
+        except Exception as exc:  # noqa: B902
+            raise RunFailed(f'the estimator crashed in finish(): {type(exc).__name__}: {exc}',
+                            traceback.format_exc()) from None
+    finally:
+        writer.close()
+    if not n_out:
+        raise RunFailed(f'the estimator published nothing on {topic}')
+    return score_bag(writer.path, topic)
+
+
+@contextlib.contextmanager
+def _domain(base, span):
+    """Claim a ROS_DOMAIN_ID no other run on this machine holds (a lock file per id)."""
+    root = os.path.join(tempfile.gettempdir(), f'rigidrot_campaign_domains_{os.getuid()}')
+    os.makedirs(root, exist_ok=True)
+    end = time.monotonic() + 600
+    while True:
+        for d in range(base, base + span):
+            fh = open(os.path.join(root, f'{d}.lock'), 'w')
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                fh.close()
+                continue
+            try:
+                yield d
+            finally:
+                fcntl.flock(fh, fcntl.LOCK_UN)
+                fh.close()
+            return
+        if time.monotonic() > end:
+            raise RunFailed(f'no free ROS domain in [{base}, {base + span}) for 600 s')
+        time.sleep(0.2)
+
+
+def _script(name):
+    path = os.path.join(os.path.dirname(sys.executable), name)
+    return [path] if os.path.exists(path) else [name]
+
+
+def _stop(proc, timeout=10.0):
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode
+
+
+def _tail(path, lines=40):
+    try:
+        with open(path, encoding='utf-8', errors='replace') as fh:
+            return ''.join(fh.readlines()[-lines:])
+    except OSError:
+        return ''
+
+
+def _ros(spec, values, work):
+    """Generate the bag, replay it (with /clock) into the command, record and score it."""
+    from rigidrot_ros.io.generate import generate_bag
+    est = spec['estimator']
+    bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
+    from rigidrot_ros.io.bag import read_bag
+    contents = read_bag(bag)
+    names = sorted(t for t in contents.topics
+                   if t.rsplit('/', 1)[-1] in ('imu', 'star_tracker', 'run'))
+    rec_dir = os.path.join(work, 'recorded')
+    deadline = time.monotonic() + spec['timeout']
+    with _domain(est['domain_base'], est['domain_span']) as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1',
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                   FASTDDS_BUILTIN_TRANSPORTS='UDPv4')
+        env.pop('ROS_LOCALHOST_ONLY', None)
+        logs = {k: open(os.path.join(work, f'{k}.log'), 'w') for k in
+                ('estimator', 'recorder', 'replay')}
+        procs = {}
+        try:
+            procs['recorder'] = subprocess.Popen(
+                _script('rigidrot_record') + ['-o', rec_dir] + est['topics']
+                + [f'{t}:std_msgs/msg/String' for t in names if t.endswith('/run')], env=env,
+                stdout=logs['recorder'], stderr=subprocess.STDOUT)
+            try:
+                procs['estimator'] = subprocess.Popen(
+                    est['command'], env=env, stdout=logs['estimator'],
+                    stderr=subprocess.STDOUT)
+            except OSError as exc:
+                raise RunFailed(f'the estimator command {est["command"][0]} did not start: '
+                                f'{exc.strerror or exc}') from None
+            _wait_for_line(os.path.join(work, 'recorder.log'),
+                           f'recording {est["topics"][0]} ', procs['estimator'],
+                           min(30.0, spec['timeout']))
+            procs['replay'] = subprocess.Popen(
+                _script('rigidrot_replay') + [bag, '--clock', '--rate', repr(est['rate']),
+                                              '--quiet', '--wait', '10', '--topics'] + names,
+                env=env, stdout=logs['replay'], stderr=subprocess.STDOUT)
+            while procs['replay'].poll() is None:
+                if procs['estimator'].poll() is not None:
+                    raise RunFailed(f'the estimator exited with status '
+                                    f'{procs["estimator"].returncode} during the replay')
+                if time.monotonic() > deadline:
+                    raise RunFailed(f'timeout: the run took longer than {spec["timeout"]:g} s')
+                time.sleep(0.05)
+            if procs['replay'].returncode != 0:
+                raise RunFailed(f'the replay failed with status {procs["replay"].returncode}')
+            time.sleep(est['settle'])
+            if procs['estimator'].poll() is not None:
+                raise RunFailed(f'the estimator exited with status '
+                                f'{procs["estimator"].returncode} during the replay')
+            code = _stop(procs['estimator'])
+            time.sleep(0.3)
+            if code not in (0, -signal.SIGINT):
+                raise RunFailed(f'the estimator exited with status {code} when stopped')
+        finally:
+            for name in ('replay', 'estimator', 'recorder'):
+                if name in procs:
+                    _stop(procs[name])
+            for fh in logs.values():
+                fh.close()
+    if not os.path.isdir(rec_dir):
+        raise RunFailed('the recorder wrote no bag')
+    return score_bag(rec_dir, est['topics'][0], contents.runs)
+
+
+def _wait_for_line(path, text, proc, limit):
+    """Wait (``limit`` s at most) until the log at ``path`` shows ``text``, or proc ends.
+
+    The recorder logs ``recording <topic>`` once the estimator's publisher is in the
+    graph: the estimator is up, and the replay (which waits for its subscribers to match)
+    does not start before it.
+    """
+    end = time.monotonic() + limit
+    while time.monotonic() < end and proc.poll() is None:
+        if text in _tail(path, 1000):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def run_one(spec, index, bag_root=None):
+    """Run ``index`` of the campaign: a dict with ``row``, ``series`` and ``timing``.
+
+    A failure of the estimator (crash, timeout, no output) is a result too: ``row`` has
+    ``status: failed`` and the ``reason``, and ``log`` the details.
+    """
+    t0 = time.perf_counter()
+    draws, redraws = draw_run(spec, index)
+    row = {'run': int(index), 'status': 'ok', 'reason': '', 'redraws': redraws}
+    row.update({k: v for k, v in draws.items()})
+    out = {'row': row, 'series': None, 'log': ''}
+    work = os.path.join(bag_root, f'run_{index:06d}') if bag_root else \
+        tempfile.mkdtemp(prefix=f'rigidrot_campaign_{index}_')
+    if bag_root:
+        shutil.rmtree(work, ignore_errors=True)
+        os.makedirs(work)
+    try:
+        values = run_values(spec, draws)
+        for attempt in range(BUDGET_TRIES):      # the generator's wall-time budget (spec.py)
+            try:
+                if spec['estimator']['kind'] == 'inproc':
+                    score, series = _inproc(spec, values, work)
+                else:
+                    score, series = _ros(spec, values, work)
+                break
+            except GenerationError as exc:
+                if 'time budget' not in str(exc) or attempt == BUDGET_TRIES - 1:
+                    raise
+                shutil.rmtree(work, ignore_errors=True)
+                os.makedirs(work)
+        row.update(score)
+        out['series'] = series
+    except RunFailed as exc:
+        row.update(status='failed', reason=exc.reason)
+        out['log'] = exc.log + ''.join(
+            f'--- {n}.log\n{_tail(os.path.join(work, n + ".log"))}'
+            for n in ('estimator', 'recorder', 'replay')
+            if os.path.exists(os.path.join(work, n + '.log')))
+    except Exception as exc:  # noqa: B902 - anything else fails this run, not the campaign
+        row.update(status='failed', reason=f'{type(exc).__name__}: '
+                                           f'{" ".join(str(exc).split())}'[:300])
+        out['log'] = traceback.format_exc()
+    finally:
+        if not bag_root:
+            shutil.rmtree(work, ignore_errors=True)
+    out['timing'] = {'wall_s': time.perf_counter() - t0}
+    return out

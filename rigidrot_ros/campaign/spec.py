@@ -1,0 +1,331 @@
+"""Campaign specification: read, validate, and draw each run's parameters (no rclpy here).
+
+A spec is a YAML mapping (every key is checked; an unknown one is an error)::
+
+    name: mekf-tuned                 # optional label
+    seed: 2024                       # the campaign seed (int >= 0)
+    runs: 100                        # M
+    duration: 60.0                   # scene seconds per run
+    timeout: 600                     # wall seconds per run before it is failed
+    base:
+      params_file: scene.yaml        # optional, relative to the spec's directory
+      overrides: {imu.enable: true, star_tracker.enable: true}
+    dispersions:
+      attitude0: uniform             # uniform on SO(3)
+      omega0: {mean: [0.3, -0.2, 0.5], sigma: 0.05}        # normal, sigma per axis or one
+      imu.gyro_bias: {mean: [0, 0, 0], sigma: 2.0e-3}      # the bias prior, rad/s
+      inertia: {low: [1.9, 1.9, 0.9], high: [2.1, 2.1, 1.1]}   # uniform per axis
+      torque: {low: [0, 0, 0.04], high: [0, 0, 0.06]}          # uniform per axis
+    sensor_seeds: per_run            # or fixed (the base's imu.seed, star_tracker.seed)
+    estimator:                       # in process ...
+      factory: rigidrot_ros.estimators.mekf:make
+      params: {sigma_v: 1.7e-4, sigma_u: 2.0e-5, bias_sigma: 2.0e-3}
+    # estimator:                     # ... or as a ROS program
+    #   command: rigidrot_mekf --sigma-v 1.7e-4 --ros-args -p use_sim_time:=true
+    #   topics: [/estimator/odom]    # recorded; the first is scored
+    #   rate: 5.0                    # replay speed, multiple of real time
+    #   settle: 1.0                  # s to wait after the replay before stopping it
+    #   domain_base: 100             # each run claims a free ROS_DOMAIN_ID in
+    #   domain_span: 100             # [base, base + span) on this machine
+
+Draws: run ``i`` uses ``numpy.random.SeedSequence(seed, spawn_key=(i,))`` (the i-th child
+of ``SeedSequence(seed).spawn(M)``), whose first child drives the dispersions in the fixed
+order attitude0, omega0, imu.gyro_bias, inertia, torque, and whose second gives the sensor
+seeds: the same run gets the same draws whatever the order, worker or engine.
+
+Inertia draws that break the triangle inequality (``I_a + I_b < I_c``, no rigid body has
+them) are drawn again from the same stream (rejection: the accepted draws are the box
+conditioned on the inequality), up to :data:`MAX_REDRAWS` times; the count is in the
+run's row. A box where no draw can satisfy it is refused when the spec is read.
+"""
+
+import importlib
+import math
+import os
+import shlex
+import shutil
+
+import numpy as np
+import yaml
+
+__all__ = ['SpecError', 'load_spec', 'check_spec', 'draw_run', 'run_values', 'MAX_REDRAWS',
+           'load_factory', 'DISPERSIONS']
+
+MAX_REDRAWS = 1000
+#: The node's start-up trial bounds its first samples' wall time: on a loaded machine it can
+#: run out of it. Such a refusal says nothing about the draw, so it is tried again.
+BUDGET_TRIES = 3
+TOP_KEYS = ('name', 'seed', 'runs', 'duration', 'timeout', 'base', 'dispersions',
+            'sensor_seeds', 'estimator')
+BASE_KEYS = ('params_file', 'overrides')
+DISPERSIONS = ('attitude0', 'omega0', 'imu.gyro_bias', 'inertia', 'torque')
+INPROC_KEYS = ('factory', 'params', 'topic')
+ROS_KEYS = ('command', 'topics', 'rate', 'settle', 'domain_base', 'domain_span')
+
+
+class SpecError(ValueError):
+    """A spec that cannot run: the message is one line naming the problem."""
+
+
+def _num(where, v, lo=-math.inf, hi=math.inf, integer=False, strict_lo=False):
+    ok_type = isinstance(v, int) if integer else isinstance(v, (int, float))
+    if isinstance(v, bool) or not ok_type:
+        raise SpecError(f'{where} must be {"an integer" if integer else "a number"}, '
+                        f'got {v!r}')
+    if not math.isfinite(v) or v < lo or v > hi or (strict_lo and v == lo):
+        rng = f'{"(" if strict_lo else "["}{lo:g}, {hi:g}]'
+        raise SpecError(f'{where} must lie in {rng}, got {v!r}')
+    return v
+
+
+def _vec(where, v, size=3):
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        v = [v] * size
+    if not isinstance(v, (list, tuple)) or len(v) != size:
+        raise SpecError(f'{where} must be {size} numbers (or one), got {v!r}')
+    return [float(_num(f'{where}[{i}]', x)) for i, x in enumerate(v)]
+
+
+def _keys(where, d, allowed):
+    if not isinstance(d, dict):
+        raise SpecError(f'{where} must be a mapping, got {d!r}')
+    unknown = sorted(str(k) for k in d if k not in allowed)
+    if unknown:
+        raise SpecError(f'{where}: unknown key(s) {", ".join(unknown)} '
+                        f'(known: {", ".join(allowed)})')
+
+
+def load_factory(text):
+    """Import ``module:factory``; SpecError naming it if it does not import."""
+    mod, sep, attr = str(text).partition(':')
+    if not sep or not mod or not attr:
+        raise SpecError(f'estimator.factory must be module:callable, got {text!r}')
+    try:
+        module = importlib.import_module(mod)
+    except Exception as exc:  # noqa: B902 - any import failure is the user's to read
+        raise SpecError(f'estimator.factory {text}: cannot import {mod} '
+                        f'({type(exc).__name__}: {" ".join(str(exc).split())})') from None
+    obj = module
+    for part in attr.split('.'):
+        obj = getattr(obj, part, None)
+    if not callable(obj):
+        raise SpecError(f'estimator.factory {text}: {mod} has no callable {attr}')
+    return obj
+
+
+def _dispersion(name, d):
+    where = f'dispersions.{name}'
+    if name == 'attitude0':
+        if d != 'uniform':
+            raise SpecError(f'{where} must be "uniform" (uniform on SO(3)), got {d!r}')
+        return 'uniform'
+    if name in ('omega0', 'imu.gyro_bias'):
+        _keys(where, d, ('mean', 'sigma'))
+        if 'sigma' not in d:
+            raise SpecError(f'{where} needs sigma (normal about mean)')
+        sigma = _vec(f'{where}.sigma', d['sigma'])
+        if any(s < 0 for s in sigma):
+            raise SpecError(f'{where}.sigma must be >= 0, got {d["sigma"]!r}')
+        return {'mean': _vec(f'{where}.mean', d.get('mean', 0.0)), 'sigma': sigma}
+    _keys(where, d, ('low', 'high'))
+    if 'low' not in d or 'high' not in d:
+        raise SpecError(f'{where} needs low and high (uniform per axis)')
+    low, high = _vec(f'{where}.low', d['low']), _vec(f'{where}.high', d['high'])
+    bad = [i for i in range(3) if low[i] > high[i]]
+    if bad:
+        raise SpecError(f'{where}: low > high on axis {bad[0]} ({low[bad[0]]} > '
+                        f'{high[bad[0]]})')
+    if name == 'inertia':
+        if min(low) <= 0:
+            raise SpecError(f'{where}: moments of inertia must be > 0, low is {low}')
+        for c in range(3):
+            a, b = [i for i in range(3) if i != c]
+            if high[a] + high[b] < low[c]:
+                raise SpecError(f'{where}: impossible: every draw breaks the triangle '
+                                f'inequality (I{a + 1} + I{b + 1} <= {high[a] + high[b]:g} < '
+                                f'I{c + 1} >= {low[c]:g})')
+    return {'low': low, 'high': high}
+
+
+def check_spec(doc, base_dir='.'):
+    """Validate a spec mapping; return it normalised (a plain dict). SpecError otherwise."""
+    from rigidrot_ros.io.generate import GenerationError, load_values, prepare_run
+    _keys('spec', doc, TOP_KEYS)
+    for k in ('seed', 'runs', 'duration', 'estimator'):
+        if k not in doc:
+            raise SpecError(f'spec: missing key {k}')
+    spec = {
+        'name': str(doc.get('name', '')),
+        'seed': _num('seed', doc['seed'], 0, 2 ** 63 - 1, integer=True),
+        'runs': _num('runs', doc['runs'], 1, 1_000_000, integer=True),
+        'duration': float(_num('duration', doc['duration'], 0, 1e6, strict_lo=True)),
+        'timeout': float(_num('timeout', doc.get('timeout', 600), 0, 1e6, strict_lo=True)),
+        'sensor_seeds': doc.get('sensor_seeds', 'per_run'),
+    }
+    if spec['sensor_seeds'] not in ('per_run', 'fixed'):
+        raise SpecError(f'sensor_seeds must be per_run or fixed, got {spec["sensor_seeds"]!r}')
+    base = doc.get('base') or {}
+    _keys('base', base, BASE_KEYS)
+    pf = base.get('params_file')
+    if pf is not None:
+        pf = os.path.normpath(os.path.join(base_dir, str(pf)))
+        if not os.path.isfile(pf):
+            raise SpecError(f'base.params_file {pf}: no such file')
+    overrides = base.get('overrides') or {}
+    if not isinstance(overrides, dict):
+        raise SpecError(f'base.overrides must be a mapping of parameter: value, got '
+                        f'{overrides!r}')
+    try:
+        values = load_values(pf, overrides.items())
+        prepare_run(values)
+    except GenerationError as exc:
+        raise SpecError(f'base: {exc}') from None
+    spec['base'] = {'params_file': pf, 'values': values}
+    disp = doc.get('dispersions') or {}
+    _keys('dispersions', disp, DISPERSIONS)
+    spec['dispersions'] = {k: _dispersion(k, disp[k]) for k in DISPERSIONS if k in disp}
+    spec['estimator'] = _estimator(doc['estimator'])
+    return spec
+
+
+def _estimator(est):
+    _keys('estimator', est, INPROC_KEYS + ROS_KEYS)
+    if ('factory' in est) == ('command' in est):
+        raise SpecError('estimator needs exactly one of factory (in process) or command '
+                        '(a ROS program)')
+    if 'factory' in est:
+        extra = sorted(k for k in est if k not in INPROC_KEYS)
+        if extra:
+            raise SpecError(f'estimator: {", ".join(extra)} apply to a command, not a factory')
+        params = est.get('params') or {}
+        if not isinstance(params, dict):
+            raise SpecError(f'estimator.params must be a mapping, got {params!r}')
+        factory = load_factory(est['factory'])
+        try:
+            factory(dict(params))                      # the parameters are checked now
+        except Exception as exc:  # noqa: B902 - the estimator's own complaint
+            raise SpecError(f'estimator {est["factory"]} refuses its params: '
+                            f'{" ".join(str(exc).split())}') from None
+        topic = str(est.get('topic', '/estimator/odom'))
+        return {'kind': 'inproc', 'factory': str(est['factory']), 'params': dict(params),
+                'topic': topic if topic.startswith('/') else '/' + topic}
+    extra = sorted(k for k in est if k not in ROS_KEYS)
+    if extra:
+        raise SpecError(f'estimator: {", ".join(extra)} apply to a factory, not a command')
+    cmd = est['command']
+    cmd = shlex.split(cmd) if isinstance(cmd, str) else cmd
+    if not isinstance(cmd, list) or not cmd or not all(isinstance(c, str) for c in cmd):
+        raise SpecError(f'estimator.command must be a command line, got {est["command"]!r}')
+    if shutil.which(cmd[0]) is None:
+        raise SpecError(f'estimator.command: {cmd[0]}: command not found')
+    topics = est.get('topics', ['/estimator/odom'])
+    if isinstance(topics, str):
+        topics = [topics]
+    if not topics or not all(isinstance(t, str) and t for t in topics):
+        raise SpecError(f'estimator.topics must be a list of topic names, got {topics!r}')
+    topics = [t if t.startswith('/') else '/' + t for t in topics]
+    return {'kind': 'ros', 'command': cmd, 'topics': topics,
+            'rate': float(_num('estimator.rate', est.get('rate', 1.0), 0, 1e3,
+                               strict_lo=True)),
+            'settle': float(_num('estimator.settle', est.get('settle', 1.0), 0, 600)),
+            'domain_base': _num('estimator.domain_base', est.get('domain_base', 100), 0, 232,
+                                integer=True),
+            'domain_span': _num('estimator.domain_span', est.get('domain_span', 100), 1, 233,
+                                integer=True)}
+
+
+def load_spec(path):
+    """Read and validate a spec file; SpecError (one line) if it cannot run.
+
+    Every run's draw is made and validated too (:func:`check_draws`), so an impossible
+    dispersion is found before anything is written.
+    """
+    try:
+        with open(path, encoding='utf-8') as fh:
+            doc = yaml.safe_load(fh)
+    except OSError as exc:
+        raise SpecError(f'{path}: {exc.strerror or exc}') from None
+    except yaml.YAMLError as exc:
+        raise SpecError(f'{path}: not YAML ({" ".join(str(exc).split())})') from None
+    spec = check_spec(doc, os.path.dirname(os.path.abspath(path)))
+    check_draws(spec)
+    return spec
+
+
+def _uniform_so3(rng):
+    """Uniform random ``q_NB`` (x, y, z, w): a normalised 4-D normal, w >= 0."""
+    q = rng.standard_normal(4)
+    q /= np.linalg.norm(q)
+    return q if q[3] >= 0 else -q
+
+
+def _triangle_ok(i):
+    return i[0] + i[1] >= i[2] and i[1] + i[2] >= i[0] and i[0] + i[2] >= i[1]
+
+
+def draw_run(spec, index):
+    """Draw the dispersed parameters of run ``index``: ``(draws, redraws)``.
+
+    ``draws`` maps parameter names to plain values (lists, ints); ``redraws`` counts the
+    inertia draws rejected for the triangle inequality.
+    """
+    child = np.random.SeedSequence(spec['seed'], spawn_key=(int(index),))
+    disp_ss, seed_ss = child.spawn(2)
+    rng = np.random.default_rng(disp_ss)
+    d = spec['dispersions']
+    out, redraws = {}, 0
+    if 'attitude0' in d:
+        out['attitude0'] = _uniform_so3(rng).tolist()
+    for name in ('omega0', 'imu.gyro_bias'):
+        if name in d:
+            out[name] = (np.array(d[name]['mean'])
+                         + np.array(d[name]['sigma']) * rng.standard_normal(3)).tolist()
+    if 'inertia' in d:
+        lo, hi = np.array(d['inertia']['low']), np.array(d['inertia']['high'])
+        while True:
+            inertia = rng.uniform(lo, hi)
+            if _triangle_ok(inertia):
+                break
+            redraws += 1
+            if redraws > MAX_REDRAWS:
+                raise SpecError(f'dispersions.inertia: run {index}: {MAX_REDRAWS} draws in a '
+                                f'row broke the triangle inequality; narrow the box')
+        out['inertia'] = inertia.tolist()
+    if 'torque' in d:
+        out['torque'] = rng.uniform(d['torque']['low'], d['torque']['high']).tolist()
+    if spec['sensor_seeds'] == 'per_run':
+        s = seed_ss.generate_state(2, np.uint64) >> np.uint64(1)     # within [0, 2^63)
+        out['imu.seed'], out['star_tracker.seed'] = int(s[0]), int(s[1])
+    return out, redraws
+
+
+def run_values(spec, draws):
+    """Return the run's parameter values: the base, then its draws."""
+    values = dict(spec['base']['values'])
+    values.update(draws)
+    return values
+
+
+def check_draws(spec):
+    """Validate every run's parameters as the node would; SpecError names the first bad run.
+
+    The node's checks (model constraints such as a torque along the symmetry axis, the
+    start-up trial) are those of :func:`rigidrot_ros.io.generate.prepare_run`.
+    """
+    from rigidrot_ros.io.generate import GenerationError, prepare_run
+    if not spec['dispersions'].keys() - {'attitude0'} and spec['sensor_seeds'] == 'fixed':
+        return
+    for i in range(spec['runs']):
+        draws, _ = draw_run(spec, i)
+        try:
+            for attempt in range(BUDGET_TRIES):
+                try:
+                    prepare_run(run_values(spec, draws))
+                    break
+                except GenerationError as exc:
+                    if 'time budget' not in str(exc) or attempt == BUDGET_TRIES - 1:
+                        raise
+        except GenerationError as exc:
+            shown = {k: v for k, v in draws.items() if not k.endswith('seed')}
+            raise SpecError(f'impossible dispersion: run {i} draws {shown}, which the node '
+                            f'refuses: {exc}') from None

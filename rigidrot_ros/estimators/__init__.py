@@ -1,0 +1,1 @@
+"""Estimators that ship with rigidrot_ros (the campaign's reference MEKF)."""
