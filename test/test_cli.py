@@ -106,6 +106,22 @@ CASES = [
     row('rigidrot_bench', ['--charts-from', 'doc/bench/results.json', '--out', '{tmp}/c'], 2,
         ["pip install -e '.[bench]'", 'matplotlib'], block=('matplotlib',),
         id='rigidrot_bench --charts-from without matplotlib'),
+    # rigidrot_generate (the run itself: test_generate.py)
+    row('rigidrot_generate', ['--help'], 0, ['usage: rigidrot_generate', '--duration',
+                                             '--start-ns']),
+    row('rigidrot_generate', ['-o', '{tmp}/g', '--duration', '-1'], 2, ['--duration']),
+    row('rigidrot_generate', ['-o', '{tmp}/g', '--duration', '1', '-p', 'tol:=5'], 2,
+        ['tol']),
+    row('rigidrot_generate', ['-o', '{tmp}/g', '--duration', '1', '--params-file',
+                              '{tmp}/garbage.yaml'], 2, ['garbage.yaml']),
+    # rigidrot_campaign (specs and engines: test_campaign.py)
+    row('rigidrot_campaign', ['--help'], 0, ['usage: rigidrot_campaign', '--workers',
+                                             '--scheduler']),
+    row('rigidrot_campaign', ['{tmp}/nope.yaml', '-o', '{tmp}/c'], 2, ['nope.yaml']),
+    row('rigidrot_campaign', ['{tmp}/garbage.yaml', '-o', '{tmp}/c'], 2, ['garbage.yaml']),
+    # rigidrot_mekf (the filter: test_mekf.py, test_campaign_ros.py)
+    row('rigidrot_mekf', ['--help'], 0, ['usage: rigidrot_mekf', '--sigma-v']),
+    row('rigidrot_mekf', ['--bogus'], 2, ['unrecognized arguments: --bogus']),
 ]
 
 #: The ``module:func`` of each script that a row runs with modules blocked.

@@ -245,6 +245,9 @@ def load_spec(path):
             doc = yaml.safe_load(fh)
     except OSError as exc:
         raise SpecError(f'{path}: {exc.strerror or exc}') from None
+    except UnicodeDecodeError as exc:
+        raise SpecError(f'{path}: not a YAML text file (byte {exc.start} is not UTF-8)') \
+            from None
     except yaml.YAMLError as exc:
         raise SpecError(f'{path}: not YAML ({" ".join(str(exc).split())})') from None
     spec = check_spec(doc, os.path.dirname(os.path.abspath(path)))
