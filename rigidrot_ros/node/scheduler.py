@@ -132,6 +132,8 @@ class Track:
         the newest; ``skipped`` counts the samples left out. Marks them handed out.
         """
         origin = self.origin_ns + self.timing.latency_ns
+        if grid.index(origin, self.rate, now_ns) < max(self.last + 1, self.first):
+            return range(0), 0          # nothing due yet (grid.due would owe sample 0)
         first, newest, skipped = grid.due(origin, self.rate, self.last, now_ns)
         first = max(first, self.first)
         if newest < first:
