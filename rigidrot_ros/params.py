@@ -216,7 +216,7 @@ def _rate(name, default, what):
 
 
 def _timing(name, what):
-    """The timing-model entries of sensor ``name`` (sched's block: see node/scheduler.py)."""
+    """Return the timing-model entries of sensor ``name`` (see node/scheduler.py)."""
     return (
         _double(f'{name}.latency', 0.0, f'transport latency of the {what}: each sample is '
                 'published this long after its true sample time (its stamp unchanged), s',

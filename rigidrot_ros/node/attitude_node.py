@@ -231,7 +231,7 @@ class AttitudeNode(Node):
 
     # -- the scheduler -----------------------------------------------------------------------
     def _on_timer(self):
-        """The one timer: publish every sample due now, of every stream, in stamp order.
+        """Publish every sample due now, of every stream, in stamp order (the one timer).
 
         Then at most one look-ahead batch (the stream whose buffer runs out first), and
         the diagnostics once a second.
