@@ -215,6 +215,22 @@ def _rate(name, default, what):
                    'reset', 0.0, MAX_RATE, 'Hz', _rate_or_zero)
 
 
+def _timing(name, what):
+    """Return the timing-model entries of sensor ``name`` (see node/scheduler.py)."""
+    return (
+        _double(f'{name}.latency', 0.0, f'transport latency of the {what}: each sample is '
+                'published this long after its true sample time (its stamp unchanged), s',
+                'reset', 0.0, 10.0, 's'),
+        _double(f'{name}.stamp_jitter', 0.0, f'1-sigma jitter of the {what} stamps against '
+                'the true sample time (seeded by its seed; the sample is taken at the true '
+                'time, the message carries the jittered stamp), s', 'reset', 0.0, 1.0, 's'),
+        _double(f'{name}.drop_probability', 0.0, f'probability that a {what} sample is '
+                'dropped (read, not published; seeded by its seed)', 'reset', 0.0, 1.0, ''),
+        _double(f'{name}.clock_offset', 0.0, f'offset of the {what} clock: its stamps are '
+                'the true sample time plus this, s', 'reset', -1e3, 1e3, 's'),
+    )
+
+
 #: Every parameter of attitude_node, in the order of ``config/default.yaml``.
 PARAMS = (
     _vector('inertia', [2.0, 2.0, 1.0], 'principal moments of inertia [I1, I2, I3], kg m^2 '
@@ -260,6 +276,7 @@ PARAMS = (
             'rad/s^2/sqrt(Hz)'),
     _vector('imu.gyro_bias', [0.0, 0.0, 0.0], 'initial gyro bias [bx, by, bz], rad/s, in B'),
     _seed('imu.seed', 0, 'seed of the gyro noise: the same seed gives the same stream'),
+    *_timing('imu', 'imu'),
     _switch('star_tracker.enable', 'publish a star tracker as '
             'geometry_msgs/PoseWithCovarianceStamped on star_tracker'),
     _rate('star_tracker.rate', 10.0, 'star tracker'),
@@ -270,6 +287,7 @@ PARAMS = (
     _vector('star_tracker.boresight', [0.0, 0.0, 1.0], 'boresight axis [x, y, z] in B '
             '(normalised)'),
     _seed('star_tracker.seed', 1, 'seed of the star tracker noise'),
+    *_timing('star_tracker', 'star tracker'),
     _switch('odom.enable', 'publish the truth as nav_msgs/Odometry on odom'),
     _switch('transform.enable', 'publish the truth as geometry_msgs/TransformStamped on '
             'transform'),

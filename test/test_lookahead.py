@@ -1,4 +1,4 @@
-"""The node's look-ahead buffer, without ROS: values, batch sizes, skips, failures."""
+"""The node's look-ahead buffers, without ROS: values, batch sizes, skips, failures."""
 
 import math
 
@@ -7,7 +7,8 @@ import pytest
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, Lookahead, STRIKES
+from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, BATCH_BUDGET_S, Lookahead
+from rigidrot_ros.node.lookahead import SensorAhead, STRIKES, WARMUP_S
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
 PERIOD = 0.01
@@ -20,7 +21,8 @@ def _time_of(k):
 def test_buffered_samples_are_the_exact_solution_within_their_bounds():
     sol = solve(SCENE)
     ref = solve(SCENE, tol=2e-14)
-    la = Lookahead(sol, _time_of, PERIOD, budget_s=1.0, build=lambda k, smp: 'buffered')
+    la = Lookahead(sol, _time_of, PERIOD, budget_s=1.0,
+                   build=lambda start, data: ['buffered'] * len(data[0]))
     seen_buffered = 0
     for k in range(600):
         (q, w, bound), built = la.get(k)
@@ -62,13 +64,17 @@ def test_skipped_ticks_drop_their_samples_and_a_miss_evaluates_at_once():
     assert min(la._buf) == 51 and len(la) == 16      # the stale 1..8 are gone
 
 
-def test_build_is_called_with_each_buffered_sample_and_can_be_dropped():
+def test_build_is_called_once_per_batch_with_its_arrays_and_can_be_dropped():
     calls = []
-    la = Lookahead(solve(SCENE), _time_of, PERIOD, budget_s=1.0,
-                   build=lambda k, smp: calls.append(k) or ('msg', k, smp[2]))
+
+    def build(start, data):
+        q, w, e = data
+        calls.append((start, q.shape, w.shape, e.shape))
+        return [('msg', start + i, e[i]) for i in range(len(q))]
+    la = Lookahead(solve(SCENE), _time_of, PERIOD, budget_s=1.0, build=build)
     la.get(0)
     la.refill(0)
-    assert calls == list(range(1, 1 + AHEAD_MIN))
+    assert calls == [(1, (AHEAD_MIN, 4), (AHEAD_MIN, 3), (AHEAD_MIN,))]
     smp, built = la.get(1)
     assert built == ('msg', 1, smp[2])
     la.drop_built()
@@ -92,21 +98,37 @@ def test_a_failing_batch_turns_the_lookahead_off_with_its_reason():
     sol = _FailingBatches(solve(SCENE))
     la = Lookahead(sol, _time_of, PERIOD)
     assert la.refill(0) == 0
-    assert la.size == 0 and 'ArithmeticError' in la.off_reason and 'per tick' in la.off_reason
+    assert la.size == 0 and 'ArithmeticError' in la.off_reason and 'per sample' in la.off_reason
     (q, w, b), built = la.get(1)                     # per tick from now on
     assert built is None and math.isfinite(b)
     assert la.refill(1) == 0
 
 
-def test_batches_beyond_their_budget_turn_the_lookahead_off_after_strikes():
-    la = Lookahead(solve(SCENE), _time_of, PERIOD, budget_s=1e-9)
+class _Clock:
+    """A monotonic clock the test moves."""
+
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+
+def test_batches_beyond_their_budget_turn_the_lookahead_off_after_strikes_past_warmup():
+    clock = _Clock()
+    la = Lookahead(solve(SCENE), _time_of, PERIOD, budget_s=1e-9, clock=clock)
     k = 0
-    for strike in range(STRIKES - 1):                # measured, then judged: shrink, go on
+    for _ in range(2 * STRIKES):                     # warm-up: slow batches only keep it small
+        k += la.refill(k)
+        assert la.size == AHEAD_MIN and la.off_reason == ''
+    clock.t += WARMUP_S
+    for strike in range(STRIKES - 1):
         k += la.refill(k)
         assert la.size == AHEAD_MIN and la.off_reason == ''
     assert la.refill(k) == AHEAD_MIN
     assert la.size == 0 and 'beyond the budget' in la.off_reason
-    assert len(la.take_stats()) == STRIKES and la.take_stats() == []
+    assert 'after the warm-up' in la.off_reason
+    assert len(la.take_stats()) == 3 * STRIKES and la.take_stats() == []
 
 
 def test_one_slow_batch_only_shrinks_the_next():
@@ -116,16 +138,48 @@ def test_one_slow_batch_only_shrinks_the_next():
         k += la.refill(k)
     assert la.size == 128
     la.budget_s = 1e-9                              # as if a batch were slowed down once
+    la.period_s = 1e-9
     k += la.refill(k)
     assert la.size == AHEAD_MIN
-    la.budget_s = 1.0
+    la.budget_s, la.period_s = 1.0, PERIOD
+    la._costs = []                                  # (the slow one would be fitted too)
     k += la.refill(k)
     assert la.size == 2 * AHEAD_MIN and la.off_reason == ''
 
 
-def test_budget_is_at_most_half_a_period():
-    la = Lookahead(solve(SCENE), _time_of, 1e-3)
-    assert la.budget_s == pytest.approx(5e-4)
+@pytest.mark.parametrize('rate', [1000.0, 2000.0, 4000.0])
+def test_a_gyro_like_cost_keeps_the_lookahead_on_and_sized_at_khz_rates(rate):
+    """A fixed 0.4 ms a batch plus 1.5 us a sample (the gyro, measured) at 1-4 kHz."""
+    clock = _Clock()
+    la = Lookahead(solve(SCENE), _time_of, 1.0 / rate, clock=clock)
+    clock.t += 10 * WARMUP_S
+    n = AHEAD_MIN
+    for _ in range(12):
+        la._judge(n, 4e-4 + 1.5e-6 * n)
+        assert la.size >= AHEAD_MIN, la.off_reason
+        n = la.size
+    fixed, per = la._fit()
+    assert fixed == pytest.approx(4e-4, rel=1e-6) and per == pytest.approx(1.5e-6, rel=1e-6)
+    if 4e-4 + 1.5e-6 * AHEAD_MIN <= 0.6 / rate:     # room between two samples: aim there
+        assert 4e-4 + 1.5e-6 * n <= 0.6 / rate
+    else:                                           # no room: large batches within budget
+        assert n == AHEAD_MAX and 4e-4 + 1.5e-6 * n <= BATCH_BUDGET_S
+
+
+def test_a_sensor_lookahead_reads_each_sample_once_in_order():
+    reads = []
+
+    def read(ks):
+        reads.extend(ks)
+        return [('s', k) for k in ks], None
+    la = SensorAhead(read, lambda k: read(range(k, k + 1))[0][0], 1e-3, first=1,
+                     budget_s=1.0)
+    got = []
+    for k in range(1, 200):
+        got.append(la.get(k)[0])
+        la.refill(k)
+    assert got == [('s', k) for k in range(1, 200)]
+    assert reads == sorted(set(reads)) and reads[:199] == list(range(1, 200))
 
 
 def test_disabled_lookahead_evaluates_every_tick():

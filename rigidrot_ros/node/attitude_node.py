@@ -36,13 +36,13 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import QuaternionStamped, TransformStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
+import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import serialize_message
 from rclpy.time import Time
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -50,15 +50,19 @@ from visualization_msgs.msg import MarkerArray
 
 from rigidrot_ros import settings
 from rigidrot_ros.core import PrecisionError
+from rigidrot_ros.io import cdr
+from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter
 from rigidrot_ros.io.recorder import Recorder, type_name_of
-from rigidrot_ros.node import cli, diagnostics, grid, outputs
+from rigidrot_ros.node import cli, diagnostics, grid, outputs, scheduler
 from rigidrot_ros.node.cli import SceneError
-from rigidrot_ros.node.lookahead import Lookahead
+from rigidrot_ros.node.lookahead import Lookahead, SensorAhead
 from rigidrot_ros.node.ros_params import descriptor, UnknownParameterError
 from rigidrot_ros.node.ros_params import warn_unknown_overrides
+from rigidrot_ros.node.streams import ImuStream, StarTrackerStream
 from rigidrot_ros.node.streams import make_streams, scene_time, STREAMS
 from rigidrot_ros.params import BY_NAME, PARAMS
+from rigidrot_ros.settings import SAMPLE_BUDGET_S
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
 
@@ -103,10 +107,11 @@ class AttitudeNode(Node):
         if self._values['record']:
             self._start_recording()
         self._timer = None
-        self._make_timer(self._values['publish_rate'])
-        self._streams, self._stream_timers = [], []
+        self._period_hz = float(self._values['publish_rate'])
+        self._streams, self._sensors = [], []
+        self._next_diag = time.monotonic() + 1.0
         self._start_streams()
-        self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        self._make_timer(self._values['publish_rate'])
         self.get_logger().info(
             f'running model {self.solution.model} ({self.solution.method}) at '
             f'{self._period_hz:g} Hz')
@@ -122,6 +127,7 @@ class AttitudeNode(Node):
         for topic, switch in outputs.TRUTH_EXTRAS:
             if self._values[switch]:
                 self._pubs[topic] = self.create_publisher(_EXTRA_TYPES[topic], topic, qos)
+        self._pubs_extra = bool(self._pubs)
         for stream in make_streams(self._setup):
             for topic, cls in stream.topics:
                 self._pubs[topic] = self.create_publisher(cls, topic, qos)
@@ -214,12 +220,57 @@ class AttitudeNode(Node):
                 self._ahead.drop_built()     # messages built ahead carry the old frames
 
     def _make_timer(self, rate):
+        """(Re)create the one scheduler timer: the shortest period of every stream."""
         if self._timer is not None:
             self.destroy_timer(self._timer)
         self._period_hz = float(rate)
         self._period = 1.0 / float(rate)
         self._grid0 = None              # the next tick anchors a new grid (same t_start)
-        self._timer = self.create_timer(self._period, self._tick)
+        self._timer_ns = scheduler.timer_period_ns([rate] + [s.rate for s in self._streams])
+        self._timer = self.create_timer(self._timer_ns * 1e-9, self._on_timer)
+
+    # -- the scheduler -----------------------------------------------------------------------
+    def _on_timer(self):
+        """Publish every sample due now, of every stream, in stamp order (the one timer).
+
+        Then at most one look-ahead batch (the stream whose buffer runs out first), and
+        the diagnostics once a second.
+        """
+        c_tick = time.perf_counter_ns()
+        now_ns = self._now_ns()
+        groups = []                     # (stamp ns, rank, [(publisher, msg, raw), ...])
+        truth = self._truth_due(now_ns, groups)
+        if self._t_start is not None:
+            for sensor in self._sensors:
+                self._sensor_due(sensor, now_ns, groups)
+        if groups:
+            groups.sort(key=lambda g: (g[0], g[1]))
+            items = [it for g in groups for it in g[2]]
+            pub_ns = self._now_ns()
+            if not self._publish(items):
+                return
+            for sensor in self._sensors:
+                sensor.published(pub_ns, self._counters)
+            if truth:
+                self._counters.tick_times.append(time.perf_counter_ns() - c_tick)
+            self._record_tick(now_ns, items)
+        self._refill()
+        if time.monotonic() >= self._next_diag:
+            self._next_diag = max(self._next_diag + 1.0, time.monotonic() + 0.5)
+            self._publish_diagnostics()
+
+    def _refill(self):
+        """Run at most one look-ahead batch: of the stream whose buffer runs out first."""
+        best, when = None, None
+        if self._ahead is not None and self._ahead.needs(self._tick_k):
+            best, when = (self._ahead, self._tick_k), self._ahead._next / self._period_hz
+        for s in self._sensors:
+            if s.ahead.needs(s.track.last):
+                t = s.ahead._next / s.track.rate
+                if when is None or t < when:
+                    best, when = (s.ahead, s.track.last), t
+        if best is not None:
+            best[0].refill(best[1])
 
     # -- the truth ---------------------------------------------------------------------------
     def _anchor(self, now_ns):
@@ -228,25 +279,27 @@ class AttitudeNode(Node):
         The first anchor of a run is also its ``t_start`` (scene time 0).
         """
         until = self._timer.time_until_next_call() if self._timer is not None else None
-        g0 = grid.anchor_ns(now_ns, until, round(self._period * 1e9))
+        g0 = grid.anchor_ns(now_ns, until, self._timer_ns)
         if self._t_start is None:
             self._t_start = Time(nanoseconds=g0, clock_type=self.get_clock().clock_type)
             self._run_pending = True        # _record_tick announces the run on ~/run
+            self._start_sensor_tracks()
         self._grid0, self._tick_k = g0, -1
         self._ahead = Lookahead(self.solution,
                                 lambda k: self._scene_time(self._tick_stamp_ns(k)),
-                                self._period,
-                                build=lambda k, smp: self._build_ahead(self._tick_stamp_ns(k),
-                                                                       smp))
+                                self._period, build=self._build_ahead)
 
-    def _build_ahead(self, stamp_ns, sample):
-        """Build and serialize (CDR) the attitude and rate messages of a tick to come.
+    def _build_ahead(self, start, data):
+        """Serialize (CDR) the attitude and rate messages of a batch of ticks to come.
 
-        The one place where a look-ahead batch's messages are built: the tick then
-        publishes the bytes (``publish_raw``), and the recorder writes the same bytes.
+        One :mod:`rigidrot_ros.io.cdr` call per topic: the tick then publishes the bytes
+        (``publish_raw``), and the recorder writes the same bytes.
         """
-        att, rate = outputs.truth_pair(stamp_ns, sample, self._frames)
-        return att, rate, serialize_message(att), serialize_message(rate)
+        q, w, _ = data
+        stamps = [self._tick_stamp_ns(k) for k in range(start, start + len(q))]
+        frame, body = self._frames
+        return list(zip(cdr.attitude(stamps, q, frame).tolist(),
+                        cdr.vector(stamps, w, body).tolist()))
 
     def _now_ns(self):
         """Return the node clock's time (ns).
@@ -280,53 +333,67 @@ class AttitudeNode(Node):
         return True
 
     def _truth_messages(self, stamp_ns, sample, built=None):
-        """Build the truth of one sample as ``(publisher, msg, raw)`` items, one stamp.
+        """Build the truth of one sample as ``(publisher, msg or class, raw)`` items.
 
         ``sample``: ``(quaternion, omega, error_bound)`` as :class:`Lookahead` gives it;
-        ``built``: what :meth:`_build_ahead` made of it ahead of time, if anything.
+        ``built``: the ``(attitude, rate)`` bytes :meth:`_build_ahead` made, if any.
         """
         if built is None:
-            built = outputs.truth_pair(stamp_ns, sample, self._frames) + (None, None)
-        out = [(self._pub_att, built[0], built[2]), (self._pub_rate, built[1], built[3])]
-        for topic, msg in outputs.truth_extras(built[0].header.stamp, sample, self._frames,
-                                               self._setup):
-            out.append((self._pubs[topic], msg, None))
+            att, rate = outputs.truth_pair(stamp_ns, sample, self._frames)
+            out = [(self._pub_att, att, None), (self._pub_rate, rate, None)]
+        else:
+            out = [(self._pub_att, QuaternionStamped, built[0]),
+                   (self._pub_rate, Vector3Stamped, built[1])]
+        if self._pubs_extra:
+            stamp = msgs.stamp(stamp_ns)
+            for topic, msg in outputs.truth_extras(stamp, sample, self._frames, self._setup):
+                out.append((self._pubs[topic], msg, None))
         return out
 
-    def _tick(self):
-        c_tick = time.perf_counter_ns()
-        now_ns = self._now_ns()
+    def _truth_due(self, now_ns, groups):
+        """Append the truth ticks due at ``now_ns`` to ``groups``; True if any.
+
+        Every grid tick from the last published one to now goes out (a call that comes
+        late publishes the ticks it owes: counted ``ticks_late``, not lost); only a backlog
+        beyond a second (a clock jump) is skipped and counted ``ticks_missed``.
+        """
         st = self._counters
         if self._grid0 is None or now_ns < self._grid0:     # new grid, or the clock went back
             self._anchor(now_ns)
         k = grid.index(self._grid0, self._period_hz, now_ns)
         if k <= self._tick_k:
             if k >= self._tick_k - 1:
-                return                  # this grid time is published already
+                return False            # this grid time is published already
             self._anchor(now_ns)        # the clock went back: a new grid
             k = 0
-        if self._tick_k >= 0 and k > self._tick_k + 1:
+        first = self._tick_k + 1
+        if k - first >= max(grid.BACKLOG_MIN, self._period_hz):
+            st.missed += k - first
+            first = k
+        if k > first:
             st.late += 1
-            st.missed += k - self._tick_k - 1
+        for j in range(first, k + 1):
+            if not self._truth_tick(j, now_ns, groups):
+                break
+        return True
+
+    def _truth_tick(self, k, now_ns, groups):
+        """Append tick k's items to ``groups`` (False if its sample failed)."""
+        st = self._counters
         self._tick_k = k
         stamp_ns = self._tick_stamp_ns(k)
         st.latencies.append(now_ns - stamp_ns)
-        t = self._scene_time(stamp_ns)
         c0 = time.perf_counter()
         try:
             sample, built = self._ahead.get(k)
         except Exception as exc:        # PrecisionError, or anything else: report, keep going
-            self._failed(t, exc)
-            return
+            self._failed(self._scene_time(stamp_ns), exc)
+            return False
         st.times.append(time.perf_counter() - c0)
-        items = self._truth_messages(stamp_ns, sample, built)
-        if not self._publish(items):
-            return
-        st.tick_times.append(time.perf_counter_ns() - c_tick)
+        groups.append((stamp_ns, 0, self._truth_messages(stamp_ns, sample, built)))
         st.published += 1
-        self._last_sample = (t, sample[2])
-        self._record_tick(now_ns, items)
-        self._ahead.refill(k)           # after publishing: the batch delays no message
+        self._last_sample = (self._scene_time(stamp_ns), sample[2])
+        return True
 
     def _failed(self, t, exc):
         text = str(exc) if isinstance(exc, (PrecisionError, ValueError)) else \
@@ -337,36 +404,52 @@ class AttitudeNode(Node):
 
     # -- the sensors -------------------------------------------------------------------------
     def _start_streams(self):
-        """Start the sensor streams of the run (fresh noise, grids from k = first)."""
-        for timer in self._stream_timers:
-            self.destroy_timer(timer)
+        """Make the sensor streams of the run (fresh noise); their grids start with t_start."""
         self._streams = make_streams(self._setup)
-        self._stream_timers = [
-            self.create_timer(1.0 / s.rate, lambda s=s: self._stream_tick(s))
-            for s in self._streams]
+        self._sensors = []
 
-    def _stream_tick(self, stream):
-        """Publish (and record) the samples of ``stream`` due now."""
-        if self._t_start is None:
-            return                      # the first truth tick starts the run (t_start)
-        now_ns = self._now_ns()
-        items = stream.take(self._t_start.nanoseconds, now_ns, self._setup.time_scale,
-                            self._frames, self._counters, self._failed)
-        items = [(self._pubs[topic], msg, None) for topic, msg in items]
-        if items and self._publish(items):
-            self._record_tick(now_ns, items)
+    def _start_sensor_tracks(self):
+        """At a run's t_start: each sensor's grid, timing model and look-ahead."""
+        t0 = self._t_start.nanoseconds
+        self._sensors = [_Sensor(self, s, t0, rank)
+                         for rank, s in enumerate(self._streams, start=1)]
+
+    def _sensor_due(self, sensor, now_ns, groups):
+        """Append the samples of ``sensor`` due at ``now_ns`` to ``groups``."""
+        ks, skipped = sensor.track.due(now_ns)
+        self._counters.skipped += skipped
+        for k in ks:
+            try:
+                sample, built = sensor.ahead.get(k)
+            except Exception as exc:    # noqa: B902 - a sample that cannot be read: report
+                self._failed(self._scene_time(sensor.track.stamp_ns(k)), exc)
+                continue
+            true_ns, _, keep, err, _ = sample
+            if err is not None:
+                self._failed(self._scene_time(true_ns), err)
+                continue
+            if not keep:
+                sensor.dropped += 1
+                continue
+            if built is None:
+                built = sensor.build_one(sample)
+            groups.append((true_ns, sensor.rank,
+                           [(self._pubs[topic], cls, raw) for topic, cls, raw in built]))
+            sensor.pending.append(true_ns)
 
     # -- diagnostics -------------------------------------------------------------------------
     def _publish_diagnostics(self):
         ahead = self._ahead
         batches = ahead.take_stats() if ahead is not None else []
         gyro = [s.bound for s in self._streams if s.name == 'imu']
+        sensors = {s.stream.name: s.report() for s in self._sensors}
         level, msg, values = diagnostics.report(
             self._counters.window(STREAMS), self.solution, period_hz=self._period_hz,
             delivered=self._delivered_rate(),
             error_bound=float(self._last_sample[1]) if self._last_sample else 0.0,
             scene_time=self._last_sample[0] if self._last_sample else None,
-            increment_bound=gyro[0] if gyro else 0.0, lookahead=ahead, batches=batches)
+            increment_bound=gyro[0] if gyro else 0.0, lookahead=ahead, batches=batches,
+            sensors=sensors)
         status = DiagnosticStatus(level=_LEVELS[level], name=f'{self.get_name()}: exact '
                                   'attitude', message=msg,
                                   hardware_id=self.get_fully_qualified_name())
@@ -461,10 +544,168 @@ class AttitudeNode(Node):
         self._last_sample = None
         self._run_pending = True            # the next tick announces the new run on ~/run
         self._start_streams()               # fresh noise; a new run's increment bound
+        self._make_timer(self._values['publish_rate'])     # the new run's sensor rates
         response.success = True
         response.message = f'running model {setup.solution.model} ({setup.solution.method})'
         self.get_logger().info(f'reset: {response.message}')
         return response
+
+
+class _Sensor:
+    """One sensor stream of a run on the node's schedule: grid, timing, look-ahead.
+
+    A sample is ``(true_ns, stamp_ns, keep, error, row)``: its grid time, the stamp its
+    messages carry (:meth:`Track.marks`), whether it is published (not dropped), the
+    exception that kept it from being read (else None), and its values (a tuple, one
+    entry per array of the batch). The gyro is read a batch at a time
+    (:meth:`Gyro.read_many`, bit for bit the per-sample reads) and the star tracker
+    sample by sample, each batch serialized by :mod:`rigidrot_ros.io.cdr` one call per
+    topic; a stream of another kind is read and built per sample by its own ``messages``
+    (and stamped by it: its stamp is not jittered nor offset).
+    """
+
+    def __init__(self, node, stream, t_start_ns, rank):
+        self.node, self.stream, self.rank = node, stream, rank
+        self.t_start_ns = t_start_ns
+        self.track = scheduler.Track(stream.name, t_start_ns, stream.rate, stream.first,
+                                     scheduler.timing_of(node._setup.values, stream.name))
+        self.dropped = 0
+        self.pending = []               # grid times (ns) published by this call
+        self.latencies = []             # publication - grid time, ns, this window
+        kind = type(stream)
+        if kind is ImuStream and hasattr(stream.model, 'read_many') and \
+                [t for t, _ in stream.topics] == ['imu', 'delta_angle', 'delta_rotation']:
+            self._read, self._build = self._read_gyro, self._build_gyro
+        elif kind is StarTrackerStream:
+            self._read, self._build = self._read_star, self._build_star
+        else:
+            self._read, self._build = self._read_generic, None
+        self.types = dict(stream.topics)
+        self.ahead = SensorAhead(self._read, lambda k: self._read(range(k, k + 1))[0][0],
+                                 1.0 / stream.rate, stream.first,
+                                 build=self._build_batch if self._build else None)
+
+    # -- reading -----------------------------------------------------------------------------
+    def _scene(self, ns):
+        return scene_time(ns, self.t_start_ns, self.node._setup.time_scale)
+
+    def _samples(self, ks, rows, errors):
+        stamps, keep = self.track.marks(ks)
+        true = [self.track.stamp_ns(k) for k in ks]
+        return [(t, int(s), bool(kp), e, r)
+                for t, s, kp, e, r in zip(true, stamps.tolist(), keep.tolist(), errors, rows)]
+
+    def _read_gyro(self, ks):
+        """Read the gyro over the intervals of ``ks``: one block (per sample if it fails)."""
+        c0 = time.perf_counter()
+        ends = np.array([self._scene(self.track.stamp_ns(k))
+                         for k in range(ks.start - 1, ks.stop)])
+        model, n = self.stream.model, len(ks)
+        try:
+            b = model.read_many(ends, budget=SAMPLE_BUDGET_S)
+            blocks, errors = [b], [None] * n
+        except ValueError:              # one interval too hard: each on its own
+            blocks, errors = [], []
+            for i in range(n):
+                try:
+                    blocks.append(model.read_many(ends[i:i + 2], budget=SAMPLE_BUDGET_S))
+                    errors.append(None)
+                except ValueError as exc:
+                    errors.append(exc)
+        rows = []
+        for block in blocks:
+            self.stream.bound = max(self.stream.bound, float(block.delta_angle_bound.max()),
+                                    float(block.delta_rotation_bound.max()))
+            rows += list(zip(block.omega, block.variance, block.delta_angle,
+                             block.delta_rotation))
+        rows = iter(rows)
+        rows = [None if e is not None else next(rows) for e in errors]
+        self._count(n, c0)
+        out = self._samples(ks, rows, errors)
+        return out, out
+
+    def _read_star(self, ks):
+        c0 = time.perf_counter()
+        rows, errors = [], []
+        for k in ks:
+            try:
+                r = self.stream.model.read(self._scene(self.track.stamp_ns(k)))
+                rows.append((r.quaternion, r.covariance))
+                errors.append(None)
+            except Exception as exc:    # noqa: B902 - reported when the sample is due
+                rows.append(None)
+                errors.append(exc)
+        self._count(len(ks), c0)
+        out = self._samples(ks, rows, errors)
+        return out, out
+
+    def _read_generic(self, ks):
+        c0 = time.perf_counter()
+        rows, errors = [], []
+        node = self.node
+        for k in ks:
+            try:
+                rows.append(self.stream.messages(k, self.t_start_ns, node._setup.time_scale,
+                                                 node._frames))
+                errors.append(None)
+            except Exception as exc:    # noqa: B902 - reported when the sample is due
+                rows.append(None)
+                errors.append(exc)
+        self._count(len(ks), c0)
+        out = self._samples(ks, rows, errors)
+        return out, out
+
+    def _count(self, n, c0):
+        per = (time.perf_counter() - c0) / max(n, 1)
+        for _ in range(n):
+            self.node._counters.sampled(self.stream.name, per)
+
+    # -- building ----------------------------------------------------------------------------
+    def _build_batch(self, start, data):
+        """Build a batch's messages (cdr), for the samples that were read and are kept."""
+        samples = data
+        ok = [i for i, s in enumerate(samples) if s[3] is None and s[2]]
+        out = [None] * len(samples)
+        if ok:
+            built = self._build([samples[i][1] for i in ok], [samples[i][4] for i in ok])
+            for i, b in zip(ok, built):
+                out[i] = b
+        return out
+
+    def build_one(self, sample):
+        """Return the ``(topic, class, raw)`` items of one sample read now."""
+        if self._build is None:
+            return [(topic, msg, None) for topic, msg in sample[4]]
+        return self._build([sample[1]], [sample[4]])[0]
+
+    def _build_gyro(self, stamps, rows):
+        body = self.node._frames[1]
+        w, var, da, dr = (np.array(c) for c in zip(*rows))
+        imu = cdr.imu(stamps, w, var, body).tolist()
+        a = cdr.vector(stamps, da, body).tolist()
+        r = cdr.vector(stamps, dr, body).tolist()
+        t = self.types
+        return [[('imu', t['imu'], x), ('delta_angle', t['delta_angle'], y),
+                 ('delta_rotation', t['delta_rotation'], z)] for x, y, z in zip(imu, a, r)]
+
+    def _build_star(self, stamps, rows):
+        q, cov = (np.array(c) for c in zip(*rows))
+        raw = cdr.star_tracker(stamps, q, cov, self.node._frames[0]).tolist()
+        cls = self.types['star_tracker']
+        return [[('star_tracker', cls, x)] for x in raw]
+
+    # -- accounting --------------------------------------------------------------------------
+    def published(self, pub_ns, counters):
+        """Note the publication time of the samples this call published."""
+        if self.pending:
+            self.latencies += [pub_ns - t for t in self.pending]
+            self.pending = []
+
+    def report(self):
+        """Return ``(latency mean, p99, max s, dropped)`` of this window, and start the next."""
+        out = diagnostics.summary(self.latencies, 1e-9) + (self.dropped,)
+        self.latencies = []
+        return out
 
 
 def main(args=None):

@@ -10,10 +10,15 @@ Keys of the report: ``model``, ``method``, ``backend``, ``tol_rad``, ``error_bou
 mpmath/Arb working precision its model last used, at set-up for a closed form or a table,
 or in its last multiprecision evaluation; the samples themselves are float64);
 ``eval_*`` (getting a tick's sample: from the look-ahead buffer, or evaluated then),
-``tick_*`` (the whole truth callback up to its messages' publication) and ``latency_*``
-(from a tick's stamp to the start of its callback, node clock), each mean, p99 and max
-over the window, µs; ``lookahead*``; per sensor stream ``<name>_samples`` (since start-up)
-and ``<name>_sample_mean_us``/``_max_us`` (building one sample over the window);
+``tick_*`` (the whole scheduler call that published truth ticks, up to its messages'
+publication) and ``latency_*`` (the wake-up latency: from a tick's stamp to the start of
+the call that publishes it, node clock), each mean, p99 and max over the window, µs;
+``lookahead*`` (the truth's); per sensor stream ``<name>_samples`` (since start-up),
+``<name>_sample_mean_us``/``_max_us`` (reading one sample, its share of a batch, over the
+window), ``<name>_latency_mean_us``/``_p99_us``/``_max_us`` (publication time minus the
+sample's true time, over the window; with a ``<name>.latency`` model at least that) and
+``<name>_dropped`` (samples a ``<name>.drop_probability`` model dropped, since the run
+started);
 ``increment_error_bound_rad`` (the largest bound of this run's gyro increments);
 ``sensor_samples_skipped``, ``ticks_published``, ``ticks_late``, ``ticks_missed``,
 ``publish_rate_hz`` and ``delivered_rate_hz``.
@@ -23,16 +28,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['Counters', 'Window', 'report', 'OK', 'WARN', 'ERROR']
+__all__ = ['Counters', 'Window', 'report', 'summary', 'OK', 'WARN', 'ERROR']
 
 #: Levels, as diagnostic_msgs/DiagnosticStatus numbers them.
 OK, WARN, ERROR = 0, 1, 2
 
 
-def _summary(values, scale=1.0):
+def summary(values, scale=1.0):
     """Return (mean, p99, max) of ``values`` times ``scale`` (zeros if empty)."""
     a = np.array(values) * scale if values else np.zeros(1)
     return float(a.mean()), float(np.percentile(a, 99)), float(a.max())
+
+
+_summary = summary
 
 
 @dataclass
@@ -100,7 +108,7 @@ class Counters:
 
 
 def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_bound,
-           lookahead=None, batches=()):
+           lookahead=None, batches=(), sensors=None):
     """Return ``(level, message, values)`` of one diagnostics window (pure).
 
     Parameters
@@ -123,6 +131,10 @@ def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_b
         The truth look-ahead (its size, why it is off, its cost per sample).
     batches : sequence of float
         The look-ahead's batch times in the window, s.
+    sensors : dict or None
+        Per running sensor stream: ``(latency mean, p99, max s, samples dropped)``; the
+        latency is the publication time minus the sample's grid time (its true sample
+        time), over the window.
     """
     mean, p99, mx = w.eval_s
     warns = []                  # every reason of this window, not only the last
@@ -166,6 +178,11 @@ def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_b
         values.update({f'{name}_samples': str(count),
                        f'{name}_sample_mean_us': f'{s_mean * 1e6:.1f}',
                        f'{name}_sample_max_us': f'{s_max * 1e6:.1f}'})
+    for name, (m, p, x, dropped) in (sensors or {}).items():
+        values.update({f'{name}_latency_mean_us': f'{m * 1e6:.1f}',
+                       f'{name}_latency_p99_us': f'{p * 1e6:.1f}',
+                       f'{name}_latency_max_us': f'{x * 1e6:.1f}',
+                       f'{name}_dropped': str(dropped)})
     values.update({
         'sensor_samples_skipped': str(w.skipped),
         'increment_error_bound_rad': f'{increment_bound:.3g}',

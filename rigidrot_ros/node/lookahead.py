@@ -1,128 +1,175 @@
-"""Truth samples on the node's tick grid, evaluated ahead in batches (no rclpy).
+"""Samples of every stream on its grid, evaluated and serialized ahead in batches (no rclpy).
 
-The node publishes the truth at the grid times ``g0 + k / publish_rate`` of its timer, so
-it knows the scene times of the coming ticks. :class:`Lookahead` evaluates them a batch at
-a time with the vectorised path of :meth:`Solution.at` (about 1 µs a sample warm and 3-5 µs
-after an idle gap, against 10-20 µs for a scalar call warm and 120-200 µs for a scalar
-call that runs after the 10 ms idle gap of a 100 Hz timer on a shared virtual CPU, whose
-caches the other tenants have emptied meanwhile; ``python -m rigidrot_ros.bench.node_tick``
-measures both). A tick
-then takes its sample from the buffer, and the batch runs after a tick has published, so
-it never delays a message.
+The node knows the times of every stream's coming samples (the truth's ticks, each
+sensor's grid), so it evaluates them a batch at a time: the truth with the vectorised
+path of :meth:`Solution.at`, the gyro with :meth:`Gyro.read_many` (bit for bit the
+per-sample reads), the star tracker sample by sample; and each batch's messages are
+serialized with the vectorised CDR writer :mod:`rigidrot_ros.io.cdr`, one call per batch
+and topic. A tick then takes its bytes from the buffer and publishes them; the node runs at
+most one batch per scheduler call, after that call has published, so a batch never delays
+the messages already due.
 
-Each buffered sample is the same exact solution, with its own error bound, as a scalar
-call at that time would give (both within the bound; the last bits may differ). A batch
-that raises (a far sample beyond the precision ceiling) turns the look-ahead off, and so
-do :data:`STRIKES` batches in a row that do not fit their budget even at the smallest
-size (one slow batch, say a garbage collection or a first call's set-up, only shrinks the
-next): the ticks then evaluate one sample each, and a failing sample is reported at its
-own tick as before.
+**Batch sizes.** A batch costs a fixed part (a gyro batch about 0.4 ms, a truth batch about
+0.15 ms, measured on the 2-core machine under load) plus a small part per sample (1.5 and
+0.3 µs). The size is chosen from that cost model, fitted to the CPU times of the recent
+batches (:meth:`Ahead._fit`): the largest that is predicted to fit the budget
+(:data:`BATCH_BUDGET_S`, the most a batch may hold the executor: the samples it delays are
+published by the next call, late but not lost), at most double the last, within
+[:data:`AHEAD_MIN`, :data:`AHEAD_MAX`]. A batch of :data:`AHEAD_MIN` that does not fit is
+a strike; :data:`STRIKES` strikes in a row turn the look-ahead off, except within its first
+:data:`WARMUP_S` seconds (first calls, caches, the process starting: measured 3 slow
+batches in a row at start-up on a loaded machine), when they only keep the size small.
+A batch that raises (a far sample beyond the precision ceiling) turns it off at once.
+Once off, each sample is evaluated when it is due (the truth: one scalar call; a sensor:
+its per-sample reader).
+
+Each buffered truth sample is the same exact solution, with its own error bound, as a
+scalar call at that time would give (both within the bound; the last bits may differ).
 """
 
 import time
 
 import numpy as np
 
-__all__ = ['Lookahead', 'AHEAD_MIN', 'AHEAD_MAX', 'BATCH_BUDGET_S', 'STRIKES']
+__all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'AHEAD_MIN', 'AHEAD_MAX', 'BATCH_BUDGET_S',
+           'STRIKES', 'WARMUP_S']
 
-#: The first batch's size, and the smallest (see :data:`STRIKES`).
+#: The first batch's size, and the smallest.
 AHEAD_MIN = 8
-#: The largest batch (2.56 s at 100 Hz): bounded memory, and a bounded stale tail after a
-#: change of publish_rate or a reset, which drop the buffer.
+#: The largest batch: bounded memory, and a bounded stale tail after a change of
+#: publish_rate or a reset, which drop the buffer.
 AHEAD_MAX = 256
-#: One batch takes at most this much CPU time, and at most half a tick period: the
-#: executor runs nothing else meanwhile (measured here: 90-130 samples and their
-#: messages in 2 ms). CPU time, not wall: on a loaded machine a batch is preempted, but
-#: evaluating per tick would cost more, not less.
+#: One batch takes at most this much CPU time (predicted from the fitted cost), and at
+#: most :data:`PERIOD_SHARE` of the stream's period where its fixed cost allows.
 BATCH_BUDGET_S = 2e-3
-#: Batches in a row that miss their budget at the smallest size before the look-ahead stops.
+#: The share of a period a batch aims at when its fixed cost leaves room for it.
+PERIOD_SHARE = 0.6
+#: Batches in a row beyond the budget at the smallest size before the look-ahead stops.
 STRIKES = 3
+#: Seconds after a look-ahead starts during which slow batches are no strikes.
+WARMUP_S = 2.0
+#: Batches the cost model remembers.
+_HISTORY = 8
 
 
-class Lookahead:
-    """Samples of ``solution`` at the grid indices k >= 0, batched ahead of the ticks.
+class Ahead:
+    """Samples at grid indices k >= ``first``, evaluated ahead in batches (a base class).
 
-    ``time_of(k)`` returns the scene time (s) of grid index k. A sample is a tuple
-    ``(quaternion, omega, error_bound)`` of a 4-list (x, y, z, w), a 3-list (rad/s, in B)
-    and a float (rad), plain Python floats. ``build(k, sample)``, if given, is called for
-    each sample of a batch right after it is evaluated (while the process is warm: the
-    node builds the tick's messages there) and its result is handed out with the sample.
+    Subclasses define ``_batch(start, n) -> (samples, data)`` (``samples`` a list of n
+    per-index values, ``data`` what ``build`` needs) and ``_one(k) -> sample``. ``build(start,
+    data) -> list of n built entries`` (e.g. each sample's serialized messages), if given,
+    is called once per batch.
     """
 
-    def __init__(self, solution, time_of, period_s, budget_s=BATCH_BUDGET_S, enabled=True,
-                 build=None):
-        self.solution = solution
-        self.time_of = time_of
+    def __init__(self, period_s, budget_s=BATCH_BUDGET_S, enabled=True, build=None,
+                 first=0, clock=time.monotonic):
+        self.period_s = float(period_s)
         self.build = build
-        self.budget_s = min(float(budget_s), 0.5 * float(period_s))
+        self.budget_s = float(budget_s)
         self.size = AHEAD_MIN if enabled else 0
         self.off_reason = '' if enabled else 'disabled'
         self._buf = {}
-        self._next = 0                  # the first index not yet buffered
-        self._last = -1                 # the last tick refill() was told of
+        self._first = int(first)
+        self._next = self._first        # the first index not yet buffered
+        self._last = self._first - 1    # the last index refill() was told of
         self._strikes = 0               # batches in a row over budget at AHEAD_MIN
+        self._clock = clock
+        self._born = clock()
+        self._costs = []                # (n, CPU s) of the last batches
         self.batch_times = []           # wall seconds per batch, since the last take_stats()
         self.last_per_sample = 0.0      # wall seconds per sample of the last batch
 
     def __len__(self):
         return len(self._buf)
 
+    def _one(self, k):
+        raise NotImplementedError
+
+    def _batch(self, start, n):
+        raise NotImplementedError
+
     def get(self, k):
-        """Return ``(sample, built)`` for grid index k (evaluated now if not buffered).
+        """Return ``(sample, built)`` for index k (evaluated now if not buffered).
 
         ``built`` is what ``build`` made of a buffered sample, None for a sample evaluated
-        now. Raises what :meth:`Solution.at` raises for that time (PrecisionError,
-        ValueError).
+        now. Raises what the evaluation of that sample raises.
         """
         entry = self._buf.pop(k, None)
         if entry is not None:
             return entry
-        s = self.solution.at(self.time_of(k))
-        return (s.quaternion.tolist(), s.omega.tolist(), float(s.error_bound)), None
+        return self._one(k), None
+
+    def needs(self, k):
+        """Return True if, after index k, at most half a batch is buffered ahead."""
+        if self.size < AHEAD_MIN:
+            return False
+        return max(self._next, k + 1) - (k + 1) <= self.size // 2
 
     def refill(self, k):
-        """After tick k: evaluate the next batch if at most half a batch is left; its size."""
+        """After index k: evaluate the next batch if at most half a batch is left; its size."""
         if self.size < AHEAD_MIN:
             return 0
-        if k != self._last + 1 and self._buf:     # ticks skipped: drop their samples
+        if k != self._last + 1 and self._buf:     # indices skipped: drop their samples
             self._buf = {j: v for j, v in self._buf.items() if j > k}
         self._last = k
         start = max(self._next, k + 1)
         if start - (k + 1) > self.size // 2:
             return 0
         n = self.size
-        ts = np.array([self.time_of(j) for j in range(start, start + n)])
         c0, cpu0 = time.perf_counter(), time.thread_time()
         try:
-            s = self.solution.at(ts)
-        except Exception as exc:    # noqa: B902 - whatever the core raises: per tick from now
+            samples, data = self._batch(start, n)
+            built = self.build(start, data) if self.build is not None else [None] * n
+        except Exception as exc:    # noqa: B902 - whatever the model raises: per sample now
             self.size = 0
-            self.off_reason = (f'a batch of {n} samples from t = {ts[0]:.6g} s failed '
-                               f'({type(exc).__name__}: {exc}); evaluating per tick')
+            self._buf = {}
+            self.off_reason = (f'a batch of {n} samples from index {start} failed '
+                               f'({type(exc).__name__}: {exc}); evaluating per sample')
             return 0
-        q, w, e = s.quaternion.tolist(), s.omega.tolist(), s.error_bound.tolist()
-        build = self.build
-        for j, smp in enumerate(zip(q, w, e), start):
-            self._buf[j] = (smp, build(j, smp) if build is not None else None)
+        for j, entry in enumerate(zip(samples, built), start):
+            self._buf[j] = entry
         self._next = start + n
         wall = time.perf_counter() - c0
         cost = time.thread_time() - cpu0        # CPU: another process's load is no reason
         self.batch_times.append(wall)
         self.last_per_sample = wall / n
-        # the next batch: at most double, within the budget at this batch's cost a sample
-        fits = int(self.budget_s * n / cost) if cost > 0 else AHEAD_MAX
-        if fits >= AHEAD_MIN:
+        self._judge(n, cost)
+        return n
+
+    def _fit(self):
+        """Return ``(fixed s, per sample s)`` of the cost model fitted to the last batches."""
+        ns = np.array([c[0] for c in self._costs], dtype=float)
+        cs = np.array([c[1] for c in self._costs], dtype=float)
+        if len(set(ns.tolist())) < 2:
+            return 0.0, float(cs[-1] / ns[-1])      # one size seen: all of it per sample
+        b, a = np.polyfit(ns, cs, 1)
+        b = max(float(b), 1e-9)
+        return max(float(a), 0.0), b
+
+    def _judge(self, n, cost):
+        """Choose the next batch size from the cost model; count a strike, or turn off."""
+        self._costs = (self._costs + [(n, cost)])[-_HISTORY:]
+        fixed, per = self._fit()
+        budget = self.budget_s
+        aim = PERIOD_SHARE * self.period_s
+        if fixed + per * AHEAD_MIN <= aim < budget:
+            budget = aim                  # a batch may fit between two samples: aim there
+        fits = int((budget - fixed) / per) if budget > fixed else 0
+        if fits >= AHEAD_MIN and cost <= max(budget, 2.0 * (fixed + per * n)):
             self.size = min(AHEAD_MAX, 2 * n, fits)
             self._strikes = 0
-        else:
-            self._strikes += 1
-            self.size = AHEAD_MIN
-            if self._strikes >= STRIKES:
-                self.size = 0
-                self.off_reason = (f'{STRIKES} batches in a row beyond the budget of '
-                                   f'{self.budget_s * 1e3:.3g} ms (the last: {n} samples in '
-                                   f'{cost * 1e3:.3g} ms of CPU); evaluating per tick')
-        return n
+            return
+        self.size = AHEAD_MIN
+        if self._clock() - self._born < WARMUP_S:
+            return                        # starting up: slow batches keep it small
+        self._strikes += 1
+        if self._strikes >= STRIKES:
+            self.size = 0
+            self._buf = {}
+            self.off_reason = (f'{STRIKES} batches in a row beyond the budget of '
+                               f'{budget * 1e3:.3g} ms after the warm-up (the last: {n} '
+                               f'samples in {cost * 1e3:.3g} ms of CPU); evaluating per '
+                               'sample')
 
     def drop_built(self):
         """Forget what ``build`` made (e.g. the frame ids changed); keep the samples."""
@@ -132,3 +179,55 @@ class Lookahead:
         """Return the batch times (s) since the last call, and forget them."""
         out, self.batch_times = self.batch_times, []
         return out
+
+
+class Lookahead(Ahead):
+    """Truth samples of ``solution`` at the tick indices k >= 0.
+
+    ``time_of(k)`` returns the scene time (s) of tick k. A sample is a tuple
+    ``(quaternion, omega, error_bound)`` of a 4-list (x, y, z, w), a 3-list (rad/s, in B)
+    and a float (rad), plain Python floats. ``build(start, (q, omega, bound))`` gets the
+    batch's arrays ((n, 4), (n, 3), (n,)).
+    """
+
+    def __init__(self, solution, time_of, period_s, budget_s=BATCH_BUDGET_S, enabled=True,
+                 build=None, clock=time.monotonic):
+        super().__init__(period_s, budget_s, enabled, build, 0, clock)
+        self.solution = solution
+        self.time_of = time_of
+
+    def _one(self, k):
+        s = self.solution.at(self.time_of(k))
+        return s.quaternion.tolist(), s.omega.tolist(), float(s.error_bound)
+
+    def _batch(self, start, n):
+        ts = np.array([self.time_of(j) for j in range(start, start + n)])
+        s = self.solution.at(ts)
+        q, w, e = s.quaternion, s.omega, s.error_bound
+        return list(zip(q.tolist(), w.tolist(), e.tolist())), (q, w, e)
+
+
+class SensorAhead(Ahead):
+    """A sensor stream's samples, evaluated ahead in order, each exactly once.
+
+    ``read(ks) -> (samples, data)`` evaluates the samples ``ks`` (a range, in order; the
+    sensor's state runs on); ``read_one(k) -> sample`` evaluates one. A sensor sample is
+    never evaluated twice: ``get(k)`` of a buffered k pops it, and an index that was
+    skipped (a clock jump) drops the buffered samples before it.
+    """
+
+    def __init__(self, read, read_one, period_s, first, budget_s=BATCH_BUDGET_S,
+                 enabled=True, build=None, clock=time.monotonic):
+        super().__init__(period_s, budget_s, enabled, build, first, clock)
+        self._read, self._read_one = read, read_one
+
+    def _one(self, k):
+        return self._read_one(k)
+
+    def _batch(self, start, n):
+        return self._read(range(start, start + n))
+
+    def peek_built(self, k):
+        """Return True if index k is buffered with its built messages."""
+        entry = self._buf.get(k)
+        return entry is not None and entry[1] is not None

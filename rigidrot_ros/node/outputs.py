@@ -12,6 +12,7 @@ from std_msgs.msg import String
 
 from rigidrot_ros import __version__
 from rigidrot_ros.io import messages as msgs
+from rigidrot_ros.node.scheduler import timing_of
 
 __all__ = ['truth_pair', 'truth_extras', 'run_description', 'run_message', 'TRUTH_EXTRAS',
            'RUN_FORMAT']
@@ -76,13 +77,21 @@ def run_description(setup, start_ns, run_index, node_name, topics):
         The node's fully qualified name, e.g. ``/attitude_node``.
     topics : dict
         Resolved topic name -> type name (``pkg/msg/Type``) of every publisher.
+
+    ``sensor_timing`` holds each running sensor's timing model
+    (:class:`rigidrot_ros.node.scheduler.Timing`: latency, stamp jitter, drop probability,
+    clock offset; all 0 when off), so a scorer knows which stamps are not true sample times.
     """
     sol = setup.solution
+    cfg = setup.sensors
+    timing = {name: timing_of(setup.values, name).as_dict()
+              for name, on in (('imu', cfg.imu), ('star_tracker', cfg.star_tracker)) if on}
     return {
         'rigidrot_run': RUN_FORMAT, 'run': run_index, 'start_ns': int(start_ns),
         'time_scale': setup.time_scale, 'scene': sol.scene.as_dict(), 'tol': sol.tol,
         'backend': sol.backend, 'model': sol.model, 'method': sol.method,
         'package': f'rigidrot_ros {__version__}', 'node': node_name, 'topics': dict(topics),
+        'sensor_timing': timing,
     }
 
 

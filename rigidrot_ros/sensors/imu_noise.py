@@ -49,7 +49,7 @@ import numbers
 
 import numpy as np
 
-from .noise import _check_dt, check_nonnegative, check_seed, check_vector
+from .noise import _check_dt, check_dt_rows, check_nonnegative, check_seed, check_vector
 
 __all__ = ['ImuNoise', 'ImuSample', 'gauss_markov_coefficients', 'check_positive',
            'check_matrix', 'KINDS']
@@ -323,25 +323,25 @@ class ImuNoise:
 
         Bit-identical to ``n`` calls with one row each; advances :attr:`bias` (the random
         walk, turn-on included), :attr:`gm_bias` and the carried quantisation residual.
+        ``dt`` is one interval length (s) or n of them (one per row).
         """
-        dt = _check_dt(dt)
         u = np.asarray(value_avg, dtype=float)
         if u.ndim != 2 or u.shape[1] != 3 or not np.all(np.isfinite(u)):
             raise ValueError(f'the true {KINDS[self.kind]["unit"]} input must be finite, '
                              f'shaped (n, 3), got shape {u.shape}')
         n = len(u)
+        dt = check_dt_rows(dt, n)
         x = u + u @ self._error.T if self._has_error else u
         draws = self._rng.standard_normal((n, 6))
-        steps = (self.random_walk * math.sqrt(dt)) * draws[:, :3]
+        steps = (self.random_walk * np.sqrt(dt)) * draws[:, :3]
         betas = np.cumsum(np.vstack([self.bias[None, :], steps]), axis=0)
         white_var = self._white_core(dt)
         gm = None
         if self.bias_instability > 0.0:
-            phi, sd, cm, cg, res = gauss_markov_coefficients(
-                self.bias_instability, self.bias_correlation_time, dt)
-            white_var = white_var + res
-            gm = self._gauss_markov(n, phi, sd, cm, cg)
-        white = math.sqrt(white_var) * draws[:, 3:]
+            coef = self._gm_rows(dt, n)
+            white_var = white_var + (coef[4] if np.ndim(dt) == 0 else coef[4][:, None])
+            gm = self._gauss_markov(n, *coef[:4])
+        white = np.sqrt(white_var) * draws[:, 3:]
         self.bias = betas[-1].copy()
         bias = 0.5 * (betas[:-1] + betas[1:])
         y = x + bias + white
@@ -357,18 +357,34 @@ class ImuNoise:
             inc = self._carry(inc, self.increment_quantum)
         return ImuSample(y_out, inc, bias)
 
+    def _gm_rows(self, dt, n):
+        """:func:`gauss_markov_coefficients` for one dt (floats) or per row (arrays (n,)).
+
+        Each distinct dt is computed once by the scalar function, so a row has the bits a
+        single call with its dt has.
+        """
+        sigma, tau = self.bias_instability, self.bias_correlation_time
+        if np.ndim(dt) == 0:
+            return gauss_markov_coefficients(sigma, tau, dt)
+        values, inverse = np.unique(dt[:, 0], return_inverse=True)
+        table = np.array([gauss_markov_coefficients(sigma, tau, float(v)) for v in values])
+        return tuple(table[np.reshape(inverse, -1)].T)
+
     def _gauss_markov(self, n, phi, sd, cm, cg):
         """Interval means of the Gauss–Markov bias (n, 3); advances :attr:`gm_bias`.
 
         One sample after another in Python floats: a batch gives the same bits as single
-        calls.
+        calls. The coefficients are floats, or arrays (n,) with one value per sample.
         """
-        w = (sd * self._gm_rng.standard_normal((n, 3))).tolist()
+        rows = [np.broadcast_to(np.asarray(c, dtype=float), (n,)).tolist()
+                for c in (phi, sd, cm, cg)]
+        draws = self._gm_rng.standard_normal((n, 3)).tolist()
         g0, g1, g2 = self.gm_bias.tolist()
         out = []
-        for a, b, c in w:
-            out.append((cm * g0 + cg * a, cm * g1 + cg * b, cm * g2 + cg * c))
-            g0, g1, g2 = phi * g0 + a, phi * g1 + b, phi * g2 + c
+        for (d0, d1, d2), p, s, m, k in zip(draws, *rows):
+            a, b, c = s * d0, s * d1, s * d2
+            out.append((m * g0 + k * a, m * g1 + k * b, m * g2 + k * c))
+            g0, g1, g2 = p * g0 + a, p * g1 + b, p * g2 + c
         self.gm_bias = np.array([g0, g1, g2])
         return np.array(out).reshape(n, 3)
 

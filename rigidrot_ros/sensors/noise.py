@@ -56,6 +56,22 @@ def check_seed(name, value):
     return int(value)
 
 
+def check_dt_rows(dt, n):
+    """Return the interval length(s) for n rows: a float, or an (n, 1) column of floats.
+
+    ``dt`` is one positive finite number for every row, or n of them (one per row: a
+    sensor grid's intervals differ in their last bits). Elementwise arithmetic on the
+    column gives each row the bits the float would give it.
+    """
+    if np.ndim(dt) == 0:
+        return _check_dt(dt)
+    d = np.asarray(dt, dtype=float)
+    if d.shape != (n,) or not np.all(np.isfinite(d)) or not np.all(d > 0.0):
+        raise ValueError(f'the sample intervals dt must be {n} positive finite numbers of '
+                         f'seconds, got shape {d.shape}')
+    return d[:, None]
+
+
 def _check_dt(dt):
     if isinstance(dt, bool) or not isinstance(dt, numbers.Real) or \
             not math.isfinite(float(dt)) or float(dt) <= 0.0:
@@ -128,16 +144,26 @@ class GyroNoise:
 
         Bit-identical to ``n`` calls of :meth:`corrupt` with the same intervals.
         """
-        dt = _check_dt(dt)
+        return self.apply(omega_avg, dt)[0]
+
+    def apply(self, omega_avg, dt):
+        """Measure consecutive intervals: ``(rates (n, 3), biases (n, 3))``, rad/s in B.
+
+        ``dt`` is one interval length (s) or n of them; the bias of a sample is
+        ``(beta_k + beta_{k+1}) / 2``. Bit-identical to ``n`` calls with one row each.
+        """
         w = np.asarray(omega_avg, dtype=float)
         if w.ndim != 2 or w.shape[1] != 3 or not np.all(np.isfinite(w)):
             raise ValueError(f'omega_avg must be finite, shaped (n, 3), got shape {w.shape}')
+        dt = check_dt_rows(dt, len(w))
         draws = self._rng.standard_normal((len(w), 6))
-        steps = (self.random_walk * math.sqrt(dt)) * draws[:, :3]
+        steps = (self.random_walk * np.sqrt(dt)) * draws[:, :3]
         betas = np.cumsum(np.vstack([self.bias[None, :], steps]), axis=0)
-        white = math.sqrt(self.white_variance(dt)) * draws[:, 3:]
+        white_var = self.noise_density ** 2 / dt + self.random_walk ** 2 * dt / 12.0
+        white = np.sqrt(white_var) * draws[:, 3:]
         self.bias = betas[-1].copy()
-        return w + 0.5 * (betas[:-1] + betas[1:]) + white
+        bias = 0.5 * (betas[:-1] + betas[1:])
+        return w + bias + white, bias
 
 
 class AttitudeNoise:

@@ -5,12 +5,10 @@ relative to N, in B, rad/s. Times are scene seconds since t = 0.
 """
 
 from dataclasses import dataclass
-import time
-
 import numpy as np
 
-from .imu_noise import ImuNoise
-from .increments import delta_angle, delta_rotation, DELTA_TOL, RateBound
+from .batch import read_block
+from .increments import DELTA_TOL, RateBound
 from .noise import AttitudeNoise, GyroNoise
 
 __all__ = ['Gyro', 'GyroReading', 'StarTracker', 'StarTrackerReading']
@@ -92,43 +90,31 @@ class Gyro:
         self.noise.reset()
         self._last = None
 
-    def _attitude(self, t):
-        if self._last is not None and self._last[0] == t:
-            return self._last[1], self._last[2]
-        s = self.solution.at(t)
-        return np.asarray(s.quaternion, dtype=float), float(s.error_bound)
-
     def read(self, t0, t1, budget=None):
         """Sample the interval ``[t0, t1]`` (s, ``t0 < t1``): a :class:`GyroReading`.
 
         ``budget`` (s, optional) bounds the delta-angle quadrature's time: past it the read
-        raises ValueError and leaves the noise stream untouched.
+        raises ValueError and leaves the noise stream untouched. The one-interval case of
+        :meth:`read_many` (the same bits, sample by sample).
         """
         t0, t1 = float(t0), float(t1)
         if not t1 > t0:
             raise ValueError(f'a gyro interval needs t0 < t1, got [{t0!r}, {t1!r}]')
-        dt = t1 - t0
-        q0, e0 = self._attitude(t0)
-        s1 = self.solution.at(t1)
-        q1, e1 = np.asarray(s1.quaternion, dtype=float), float(s1.error_bound)
-        self._last = (t1, q1, e1)
-        deadline = None if budget is None else time.perf_counter() + budget
-        da, da_bound = delta_angle(self.solution, t0, t1, tol=self.tol, bound=self._bound,
-                                   deadline=deadline)
-        dr, dr_bound = delta_rotation(q0, q1, e0, e1)
-        avg = da / dt
-        measured_increment = None
-        if isinstance(self.noise, ImuNoise):
-            sample = self.noise.apply(avg[None, :], dt)
-            meas, bias = sample.value[0], sample.bias[0]
-            measured_increment = sample.increment[0]
-        else:
-            before = self.noise.bias.copy()
-            meas = self.noise.corrupt(avg, dt)
-            bias = 0.5 * (before + self.noise.bias)
-        var = self.noise.white_variance(dt) + (da_bound / dt) ** 2
-        return GyroReading(t1, dt, meas, avg, da, da_bound, dr, dr_bound, bias, var, q1,
-                           measured_increment)
+        b = read_block(self, np.array([t0, t1]), budget=budget)
+        return GyroReading(t1, float(b.dt[0]), b.omega[0], b.omega_avg[0], b.delta_angle[0],
+                           float(b.delta_angle_bound[0]), b.delta_rotation[0],
+                           float(b.delta_rotation_bound[0]), b.bias[0], float(b.variance[0]),
+                           b.quaternion[0],
+                           None if b.delta_angle_measured is None
+                           else b.delta_angle_measured[0])
+
+    def read_many(self, times, budget=None):
+        """Sample the intervals between consecutive ``times`` (m + 1 ends, s) at once.
+
+        A :class:`rigidrot_ros.sensors.batch.GyroBlock` of m rows, bit for bit the m
+        readings :meth:`read` gives over the same intervals (state carried either way).
+        """
+        return read_block(self, times, budget=budget)
 
 
 @dataclass(frozen=True)
