@@ -26,7 +26,8 @@ import yaml
 from rigidrot_ros.core import MIN_TOL, TORQUE_FRAMES
 
 __all__ = ['Param', 'PARAMS', 'BY_NAME', 'MAX_RATE', 'MIN_RATE', 'MAX_TOL', 'BACKENDS',
-           'MAX_SEED', 'APPLIES', 'SENSOR_PARAMS', 'defaults', 'check', 'check_values', 'yaml_text',
+           'MAX_SEED', 'APPLIES', 'SENSOR_PARAMS',
+           'defaults', 'check', 'check_values', 'yaml_text',
            'markdown_text', 'help_text', 'main']
 
 #: Highest rate of the truth and of every sensor, Hz.
@@ -229,7 +230,7 @@ def _positive(p, v):
 
 
 def _imu_terms(prefix, unit, increment, big, lsb, what):
-    """The error terms shared by the gyro (``imu.gyro_``) and the accelerometer (``accel.``)."""
+    """Return the error terms shared by the gyro (``imu.gyro_``) and the accelerometer."""
     return (
         _double(f'{prefix}bias_stddev', 0.0, f'turn-on {what} bias spread, {unit}: '
                 'N(0, sd^2) per axis drawn once from the seed and added to the given bias '
@@ -353,7 +354,7 @@ _BASE_PARAMS = (
 
 
 def _grouped(base, extra):
-    """``base`` with each of ``extra`` after the last entry of its dotted group (or at the end).
+    """Return ``base`` with each of ``extra`` after the last entry of its group (or at the end).
 
     A params file nests by group, so a group must stay in one piece (``imu:`` twice would be a
     duplicated YAML key).

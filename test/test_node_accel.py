@@ -22,12 +22,12 @@ from sensor_msgs.msg import Imu, MagneticField
 
 from rigidrot_ros import params, settings
 from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.node.attitude_node import SceneError
 from rigidrot_ros.node import grid
-from rigidrot_ros.node.streams import ImuStream, make_streams, MagStream, scene_time
+from rigidrot_ros.node.attitude_node import SceneError
+from rigidrot_ros.node.streams import ImuStream, MagStream, make_streams, scene_time
 from rigidrot_ros.sensors import Gyro, GyroNoise
 from ros_helpers import (
-    attitude_node, NODE_SCENE, next_domain_id, ros_env, script, spin_until, stamp_ns, start,
+    attitude_node, next_domain_id, NODE_SCENE, ros_env, script, spin_until, stamp_ns, start,
     stop,
 )
 
