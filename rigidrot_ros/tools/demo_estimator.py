@@ -4,8 +4,8 @@
 ``mahony`` or ``ekf`` runs ahrs' Madgwick, Mahony or quaternion EKF on the node's ``imu``
 (gyro and accelerometer: start the node with ``accel.enable`` and a gravity, e.g.
 ``config/air_bearing.yaml``) and, with ``--mag``, its ``mag`` (see :class:`AhrsFilter`
-for the conventions). Each filter starts from the first ``attitude`` fix, turned by ``--initial-error-deg`` (to watch it
-converge), and publishes its estimate at each imu stamp, with the EKF's covariance
+for the conventions). Each filter starts from the first ``attitude`` fix, turned by
+``--initial-error-deg`` (to watch it converge), and publishes its estimate at each imu stamp, with the EKF's covariance
 (Madgwick and Mahony keep none: their rotation block is zero, "unknown").
 
 The gyro integrator subscribes to the node's ``imu`` (sensor_msgs/Imu) and integrates each
