@@ -1,19 +1,20 @@
 """rigidrot_demo_estimator: attitude estimators from the ahrs library, to score.
 
-``--filter gyro`` (the default) is a gyro-only integrator; ``--filter madgwick``,
-``mahony`` or ``ekf`` runs ahrs' Madgwick, Mahony or quaternion EKF on the node's ``imu``
-(gyro and accelerometer: start the node with ``accel.enable`` and a gravity, e.g.
-``config/air_bearing.yaml``) and, with ``--mag``, its ``mag`` (see :class:`AhrsFilter`
-for the conventions). Each filter starts from the first ``attitude`` fix, turned by
-``--initial-error-deg`` (to watch it converge), and publishes its estimate at each imu stamp, with the EKF's covariance
-(Madgwick and Mahony keep none: their rotation block is zero, "unknown").
+``--filter gyro`` (the default) is a gyro-only integrator; ``--filter madgwick``, ``mahony``
+or ``ekf`` runs ahrs' Madgwick, Mahony or quaternion EKF on the node's ``imu`` (gyro and
+accelerometer: start the node with ``accel.enable`` and a gravity, e.g.
+``config/air_bearing.yaml``) and, with ``--mag``, its ``mag`` (see :class:`AhrsFilter` for
+the conventions). Each filter starts from the first ``attitude`` fix, turned by
+``--initial-error-deg`` (to watch it converge), and publishes its estimate at each imu
+stamp, with the EKF's covariance (Madgwick and Mahony keep none: their rotation block is
+zero, "unknown").
 
 The gyro integrator subscribes to the node's ``imu`` (sensor_msgs/Imu) and integrates each
-gyro sample with ``ahrs.filters.AngularRate`` (closed-form quaternion exponential; ahrs orders its
-quaternions (w, x, y, z), converted here to ROS's (x, y, z, w)). Its state lives on the
-gyro's time grid; it starts from the first ``attitude`` message it hears (a perfect
-initial fix, the only use of the truth besides its stamps), and propagates a 6-state
-error covariance (attitude error e in B, with q_est = q_true * exp(e/2), and gyro bias):
+gyro sample with ``ahrs.filters.AngularRate`` (closed-form quaternion exponential; ahrs
+orders its quaternions (w, x, y, z), converted here to ROS's (x, y, z, w)). Its state lives
+on the gyro's time grid; it starts from the first ``attitude`` message it hears (a perfect
+initial fix, the only use of the truth besides its stamps), and propagates a 6-state error
+covariance (attitude error e in B, with q_est = q_true * exp(e/2), and gyro bias):
 
     Phi = [[exp(-[omega dt]x), -dt I], [0, I]],
     Q = [[C dt^2, 0], [0, sigma_u^2 dt I]],  P <- Phi P Phi^T + Q,
