@@ -26,7 +26,8 @@ import yaml
 from rigidrot_ros.core import MIN_TOL, TORQUE_FRAMES
 
 __all__ = ['Param', 'PARAMS', 'BY_NAME', 'MAX_RATE', 'MIN_RATE', 'MAX_TOL', 'BACKENDS',
-           'MAX_SEED', 'APPLIES', 'defaults', 'check', 'check_values', 'yaml_text',
+           'MAX_SEED', 'APPLIES', 'SENSOR_PARAMS',
+           'defaults', 'check', 'check_values', 'yaml_text',
            'markdown_text', 'help_text', 'main']
 
 #: Highest rate of the truth and of every sensor, Hz.
@@ -231,8 +232,83 @@ def _timing(name, what):
     )
 
 
+# -- sensors of issue 19: IMU error terms, accelerometer, magnetometer (branch wire) ---------
+# Each term is zero or off by default, so the default streams are today's, bit for bit. The
+# vectors' finiteness and bounds are checked by the sensor models (rigidrot_ros.sensors),
+# which name the parameter; rigidrot_ros.settings builds them.
+def _positive(p, v):
+    lo, hi = p.range
+    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v) or \
+            not lo < v <= hi:
+        raise ValueError(f'parameter {p.name} must be a number in ({lo:g}, {hi:g}]'
+                         f'{_unit(p)}, got {v!r}')
+    return float(v)
+
+
+def _imu_terms(prefix, unit, increment, big, lsb, what):
+    """Return the error terms shared by the gyro (``imu.gyro_``) and the accelerometer."""
+    return (
+        _double(f'{prefix}bias_stddev', 0.0, f'turn-on {what} bias spread, {unit}: '
+                'N(0, sd^2) per axis drawn once from the seed and added to the given bias '
+                '(Gazebo <bias_stddev>)', 'reset', 0.0, big, unit),
+        _double(f'{prefix}bias_instability', 0.0, f'{what} bias instability: stationary '
+                f'sigma of a first-order Gauss-Markov bias, {unit}; 0 = off', 'reset', 0.0,
+                big, unit),
+        _double(f'{prefix}bias_correlation_time', 3600.0, f'correlation time tau of the '
+                f'{what} Gauss-Markov bias, s', 'reset', 0.0, 1e9, 's', _positive),
+        _vector(f'{prefix}scale_factor', [0.0, 0.0, 0.0], f'{what} scale-factor errors '
+                '[sx, sy, sz], fraction (1e-3 = 1000 ppm), |s| <= 0.5'),
+        _vector(f'{prefix}misalignment', [0.0] * 9, f'{what} axis misalignment M, 3x3 '
+                'row-major, rad, zero diagonal, |M_ij| <= 0.1: axis i senses M_ij of the '
+                'input along axis j'),
+        _double(f'{prefix}quantum', 0.0, f'LSB of the {what} output, {unit} (rounded); 0 = '
+                'not quantised', 'reset', 0.0, lsb, unit),
+        _double(f'{prefix}increment_quantum', 0.0, f'LSB of the {what} increment, '
+                f'{increment} (the residual carried to the next sample); 0 = not quantised',
+                'reset', 0.0, lsb, increment),
+    )
+
+
+#: The sensor parameters of issue 19 (appended to :data:`PARAMS`).
+SENSOR_PARAMS = _imu_terms('imu.gyro_', 'rad/s', 'rad', 10.0, 1.0, 'gyro') + (
+    Param('imu.kalibr_yaml', 'string', '', "a Kalibr imu.yaml ('' = none) whose noise "
+          'densities, random walks and update_rate replace the defaults of '
+          'imu.gyro_noise_density, imu.gyro_random_walk, accel.noise_density, '
+          'accel.random_walk and imu.rate; a value set both ways and different is refused',
+          'reset', _string),
+    _switch('accel.enable', 'add the accelerometer to imu (linear_acceleration, the specific '
+            'force in B, m/s^2, with its covariance) and publish delta_velocity '
+            '(Vector3Stamped, the exact integral of the specific force, m/s, in B)'),
+    _vector('accel.lever_arm', [0.0, 0.0, 0.0], 'the IMU position r in B from the point the '
+            'body turns about, m, |r_i| <= 1e3'),
+    _vector('accel.gravity', [0.0, 0.0, 0.0], 'gravity g in N, m/s^2, |g_i| <= 1e3: '
+            '[0, 0, 0] a free-flying body, [0, 0, -9.80665] a body on a supported point '
+            '(N z up)'),
+    _double('accel.noise_density', 0.0, 'velocity random walk sigma_v, m/s^2/sqrt(Hz) '
+            '(Kalibr accelerometer_noise_density)', 'reset', 0.0, 10.0, 'm/s^2/sqrt(Hz)'),
+    _double('accel.random_walk', 0.0, 'accelerometer bias random walk sigma_u, '
+            'm/s^3/sqrt(Hz) (Kalibr accelerometer_random_walk)', 'reset', 0.0, 10.0,
+            'm/s^3/sqrt(Hz)'),
+    _vector('accel.bias', [0.0, 0.0, 0.0], 'initial accelerometer bias [bx, by, bz], m/s^2, '
+            'in B, |b_i| <= 100'),
+) + _imu_terms('accel.', 'm/s^2', 'm/s', 100.0, 10.0, 'accelerometer') + (
+    _switch('mag.enable', 'publish a magnetometer as sensor_msgs/MagneticField on mag '
+            '(tesla, in B, frame body_frame_id)'),
+    _rate('mag.rate', 0.0, 'magnetometer'),
+    _vector('mag.field', [0.0, 2.0e-5, -4.5e-5], 'the magnetic field m_N in N, tesla, '
+            '|m_i| <= 1e-2 (default: 49.2 uT, 66 deg inclination, N as ENU)'),
+    _vector('mag.soft_iron', [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], 'soft-iron '
+            'matrix S, 3x3 row-major, |S_ij| <= 10, condition number <= 1e3, det > 0'),
+    _vector('mag.hard_iron', [0.0, 0.0, 0.0], 'hard-iron offset in B, tesla, |b_i| <= 1e-2'),
+    _double('mag.noise_density', 0.0, 'magnetometer white noise density, T/sqrt(Hz)',
+            'reset', 0.0, 1e-3, 'T/sqrt(Hz)'),
+    _seed('mag.seed', 0, 'seed of the magnetometer noise (its own stream even for the '
+          'value of another seed)'),
+)
+
+
 #: Every parameter of attitude_node, in the order of ``config/default.yaml``.
-PARAMS = (
+_BASE_PARAMS = (
     _vector('inertia', [2.0, 2.0, 1.0], 'principal moments of inertia [I1, I2, I3], kg m^2 '
             '(positive, triangle inequality)'),
     _vector('torque', [0.0, 0.0, 0.05], 'constant torque [m1, m2, m3], N m, components in '
@@ -293,6 +369,23 @@ PARAMS = (
             'transform'),
     _switch('markers.enable', 'publish the body as visualization_msgs/MarkerArray on markers'),
 )
+
+
+def _grouped(base, extra):
+    """Return ``base`` with each of ``extra`` after the last entry of its group (or at the end).
+
+    A params file nests by group, so a group must stay in one piece (``imu:`` twice would be a
+    duplicated YAML key).
+    """
+    out = list(base)
+    for p in extra:
+        head = p.name.rpartition('.')[0]
+        where = [i for i, q in enumerate(out) if q.name.rpartition('.')[0] == head]
+        out.insert(where[-1] + 1 if where else len(out), p)
+    return tuple(out)
+
+
+PARAMS = _grouped(_BASE_PARAMS, SENSOR_PARAMS)
 
 #: The entries of :data:`PARAMS` by name.
 BY_NAME = {p.name: p for p in PARAMS}

@@ -21,18 +21,25 @@ import yaml
 from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
 from rigidrot_ros.core import Scene
 from rigidrot_ros.params import BY_NAME, check_values
-from rigidrot_ros.sensors import AttitudeNoise, Gyro, GyroNoise, StarTracker
+from rigidrot_ros.sensors import (
+    Accelerometer, AttitudeNoise, Gyro, ImuNoise, load_kalibr_imu, Magnetometer, StarTracker,
+)
+from rigidrot_ros.sensors.accel import check_gravity, check_lever_arm
 
 __all__ = ['PACKAGE', 'SCENE_KEYS', 'OUTPUT_KEYS', 'find_config', 'load_defaults',
            'scene_from_params', 'solver_options', 'sensor_settings', 'SensorSettings',
            'build_solution', 'trial', 'check_run', 'TrialError', 'RunSetup', 'prepare_run',
-           'TRIAL_LIMIT_S', 'SAMPLE_BUDGET_S']
+           'TRIAL_LIMIT_S', 'SAMPLE_BUDGET_S', 'apply_kalibr', 'IMU_TERMS']
 
 PACKAGE = 'rigidrot_ros'
 SCENE_KEYS = ('inertia', 'torque', 'torque_frame', 'omega0', 'attitude0')
 #: Output switches (read only).
 OUTPUT_KEYS = ('imu.enable', 'star_tracker.enable', 'odom.enable', 'transform.enable',
-               'markers.enable')
+               'markers.enable', 'accel.enable', 'mag.enable')
+#: The error terms of :class:`rigidrot_ros.sensors.ImuNoise`, by their parameter suffix.
+IMU_TERMS = ('noise_density', 'random_walk', 'bias', 'bias_stddev', 'bias_instability',
+             'bias_correlation_time', 'scale_factor', 'misalignment', 'quantum',
+             'increment_quantum')
 #: A new scene is refused when one of its trial samples takes longer than this, s.
 TRIAL_LIMIT_S = 1.0
 #: Work one sensor callback may do before it leaves due samples to the next one, s; also
@@ -93,6 +100,45 @@ def _check(name, params):
         raise ValueError(f'parameter {name} is missing') from None
 
 
+def apply_kalibr(params):
+    """Merge the Kalibr file named by ``imu.kalibr_yaml`` over checked parameter values.
+
+    Precedence: a parameter at its table default takes the file's value; a parameter set to
+    anything else (by ``-p``, a params file or at run time) must equal the file's value, or
+    the pair is refused naming both (a value equal to the default cannot be told from an
+    unset one: the file wins then). Returns a new dict (``params`` itself when no file).
+
+    Raises
+    ------
+    ValueError
+        Naming ``imu.kalibr_yaml`` (unreadable file, missing or bad key) or the parameter
+        and the Kalibr key that disagree.
+    """
+    path = params.get('imu.kalibr_yaml', '')
+    if not path:
+        return params
+    try:
+        found, _topic = load_kalibr_imu(path)
+    except ValueError as exc:
+        raise ValueError(f'parameter imu.kalibr_yaml: {exc}') from None
+    keys = {name: key for key, (name, _, _) in _kalibr_keys().items()}
+    out = dict(params)
+    for name, value in found.items():
+        value = BY_NAME[name].check(value)
+        current, default = params[name], BY_NAME[name].default
+        if current == default or current == value:
+            out[name] = value
+        else:
+            raise ValueError(f'parameter {name} = {current!r} contradicts imu.kalibr_yaml '
+                             f'({path}: {keys[name]} = {value!r}); set it one way only')
+    return out
+
+
+def _kalibr_keys():
+    from rigidrot_ros.sensors.kalibr import KALIBR_KEYS
+    return KALIBR_KEYS
+
+
 def scene_from_params(params):
     """Build a :class:`Scene` from parameter values; ValueError names the parameter."""
     try:
@@ -114,12 +160,19 @@ class SensorSettings:
 
     Attributes
     ----------
-    imu, star_tracker, odom, transform, markers : bool
-        Which outputs are on.
-    imu_rate, star_tracker_rate : float
+    imu, star_tracker, odom, transform, markers, accel, mag : bool
+        Which outputs are on (``accel``: the accelerometer inside ``imu``).
+    imu_rate, star_tracker_rate, mag_rate : float
         Sample rates, Hz of clock time (0 in the parameter means ``publish_rate``).
-    gyro : GyroNoise
-        The gyro's error model (a new, freshly seeded instance).
+    gyro : ImuNoise
+        The gyro's error model (a new, freshly seeded instance); with every term of issue
+        19 zero its stream is the former ``GyroNoise``'s, bit for bit.
+    accel_noise : ImuNoise
+        The accelerometer's error model, ``kind='accel'`` (fresh).
+    lever_arm, gravity : ndarray (3,)
+        The IMU's position in B (m) and gravity in N (m/s^2).
+    mag_options : dict
+        Keyword arguments of :class:`rigidrot_ros.sensors.Magnetometer` (validated).
     attitude_noise : AttitudeNoise
         The star tracker's error model (a new, freshly seeded instance).
     """
@@ -129,15 +182,24 @@ class SensorSettings:
         self.imu, self.star_tracker = p['imu.enable'], p['star_tracker.enable']
         self.odom, self.transform = p['odom.enable'], p['transform.enable']
         self.markers = p['markers.enable']
+        self.accel, self.mag = p['accel.enable'], p['mag.enable']
         publish_rate = params.get('publish_rate', BY_NAME['publish_rate'].default)
         self.imu_rate = _check('imu.rate', params) or float(publish_rate)
         self.star_tracker_rate = _check('star_tracker.rate', params) or float(publish_rate)
-        try:
-            self.gyro = GyroNoise(params['imu.gyro_noise_density'],
-                                  params['imu.gyro_random_walk'], params['imu.gyro_bias'],
-                                  params['imu.seed'])
-        except ValueError as exc:
-            raise ValueError(f'parameter imu.{exc}') from None
+        self.mag_rate = _check('mag.rate', params) or float(publish_rate)
+        self.gyro = _named(lambda: ImuNoise(
+            seed=params['imu.seed'], kind='gyro',
+            **{t: params['imu.gyro_' + t] for t in IMU_TERMS}))
+        self.accel_noise = _named(lambda: ImuNoise(
+            seed=params['imu.seed'], kind='accel',
+            **{t: params['accel.' + t] for t in IMU_TERMS}))
+        self.lever_arm = _named(lambda: check_lever_arm(params['accel.lever_arm']))
+        self.gravity = _named(lambda: check_gravity(params['accel.gravity']))
+        self.mag_options = dict(field=params['mag.field'], soft_iron=params['mag.soft_iron'],
+                                hard_iron=params['mag.hard_iron'],
+                                noise_density=params['mag.noise_density'],
+                                seed=params['mag.seed'])
+        _named(lambda: Magnetometer(None, **self.mag_options))
         try:
             self.attitude_noise = AttitudeNoise(
                 params['star_tracker.cross_boresight_arcsec'],
@@ -145,9 +207,22 @@ class SensorSettings:
                 params['star_tracker.seed'])
         except ValueError as exc:
             raise ValueError(f'parameter star_tracker.{exc}') from None
-        if self.imu and params.get('time_scale', 1.0) == 0.0:
-            raise ValueError('parameter time_scale = 0 freezes the scene: the imu needs '
-                             'scene time to pass (set time_scale > 0 or imu.enable false)')
+        if self.accel and not self.imu:
+            raise ValueError('parameter accel.enable needs imu.enable: the accelerometer '
+                             'rides in the imu message (set imu.enable true)')
+        if (self.imu or self.mag) and params.get('time_scale', 1.0) == 0.0:
+            raise ValueError('parameter time_scale = 0 freezes the scene: the imu and the '
+                             'magnetometer need scene time to pass (set time_scale > 0 or '
+                             'imu.enable and mag.enable false)')
+
+
+def _named(make):
+    """Run ``make()``; a ValueError from a sensor model gets the word 'parameter' in front."""
+    try:
+        return make()
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith('parameter') else f'parameter {msg}') from None
 
 
 def sensor_settings(params):
@@ -242,6 +317,34 @@ def trial(sol, values, cfg=None):
             return (f'the gyro increments of this scene have no finite error bound '
                     f'({bound!r} rad over the first {dt:g} s; omega0 or torque too large '
                     'for float64); turn imu.enable off or choose a smaller scene')
+    if cfg.imu and cfg.accel:
+        dt = time_scale / cfg.imu_rate
+
+        def accel():
+            with np.errstate(over='ignore', invalid='ignore'):
+                return Accelerometer(sol, lever_arm=cfg.lever_arm, gravity=cfg.gravity) \
+                    .read(0.0, dt, budget=SAMPLE_BUDGET_S)
+        r, reason = _timed(
+            accel, f'the first accelerometer sample (imu.rate {cfg.imu_rate:g} Hz: {dt:g} s '
+            'of scene time) cannot be evaluated',
+            f'the first accelerometer sample ({dt:g} s of scene time) takes {{cost:.3g}} s',
+            '; check accel.lever_arm and accel.gravity, lower time_scale or raise imu.rate')
+        if reason:
+            return reason
+        if not (math.isfinite(r.delta_velocity_bound) and np.all(np.isfinite(r.specific_force))):
+            return (f'the accelerometer of this scene has no finite value or error bound '
+                    f'({r.delta_velocity_bound!r} m/s over the first {dt:g} s); check '
+                    'accel.lever_arm and accel.gravity, or choose a smaller scene')
+    if cfg.mag:
+        dt = time_scale / cfg.mag_rate
+        r, reason = _timed(
+            lambda: Magnetometer(sol, **cfg.mag_options).read(0.0, dt),
+            'the first magnetometer sample (t = 0) cannot be evaluated',
+            'the first magnetometer sample takes {cost:.3g} s', '')
+        if reason:
+            return reason
+        if not np.all(np.isfinite(r.field)):
+            return 'the first magnetometer sample is not finite; check mag.field and mag.soft_iron'
     if cfg.star_tracker:
         t = time_scale / cfg.star_tracker_rate
         _, reason = _timed(
@@ -267,6 +370,9 @@ class RunSetup:
         Which outputs are on, the sensor rates (Hz, 0 resolved) and error models.
     gyro, star_tracker : Gyro or None, StarTracker or None
         The run's sensor models with fresh noise streams (None where off).
+    accel, mag : Accelerometer or None, Magnetometer or None
+        The accelerometer (read with the gyro, into the same ``imu`` message) and the
+        magnetometer of the run, fresh (None where off).
     time_scale : float
         Scene seconds per clock second.
     publish_rate : float
@@ -283,6 +389,8 @@ class RunSetup:
     time_scale: float
     publish_rate: float
     frames: Tuple[str, str]
+    accel: Optional[Accelerometer] = None
+    mag: Optional[Magnetometer] = None
 
 
 def check_run(values):
@@ -292,7 +400,7 @@ def check_run(values):
     settings; what :func:`prepare_run` checks before it solves. For a change that the
     running scene does not depend on (frames, rates of what is running).
     """
-    p = check_values(values)
+    p = apply_kalibr(check_values(values))
     scene_from_params(p)
     solver_options(p)
     sensor_settings(p)
@@ -320,7 +428,7 @@ def prepare_run(values, try_samples=True):
     ValueError
         Naming the parameter and the rule it breaks.
     """
-    p = check_values(values)
+    p = apply_kalibr(check_values(values))
     solution = build_solution(p)
     sensors = sensor_settings(p)
     if try_samples:
@@ -333,4 +441,7 @@ def prepare_run(values, try_samples=True):
         star_tracker=(StarTracker(solution, sensors.attitude_noise) if sensors.star_tracker
                       else None),
         time_scale=p['time_scale'], publish_rate=p['publish_rate'],
-        frames=(p['frame_id'], p['body_frame_id']))
+        frames=(p['frame_id'], p['body_frame_id']),
+        accel=(Accelerometer(solution, sensors.accel_noise, sensors.lever_arm, sensors.gravity)
+               if sensors.imu and sensors.accel else None),
+        mag=Magnetometer(solution, **sensors.mag_options) if sensors.mag else None)

@@ -13,6 +13,7 @@ PRESETS = {
     'transverse_virtual.yaml': 'transverse-virtual',
     'transverse_body.yaml': 'transverse-body',
     'torque_free_triaxial.yaml': 'torque-free-triaxial',
+    'air_bearing.yaml': 'torque-free-axisymmetric',
 }
 
 

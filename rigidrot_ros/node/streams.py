@@ -8,20 +8,21 @@ becomes messages (:meth:`SensorStream.messages`). Sample k is stamped
 calls :meth:`SensorStream.take` from one timer per stream and publishes what it returns; the
 offline generator calls :meth:`SensorStream.messages` for k = first, first + 1, ...
 
-A new sensor (an accelerometer, a magnetometer) is one more subclass with ``name``,
+A new sensor is one more subclass with ``name``,
 ``topics`` and ``messages``, and one more line in :func:`make_streams`.
 """
 
 import time
 
 from geometry_msgs.msg import PoseWithCovarianceStamped, Vector3Stamped
-from sensor_msgs.msg import Imu
+from sensor_msgs.msg import Imu, MagneticField
 
 from rigidrot_ros import settings
 from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.node import grid
 
-__all__ = ['SensorStream', 'ImuStream', 'StarTrackerStream', 'make_streams', 'STREAMS',
+__all__ = ['SensorStream', 'ImuStream', 'StarTrackerStream', 'MagStream', 'make_streams',
+           'STREAMS',
            'scene_time']
 
 
@@ -101,27 +102,46 @@ class SensorStream:
 
 
 class ImuStream(SensorStream):
-    """The gyro: sensor_msgs/Imu, and the exact delta_angle and delta_rotation, in B.
+    """The gyro (and the accelerometer): sensor_msgs/Imu, the exact increments, in B.
 
     Sample k covers the interval from sample k - 1 to k (so k starts at 1: [0, 1 / rate]).
+    With an accelerometer (``accel``, a :class:`rigidrot_ros.sensors.Accelerometer`) the
+    same message carries its specific force in ``linear_acceleration`` (m/s^2, in B) with
+    its covariance, and ``delta_velocity`` (the exact ∫ f_B dt over the interval, m/s, in
+    B) is published too; without one the message is the gyro's alone, as before.
     """
 
     name = 'imu'
     topics = (('imu', Imu), ('delta_angle', Vector3Stamped), ('delta_rotation', Vector3Stamped))
     first = 1
 
+    def __init__(self, rate, model, accel=None):
+        super().__init__(rate, model)
+        self.accel = accel
+        if accel is not None:
+            self.topics = type(self).topics + (('delta_velocity', Vector3Stamped),)
+
     def messages(self, k, t_start_ns, time_scale, frames):
-        """Return the gyro reading over sample k's interval: imu, delta_angle, delta_rotation."""
+        """Return sample k's interval: imu, delta_angle, delta_rotation (, delta_velocity)."""
         ns1 = self.stamp_ns(t_start_ns, k)
         t0 = scene_time(self.stamp_ns(t_start_ns, k - 1), t_start_ns, time_scale)
         t1 = scene_time(ns1, t_start_ns, time_scale)
         r = self.model.read(t0, t1, budget=settings.SAMPLE_BUDGET_S)
+        a = None if self.accel is None else \
+            self.accel.read(t0, t1, budget=settings.SAMPLE_BUDGET_S)
         body = frames[1]
         stamp = msgs.stamp(ns1)
         self.bound = max(self.bound, r.delta_angle_bound, r.delta_rotation_bound)
-        return [('imu', msgs.imu(stamp, body, r.omega, r.variance)),
-                ('delta_angle', msgs.vector(stamp, body, r.delta_angle)),
-                ('delta_rotation', msgs.vector(stamp, body, r.delta_rotation))]
+        if a is None:
+            imu = msgs.imu(stamp, body, r.omega, r.variance)
+        else:
+            imu = msgs.imu(stamp, body, r.omega, r.variance, a.specific_force, a.variance)
+        out = [('imu', imu),
+               ('delta_angle', msgs.vector(stamp, body, r.delta_angle)),
+               ('delta_rotation', msgs.vector(stamp, body, r.delta_rotation))]
+        if a is not None:
+            out.append(('delta_velocity', msgs.delta_velocity(stamp, body, a.delta_velocity)))
+        return out
 
 
 class StarTrackerStream(SensorStream):
@@ -139,8 +159,27 @@ class StarTrackerStream(SensorStream):
                                                    r.covariance))]
 
 
+class MagStream(SensorStream):
+    """The magnetometer: sensor_msgs/MagneticField (tesla, in B, frame body_frame_id), k >= 0.
+
+    Sample k is the field at its stamp; its white noise is discretised over one sample
+    interval (``time_scale / rate`` s of scene time).
+    """
+
+    name = 'mag'
+    topics = (('mag', MagneticField),)
+    first = 0
+
+    def messages(self, k, t_start_ns, time_scale, frames):
+        """Return the magnetometer reading of sample k."""
+        ns = self.stamp_ns(t_start_ns, k)
+        r = self.model.read(scene_time(ns, t_start_ns, time_scale), time_scale / self.rate)
+        return [('mag', msgs.magnetic_field(msgs.stamp(ns), frames[1], r.field,
+                                            r.covariance))]
+
+
 #: Every sensor stream class, by name (the diagnostics report each, on or off).
-STREAMS = {cls.name: cls for cls in (ImuStream, StarTrackerStream)}
+STREAMS = {cls.name: cls for cls in (ImuStream, StarTrackerStream, MagStream)}
 
 
 def make_streams(setup):
@@ -148,7 +187,9 @@ def make_streams(setup):
     cfg = setup.sensors
     out = []
     if setup.gyro is not None:
-        out.append(ImuStream(cfg.imu_rate, setup.gyro))
+        out.append(ImuStream(cfg.imu_rate, setup.gyro, getattr(setup, 'accel', None)))
     if setup.star_tracker is not None:
         out.append(StarTrackerStream(cfg.star_tracker_rate, setup.star_tracker))
+    if getattr(setup, 'mag', None) is not None:
+        out.append(MagStream(cfg.mag_rate, setup.mag))
     return out

@@ -1,11 +1,20 @@
-"""rigidrot_demo_estimator: a gyro-only attitude estimator from the ahrs library, to score.
+"""rigidrot_demo_estimator: attitude estimators from the ahrs library, to score.
 
-It subscribes to the node's ``imu`` (sensor_msgs/Imu) and integrates each gyro sample
-with ``ahrs.filters.AngularRate`` (closed-form quaternion exponential; ahrs orders its
-quaternions (w, x, y, z), converted here to ROS's (x, y, z, w)). Its state lives on the
-gyro's time grid; it starts from the first ``attitude`` message it hears (a perfect
-initial fix, the only use of the truth besides its stamps), and propagates a 6-state
-error covariance (attitude error e in B, with q_est = q_true * exp(e/2), and gyro bias):
+``--filter gyro`` (the default) is a gyro-only integrator; ``--filter madgwick``, ``mahony``
+or ``ekf`` runs ahrs' Madgwick, Mahony or quaternion EKF on the node's ``imu`` (gyro and
+accelerometer: start the node with ``accel.enable`` and a gravity, e.g.
+``config/air_bearing.yaml``) and, with ``--mag``, its ``mag`` (see :class:`AhrsFilter` for
+the conventions). Each filter starts from the first ``attitude`` fix, turned by
+``--initial-error-deg`` (to watch it converge), and publishes its estimate at each imu
+stamp, with the EKF's covariance (Madgwick and Mahony keep none: their rotation block is
+zero, "unknown").
+
+The gyro integrator subscribes to the node's ``imu`` (sensor_msgs/Imu) and integrates each
+gyro sample with ``ahrs.filters.AngularRate`` (closed-form quaternion exponential; ahrs
+orders its quaternions (w, x, y, z), converted here to ROS's (x, y, z, w)). Its state lives
+on the gyro's time grid; it starts from the first ``attitude`` message it hears (a perfect
+initial fix, the only use of the truth besides its stamps), and propagates a 6-state error
+covariance (attitude error e in B, with q_est = q_true * exp(e/2), and gyro bias):
 
     Phi = [[exp(-[omega dt]x), -dt I], [0, I]],
     Q = [[C dt^2, 0], [0, sigma_u^2 dt I]],  P <- Phi P Phi^T + Q,
@@ -29,7 +38,12 @@ import numpy as np
 
 from rigidrot_ros.tools.cli import OneLineParser
 
-__all__ = ['main', 'GyroIntegrator']
+__all__ = ['main', 'GyroIntegrator', 'AhrsFilter', 'FILTERS']
+
+#: The ahrs filters besides the gyro integrator.
+FILTERS = ('madgwick', 'mahony', 'ekf')
+#: The node's default mag.field (T, in N): the magnetic reference unless --mag-field.
+EARTH_FIELD = (0.0, 2.0e-5, -4.5e-5)
 
 _INSTALL = ('rigidrot_demo_estimator: needs the ahrs package: pip install ahrs '
             '(or pip install "rigidrot_ros[estimator]")')
@@ -101,9 +115,125 @@ class GyroIntegrator:
         return q_new, 0.5 * (p + p.T)
 
 
+def _qmul(a, b):
+    """Hamilton product of (w, x, y, z) quaternions."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.array([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw])
+
+
+def _rotz(angle):
+    return np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
+
+
+class AhrsFilter:
+    """ahrs' Madgwick, Mahony or EKF on the node's imu (and mag), in N and (x, y, z, w).
+
+    Conventions, read from ahrs 0.4's source and checked on static data: ahrs orders
+    quaternions (w, x, y, z) and its ``q`` rotates sensor vectors into its Earth frame E
+    (Hamilton, ``q' = q ⊗ (0, omega) / 2``), so it is ``q_EB``. All three compare the
+    *normalised* accelerometer with E's +z, so fed the specific force (REP 145: +g up at
+    rest) E's z is up, like N's (ENU, REP 103); they normalise the field too, so its unit
+    does not matter (ahrs' docstrings say nT or uT; tesla is used unscaled). E's heading:
+    Madgwick puts the field's horizontal part on E's x (``q_NE = Rz(psi)``, ``psi`` the
+    field's heading in N), Mahony on E's y (``Rz(psi - 90 deg)``), the EKF (``frame='NED'``,
+    which only sets its gravity reference to +z, and ``magnetic_ref`` = our field) on the
+    field itself (E = N). Without the field E's heading is N's (the first fix sets it).
+
+    Parameters
+    ----------
+    kind : {'madgwick', 'mahony', 'ekf'}
+    q0_xyzw : array_like
+        Initial ``q_NB``, (x, y, z, w).
+    use_mag : bool
+        Fuse the magnetometer (MARG) or not (IMU: gyro + accelerometer).
+    field_n : 3 floats
+        The magnetic field in N (any unit; its direction is used).
+    """
+
+    def __init__(self, kind, q0_xyzw, use_mag=False, field_n=EARTH_FIELD):
+        import ahrs.filters as af
+        self.kind, self.use_mag = kind, bool(use_mag)
+        field = np.asarray(field_n, dtype=float)
+        psi = float(np.arctan2(field[1], field[0]))
+        turn = {'madgwick': psi, 'mahony': psi - np.pi / 2, 'ekf': 0.0}[kind]
+        self.q_ne = _rotz(turn) if self.use_mag else np.array([1.0, 0.0, 0.0, 0.0])
+        self._q_en = self.q_ne * np.array([1.0, -1.0, -1.0, -1.0])
+        x, y, z, w = (float(v) for v in q0_xyzw)
+        self.q_eb = _qmul(self._q_en, np.array([w, x, y, z]))
+        if kind == 'madgwick':
+            self._f = af.Madgwick()
+            self._f.gain = self._f.gain_marg if self.use_mag else self._f.gain_imu
+        elif kind == 'mahony':
+            self._f = af.Mahony()
+        elif kind == 'ekf':
+            self._f = af.EKF(frame='NED', magnetic_ref=field / np.linalg.norm(field))
+            self._f.mag = True if self.use_mag else None     # its h() asks self.mag
+        else:
+            raise ValueError(f'unknown filter {kind!r}: one of {FILTERS}')
+        self.P = None
+
+    @property
+    def q_xyzw(self):
+        """Current ``q_NB``, (x, y, z, w)."""
+        w, x, y, z = _qmul(self.q_ne, self.q_eb)
+        return np.array([x, y, z, w])
+
+    def update(self, gyr, acc, mag, dt, var_gyr, var_acc, var_mag=None):
+        """One sample: rate (rad/s), specific force (m/s^2), field (or None), in B; variances.
+
+        The EKF takes its noises from the messages' covariances: the gyro's per-sample
+        variance, and the accelerometer's and magnetometer's divided by the squared norm
+        (it fuses unit vectors).
+        """
+        gyr, acc = np.asarray(gyr, dtype=float), np.asarray(acc, dtype=float)
+        mag = None if (mag is None or not self.use_mag) else np.asarray(mag, dtype=float)
+        f, q = self._f, self.q_eb
+        if self.kind == 'ekf':
+            a2 = float(acc @ acc) or 1.0
+            vm = var_mag / float(mag @ mag) if mag is not None and var_mag else 1e-6
+            f.noises = [var_gyr, var_acc / a2, vm]
+            f.g_noise = var_gyr
+            q_new = f.update(q, gyr, acc, mag, dt=dt)
+            xi = np.array([[-q_new[1], -q_new[2], -q_new[3]], [q_new[0], -q_new[3], q_new[2]],
+                           [q_new[3], q_new[0], -q_new[1]], [-q_new[2], q_new[1], q_new[0]]])
+            p = 4.0 * xi.T @ f.P @ xi                 # body rotation-vector error, rad^2
+            self.P = 0.5 * (p + p.T)
+        elif mag is not None:
+            q_new = f.updateMARG(q, gyr, acc, mag, dt=dt)
+        else:
+            q_new = f.updateIMU(q, gyr, acc, dt=dt)
+        q_new = np.asarray(q_new, dtype=float)
+        self.q_eb = q_new / np.linalg.norm(q_new)
+
+
+def _turned(q_xyzw, degrees):
+    """``q ⊗ exp(e / 2)``, e = ``degrees`` about (1, 1, 1)/sqrt(3) in B: a start error."""
+    if not degrees:
+        return np.asarray(q_xyzw, dtype=float)
+    a = np.radians(degrees) / 2
+    s = np.sin(a) / np.sqrt(3.0)
+    x, y, z, w = q_xyzw
+    qw, qx, qy, qz = _qmul([w, x, y, z], [np.cos(a), s, s, s])
+    return np.array([qx, qy, qz, qw])
+
+
 def _parser():
     ap = OneLineParser(prog='rigidrot_demo_estimator', description=__doc__.splitlines()[0],
                        epilog='ROS arguments go after --ros-args (e.g. -r __ns:=/sat1).')
+    ap.add_argument('--filter', choices=('gyro',) + FILTERS, default='gyro',
+                    help='gyro: integrate the gyro alone (default); madgwick, mahony, ekf: '
+                         "ahrs' filters on imu (gyro + accelerometer), with --mag also on mag")
+    ap.add_argument('--mag', action='store_true',
+                    help='fuse the magnetometer (sensor_msgs/MagneticField on mag)')
+    ap.add_argument('--mag-field', type=float, nargs=3, default=list(EARTH_FIELD),
+                    metavar=('X', 'Y', 'Z'),
+                    help="the field in N, as the node's mag.field (only its direction is "
+                         'used; default the node default)')
+    ap.add_argument('--initial-error-deg', type=float, default=0.0,
+                    help='start the ahrs filters this far (deg, about (1,1,1) in B) from the '
+                         'first attitude fix, to watch them converge (default 0)')
     ap.add_argument('--initial-sigma', type=float, default=1e-6,
                     help='initial attitude standard deviation per axis, rad (default 1e-6)')
     ap.add_argument('--bias-sigma', type=float, default=0.0,
@@ -121,6 +251,13 @@ def _check(opts):
             return f'--{name.replace("_", "-")} must be a finite number in [0, 1e3], got {v!r}'
     if opts.initial_sigma <= 0:
         return '--initial-sigma must be positive (the covariance must stay invertible)'
+    if opts.mag and opts.filter == 'gyro':
+        return '--mag needs --filter madgwick, mahony or ekf (the gyro integrator has no mag)'
+    if not (np.isfinite(opts.initial_error_deg) and 0 <= opts.initial_error_deg <= 180):
+        return f'--initial-error-deg must be in [0, 180], got {opts.initial_error_deg!r}'
+    field = np.asarray(opts.mag_field, dtype=float)
+    if not (np.all(np.isfinite(field)) and np.linalg.norm(field[:2]) > 0):
+        return f'--mag-field must be finite with a horizontal part, got {opts.mag_field}'
     return None
 
 
@@ -164,6 +301,10 @@ def _run(opts, ros_args):
     pub_odom = node.create_publisher(Odometry, 'estimator/odom', out_qos)
     pub_pose = node.create_publisher(PoseWithCovarianceStamped, 'estimator/pose', out_qos)
     pub_att = node.create_publisher(QuaternionStamped, 'estimator/attitude', out_qos)
+    if opts.filter in FILTERS:
+        _wire_ahrs(node, opts, (pub_odom, pub_pose, pub_att))
+        spin_until_shutdown(node, _spin_quietly_to_shutdown)
+        return 0
     # state on the gyro's time grid: f (filter), t (ns) of its state, the last gyro
     # sample, and the output stamps waiting for the gyro sample that covers them
     st = {'f': None, 't': None, 'frame': 'inertial', 'body': 'body', 'omega': None,
@@ -243,6 +384,92 @@ def _run(opts, ros_args):
     node.create_subscription(QuaternionStamped, 'attitude', on_attitude, 1000)
     spin_until_shutdown(node, _spin_quietly_to_shutdown)
     return 0
+
+
+def _estimate_messages(header, frame, body, q_xyzw, rot_cov, omega):
+    """Odometry, PoseWithCovarianceStamped, QuaternionStamped of one estimate."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped
+    from nav_msgs.msg import Odometry
+    odom = Odometry()
+    odom.header.stamp = header.stamp
+    odom.header.frame_id = frame
+    odom.child_frame_id = body
+    o = odom.pose.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in q_xyzw)
+    odom.pose.covariance = _cov6(rot_cov)
+    a = odom.twist.twist.angular
+    a.x, a.y, a.z = (float(v) for v in omega)
+    odom.twist.covariance = _cov6(np.zeros((3, 3)))
+    pose = PoseWithCovarianceStamped()
+    pose.header = odom.header
+    pose.pose = odom.pose
+    att = QuaternionStamped()
+    att.header = odom.header
+    att.quaternion = odom.pose.pose.orientation
+    return odom, pose, att
+
+
+def _wire_ahrs(node, opts, pubs):
+    """Subscribe an :class:`AhrsFilter` to imu (and mag); publish at each imu stamp."""
+    from geometry_msgs.msg import QuaternionStamped
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+    import rclpy
+    from sensor_msgs.msg import Imu, MagneticField
+
+    st = {'f': None, 't': None, 'frame': 'inertial', 'mag': None, 'warned': False}
+
+    def stamp_of(msg):
+        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+    def on_attitude(msg):
+        if st['f'] is not None:
+            return
+        q = msg.quaternion
+        q0 = _turned((q.x, q.y, q.z, q.w), opts.initial_error_deg)
+        st['f'] = AhrsFilter(opts.filter, q0, opts.mag, opts.mag_field)
+        st['t'] = stamp_of(msg)
+        st['frame'] = msg.header.frame_id or 'inertial'
+        node.get_logger().info(f'initialised from the attitude at stamp {st["t"]} ns '
+                               f'({opts.filter}{" + mag" if opts.mag else ""}, '
+                               f'{opts.initial_error_deg:g} deg off)')
+
+    def on_mag(msg):
+        m = msg.magnetic_field
+        st['mag'] = (np.array([m.x, m.y, m.z]), float(msg.magnetic_field_covariance[0]))
+
+    def on_imu(msg):
+        f = st['f']
+        t_k = stamp_of(msg)
+        if f is None or t_k <= st['t']:
+            return
+        if msg.linear_acceleration_covariance[0] == -1.0:
+            if not st['warned']:
+                st['warned'] = True
+                node.get_logger().error('imu carries no accelerometer: start attitude_node '
+                                        'with accel.enable and a gravity '
+                                        '(config/air_bearing.yaml)')
+            return
+        if opts.mag and st['mag'] is None:
+            return                                  # wait for the first field
+        v, a = msg.angular_velocity, msg.linear_acceleration
+        mag, var_mag = st['mag'] if opts.mag else (None, None)
+        f.update([v.x, v.y, v.z], [a.x, a.y, a.z], mag, (t_k - st['t']) * 1e-9,
+                 float(msg.angular_velocity_covariance[0]),
+                 float(msg.linear_acceleration_covariance[0]), var_mag)
+        st['t'] = t_k
+        cov = f.P if f.P is not None else np.zeros((3, 3))
+        out = _estimate_messages(msg.header, st['frame'], msg.header.frame_id or 'body',
+                                 f.q_xyzw, cov, (v.x, v.y, v.z))
+        try:
+            for pub, m in zip(pubs, out):
+                pub.publish(m)
+        except _rclpy.RCLError:
+            if rclpy.ok():
+                raise
+
+    node.create_subscription(QuaternionStamped, 'attitude', on_attitude, 1000)
+    node.create_subscription(MagneticField, 'mag', on_mag, 1000)
+    node.create_subscription(Imu, 'imu', on_imu, 1000)
 
 
 def _spin_quietly_to_shutdown(node):
