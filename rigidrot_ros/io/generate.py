@@ -430,11 +430,15 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         total = run.span_ns * 1e-9 * run.time_scale
         for lo, hi, streams in run.blocks():
             raws = [_serialized(run, *st) for st in streams]
-            for i, j in zip(*_order(streams)):
-                topic = streams[i][1]
-                if topic == RUN_TOPIC:          # as the node's recorder: a metadata record
-                    writer.add_run(run.description())
-                writer.write(topic, raws[i][j], int(streams[i][2][j]))
+            which, rows = _order(streams)
+            topics = [streams[i][1] for i in which.tolist()]
+            datas = [raws[i][j] for i, j in zip(which.tolist(), rows.tolist())]
+            stamps = [int(streams[i][2][j]) for i, j in zip(which.tolist(), rows.tolist())]
+            cut = topics.index(RUN_TOPIC) if RUN_TOPIC in topics else len(topics)
+            writer.write_many(topics[:cut], datas[:cut], stamps[:cut])
+            if cut < len(topics):               # as the node's recorder: a metadata record
+                writer.add_run(run.description())
+                writer.write_many(topics[cut:], datas[cut:], stamps[cut:])
             if progress is not None:
                 progress(hi * 1e-9 * run.time_scale, total)
             if stop:
