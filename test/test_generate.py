@@ -86,6 +86,17 @@ def test_generated_bag_matches_the_recording_node(tmp_path):
                   if canonical(raw, types[topic]) != canonical(generated[topic][ns],
                                                                types[topic])]
         report[topic] = (len(got) - len(differ), len(got))
+        if topic == '/delta_rotation':
+            # Log(q(t0)^-1 q(t1)) of the attitudes at the gyro's ends: the node reads one
+            # interval at a time (scalar solution.at), the generator a block (one batch
+            # call), and the core's dense output differs between the two in the last bits
+            # (fixed by its checkpoints): within the increments' stated bound (~2 tol)
+            for ns in differ:
+                a = _STORE.deserialize_cdr(got[ns], types[topic]).vector
+                b = _STORE.deserialize_cdr(generated[topic][ns], types[topic]).vector
+                dv = np.array([a.x - b.x, a.y - b.y, a.z - b.z])
+                assert np.max(np.abs(dv)) <= 1e-11, (topic, ns, dv)
+            continue
         if topic not in TRUTH_Q:
             assert not differ, (topic, report)
             continue
@@ -168,3 +179,45 @@ def test_api_refuses_before_writing(tmp_path):
     with pytest.raises(GenerationError, match='start-ns'):
         next(iter_run({}, 1.0, start_ns=-1))
     assert not (tmp_path / 'x').exists()
+
+
+def _bag_bytes(path):
+    return {f.name: f.read_bytes() for f in Path(path).iterdir()}
+
+
+def test_write_many_writes_the_bytes_of_write_one_by_one(tmp_path):
+    """BagWriter.write_many (the generator's writer) against write: the same .mcap file."""
+    from rigidrot_ros.io.bag import BagWriter, read_bag
+    rng = np.random.default_rng(5)
+    topics = ['/a', '/b', '/c']
+    n = 700
+    which = [topics[i] for i in rng.integers(0, 3, n)]
+    datas = [bytes(rng.integers(0, 256, int(k), dtype=np.uint8)) for k in
+             rng.integers(4, 200, n)]
+    stamps = np.cumsum(rng.integers(0, 1000, n)).tolist()
+    cuts = [0, 1, 2, 90, 91, 400, n]               # blocks of 1, 1, 88, 1, 309, 300
+    out = {}
+    for mode in ('write', 'write_many'):
+        w = BagWriter(None, 'x', flush_period=1e9, path=tmp_path / mode, split_seconds=0.0)
+        w._writer._Writer__chunk_size = 4096      # several chunks, closed mid-block
+        for t in topics:
+            w.add_topic(t, 'std_msgs/msg/String')
+        for lo, hi in zip(cuts[:-1], cuts[1:]):
+            if mode == 'write':
+                for i in range(lo, hi):
+                    w.write(which[i], datas[i], stamps[i])
+            else:
+                w.write_many(which[lo:hi], datas[lo:hi], stamps[lo:hi])
+            if lo == 91:
+                w.add_metadata('m', {'k': 'v'})    # closes the chunk in between
+        w.close()
+        out[mode] = _bag_bytes(tmp_path / mode)
+    mcap_files = {mode: [v for k, v in out[mode].items() if k.endswith('.mcap')]
+                  for mode in out}
+    assert len(mcap_files['write']) == 1
+    assert mcap_files['write'] == mcap_files['write_many']         # byte for byte
+    yamls = {mode: out[mode]['metadata.yaml'].replace(mode.encode(), b'BAG') for mode in out}
+    assert yamls['write'] == yamls['write_many']
+    with AnyReader([tmp_path / 'write_many']) as reader:       # rosbags: an outside reader
+        seen = sorted((ts, c.topic, bytes(raw)) for c, ts, raw in reader.messages())
+    assert seen == sorted(zip(stamps, which, datas))

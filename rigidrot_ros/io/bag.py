@@ -289,7 +289,7 @@ class BagWriter:
                 chunk.message_start_time = min(chunk.message_start_time, t_lo)
             chunk.message_end_time = max(chunk.message_end_time, t_hi)
             block = cids[lo:hi]
-            for cid in np.unique(block).tolist():
+            for cid in dict.fromkeys(block.tolist()):       # in order of first appearance
                 rows = np.flatnonzero(block == cid)
                 index = chunk.message_indices.get(cid)
                 if not index:
