@@ -45,8 +45,8 @@ def test_every_new_term_zero_keeps_todays_gyro_stream_bit_identical():
 def test_a_batch_equals_single_samples_with_every_term_on():
     kw = dict(noise_density=1e-3, random_walk=1e-4, bias=(0.01, 0.0, 0.0), seed=9,
               bias_stddev=0.02, bias_instability=3e-3, bias_correlation_time=5.0,
-              scale_factor=(1e-3, -2e-3, 5e-4), misalignment=[0, 1e-3, 0, 0, 0, -2e-3,
-                                                               5e-4, 0, 0],
+              scale_factor=(1e-3, -2e-3, 5e-4),
+              misalignment=[0, 1e-3, 0, 0, 0, -2e-3, 5e-4, 0, 0],
               quantum=1e-4, increment_quantum=1e-6)
     w = np.random.default_rng(1).normal(size=(300, 3))
     a, b = ImuNoise(**kw), ImuNoise(**kw)

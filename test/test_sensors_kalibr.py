@@ -4,7 +4,7 @@ import pytest
 
 from rigidrot_ros.sensors import ImuNoise, load_kalibr_imu
 
-GOOD = """#Accelerometers
+GOOD = '''#Accelerometers
 accelerometer_noise_density: 1.86e-03   #Noise density (continuous-time)
 accelerometer_random_walk:   4.33e-04   #Bias random walk
 
@@ -14,7 +14,7 @@ gyroscope_random_walk:       2.66e-05   #Bias random walk
 
 rostopic:                    /imu0      #the IMU ROS topic
 update_rate:                 200.0      #Hz (for discretization of the values above)
-"""
+'''
 EXPECTED = {'accel.noise_density': 1.86e-3, 'accel.random_walk': 4.33e-4,
             'imu.gyro_noise_density': 1.87e-4, 'imu.gyro_random_walk': 2.66e-5,
             'imu.rate': 200.0}

@@ -3,8 +3,8 @@
 from builtin_interfaces.msg import Time
 import numpy as np
 import pytest
-from rosbags.typesys import get_typestore, Stores
 from rclpy.serialization import serialize_message
+from rosbags.typesys import get_typestore, Stores
 
 from rigidrot_ros.io import messages
 

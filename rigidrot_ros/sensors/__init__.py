@@ -6,16 +6,16 @@ Conventions: frames N inertial, B body; quaternions (x, y, z, w), active, ``q_NB
 rates of B relative to N, in B, rad/s.
 """
 
-from .increments import delta_angle, delta_rotation, DELTA_TOL, RateBound
-from .increments import rotvec_from_quaternion
-from .noise import ARCSEC, AttitudeNoise, GyroNoise
-from .sensors import Gyro, GyroReading, StarTracker, StarTrackerReading
-from .imu_noise import ImuNoise, ImuSample
 from .accel import (
     Accelerometer, AccelReading, delta_velocity, DV_TOL, specific_force, STANDARD_GRAVITY,
 )
-from .mag import EARTH_FIELD, Magnetometer, MagReading
+from .imu_noise import ImuNoise, ImuSample
+from .increments import delta_angle, delta_rotation, DELTA_TOL, RateBound
+from .increments import rotvec_from_quaternion
 from .kalibr import load_kalibr_imu
+from .mag import EARTH_FIELD, Magnetometer, MagReading
+from .noise import ARCSEC, AttitudeNoise, GyroNoise
+from .sensors import Gyro, GyroReading, StarTracker, StarTrackerReading
 
 __all__ = ['delta_angle', 'delta_rotation', 'rotvec_from_quaternion', 'RateBound',
            'DELTA_TOL', 'ARCSEC', 'GyroNoise', 'AttitudeNoise', 'Gyro', 'GyroReading',

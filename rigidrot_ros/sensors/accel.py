@@ -342,7 +342,7 @@ class Accelerometer:
         self.solution = solution
         self.noise = noise if noise is not None else ImuNoise(kind='accel')
         if not isinstance(self.noise, ImuNoise) or self.noise.kind != 'accel':
-            raise ValueError('an Accelerometer needs ImuNoise(kind=\'accel\') as its noise')
+            raise ValueError("an Accelerometer needs ImuNoise(kind='accel') as its noise")
         self.lever_arm = check_lever_arm(lever_arm)
         self.gravity = check_gravity(gravity)
         self.tol = tol

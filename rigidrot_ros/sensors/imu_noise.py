@@ -260,7 +260,7 @@ class ImuNoise:
 
     @property
     def matrix(self):
-        """``C = I + diag(s) + M``: the input-to-output matrix (3x3)."""
+        """The input-to-output matrix ``C = I + diag(s) + M`` (3x3)."""
         return np.eye(3) + self._error
 
     def _child(self, *key):
