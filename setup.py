@@ -50,6 +50,8 @@ setup(
             'colcon-package-information',
             'colcon-library-path',
             'ros-jazzy-ament-package',
+            'sphinx>=7.2',
+            'myst-parser>=2',
         ],
     },
     zip_safe=True,

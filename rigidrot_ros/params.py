@@ -67,7 +67,7 @@ def _rate_or_zero(p, v):
 def _integer(p, v):
     lo, hi = p.range
     if isinstance(v, bool) or not isinstance(v, numbers.Integral) or not lo <= v <= hi:
-        raise ValueError(f'parameter {p.name} must be an integer in [{lo}, {hi}], got {v!r}')
+        raise ValueError(f'parameter {p.name} must be an integer in {p.allowed()}, got {v!r}')
     return int(v)
 
 
@@ -96,7 +96,7 @@ def _choice(p, v):
 
 
 def _floats(p, v):
-    """A list of ``p.size`` numbers as a tuple of floats (finiteness is the model's rule)."""
+    """Return a list of ``p.size`` numbers as a tuple of floats (finiteness: the model)."""
     size = p.size
     if isinstance(v, (str, bytes)) or not hasattr(v, '__len__'):
         raise ValueError(f'parameter {p.name} must be a list of {size} numbers, got {v!r}')
@@ -185,6 +185,9 @@ class Param:
             return ', '.join(repr(c) for c in self.choices)
         if self.validate is _rate_or_zero:
             return f'0 or [{MIN_RATE:g}, {MAX_RATE:g}]'
+        if self.type == 'integer':
+            hi = '2^63 - 1' if self.range[1] == MAX_SEED else self.range[1]
+            return f'[{self.range[0]}, {hi}]'
         if self.range:
             return f'[{self.range[0]:g}, {self.range[1]:g}]'
         return ''

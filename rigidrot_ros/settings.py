@@ -3,8 +3,8 @@
 Each parameter's own rule comes from the table :mod:`rigidrot_ros.params`; this module adds
 the rules across parameters (the scene must be solvable, a sensor rate of 0 means
 ``publish_rate``, the imu needs ``time_scale > 0``) and the trial of a run's first samples.
-The node (at start-up, on a parameter change, on ``~/reset``), the offline generator and
-the benchmarks all set a run up through :func:`prepare_run`, so a scene is validated by one
+The node (at start-up, on a parameter change, on ``~/reset``) and the offline generator
+set a run up through :func:`prepare_run`, so a scene is validated by one
 piece of code wherever it comes from. :func:`load_defaults` reads a params file.
 """
 
@@ -180,6 +180,24 @@ def build_solution(values):
                          f'{list(scene.omega0)})') from None
 
 
+def _timed(fn, fails, slow, hint):
+    """Run one trial sample ``fn()``: ``(result, None)``, or ``(None, why it is refused)``.
+
+    ``fails`` says what could not be evaluated, ``slow`` what took too long (formatted
+    with ``cost``, s), ``hint`` what to try (appended to both).
+    """
+    c0 = time.perf_counter()
+    try:
+        result = fn()
+    except Exception as exc:        # PrecisionError, ValueError, or anything else
+        return None, f'{fails}: {type(exc).__name__}: {exc}{hint}'
+    cost = time.perf_counter() - c0
+    if cost > TRIAL_LIMIT_S:
+        return None, (slow.format(cost=cost) +
+                      f", beyond the node's limit of {TRIAL_LIMIT_S:g} s{hint}")
+    return result, None
+
+
 class TrialError(ValueError):
     """A run's first samples cannot be evaluated in time (:func:`trial`'s reason)."""
 
@@ -198,34 +216,27 @@ def trial(sol, values, cfg=None):
     time_scale = float(values['time_scale'])
     t1 = time_scale / float(values['publish_rate'])
     for t in (0.0, t1):
-        c0 = time.perf_counter()
-        try:
-            sol.at(t)
-        except Exception as exc:    # PrecisionError, ValueError, or anything else
-            return (f'the scene cannot be evaluated at t = {t:g} s (the first ticks): '
-                    f'{type(exc).__name__}: {exc}')
-        cost = time.perf_counter() - c0
-        if cost > TRIAL_LIMIT_S:
-            return (f'one sample of this scene takes {cost:.3g} s to evaluate ({sol.model}, '
-                    f"{sol.method}), beyond the node's limit of {TRIAL_LIMIT_S:g} s; try "
-                    "backend 'auto' or a larger tol")
+        _, reason = _timed(
+            lambda: sol.at(t), f'the scene cannot be evaluated at t = {t:g} s (the first '
+            'ticks)', f'one sample of this scene takes {{cost:.3g}} s to evaluate ({sol.model}, '
+            f'{sol.method})', "; try backend 'auto' or a larger tol")
+        if reason:
+            return reason
     if cfg is None:
         return None
     if cfg.imu:
         dt = time_scale / cfg.imu_rate
-        c0 = time.perf_counter()
-        try:                        # an ideal gyro: the run's own noise stream stays fresh
+
+        def gyro():                 # an ideal gyro: the run's own noise stream stays fresh
             with np.errstate(over='ignore', invalid='ignore'):  # judged below, not warned
-                r = Gyro(sol).read(0.0, dt, budget=SAMPLE_BUDGET_S)
-        except Exception as exc:
-            return (f'the first gyro sample (imu.rate {cfg.imu_rate:g} Hz, time_scale '
-                    f'{time_scale:g}: {dt:g} s of scene time) cannot be evaluated: '
-                    f'{type(exc).__name__}: {exc}; lower time_scale or raise imu.rate')
-        cost = time.perf_counter() - c0
-        if cost > TRIAL_LIMIT_S:
-            return (f'the first gyro sample ({dt:g} s of scene time) takes {cost:.3g} s, '
-                    f"beyond the node's limit of {TRIAL_LIMIT_S:g} s; lower time_scale or "
-                    'raise imu.rate')
+                return Gyro(sol).read(0.0, dt, budget=SAMPLE_BUDGET_S)
+        r, reason = _timed(
+            gyro, f'the first gyro sample (imu.rate {cfg.imu_rate:g} Hz, time_scale '
+            f'{time_scale:g}: {dt:g} s of scene time) cannot be evaluated',
+            f'the first gyro sample ({dt:g} s of scene time) takes {{cost:.3g}} s',
+            '; lower time_scale or raise imu.rate')
+        if reason:
+            return reason
         bound = float(max(r.delta_angle_bound, r.delta_rotation_bound))
         if not math.isfinite(bound):
             return (f'the gyro increments of this scene have no finite error bound '
@@ -233,16 +244,12 @@ def trial(sol, values, cfg=None):
                     'for float64); turn imu.enable off or choose a smaller scene')
     if cfg.star_tracker:
         t = time_scale / cfg.star_tracker_rate
-        c0 = time.perf_counter()
-        try:
-            StarTracker(sol).read(t)
-        except Exception as exc:
-            return (f'the first star tracker sample (t = {t:g} s) cannot be evaluated: '
-                    f'{type(exc).__name__}: {exc}')
-        cost = time.perf_counter() - c0
-        if cost > TRIAL_LIMIT_S:
-            return (f'the first star tracker sample takes {cost:.3g} s, beyond the '
-                    f"node's limit of {TRIAL_LIMIT_S:g} s")
+        _, reason = _timed(
+            lambda: StarTracker(sol).read(t),
+            f'the first star tracker sample (t = {t:g} s) cannot be evaluated',
+            'the first star tracker sample takes {cost:.3g} s', '')
+        if reason:
+            return reason
     return None
 
 

@@ -27,13 +27,13 @@ import rclpy
 from rclpy.parameter import parameter_value_to_python
 from std_srvs.srv import Trigger
 
-from rigidrot_ros.node.attitude_node import _DESCRIPTIONS, _READ_ONLY
+from rigidrot_ros.params import BY_NAME, PARAMS
 
 #: Changes that take effect at the next ~/reset (the sensor settings too).
 SCENE = ('inertia', 'torque', 'torque_frame', 'omega0', 'attitude0', 'tol', 'backend') + \
-    tuple(n for n in _DESCRIPTIONS if n.startswith(('imu.', 'star_tracker.')))
-NAMES = tuple(_DESCRIPTIONS)
-READ_ONLY = tuple(_READ_ONLY)
+    tuple(n for n in BY_NAME if n.startswith(('imu.', 'star_tracker.')))
+NAMES = tuple(BY_NAME)
+READ_ONLY = tuple(p.name for p in PARAMS if p.read_only)
 UNKNOWN = ('inertiaa', 'Torque', 'omega', 'foo.bar', 'publish-rate', 'imu.rat', 'x' * 40)
 #: Run parameters put back after each set, so ticks keep coming at a checkable pace.
 SANE_RUN = {'publish_rate': 100.0, 'time_scale': 1.0, 'imu.rate': 0.0,

@@ -79,3 +79,37 @@ def test_quick_ratios_check_every_answer(tmp_path):
     assert all(r['exact_error_rad'] <= r['exact_max_bound_rad'] for r in timed)
     assert all(r['dop853_cpu_s'] > 0 and r['dop853_lean_cpu_s'] > 0 for r in timed)
     assert all(r['p50_us'] > 0 for r in rows if r['part'].startswith(('scalar', 'tick')))
+
+
+def _rendered(results_json):
+    from rigidrot_ros.bench import registry
+    with open(results_json, encoding='utf-8') as fh:
+        results = json.load(fh)
+    out = {}
+    for name, mod in registry.available(needs=False).items():
+        md = getattr(mod, 'render_md', lambda r: None)(results)
+        if md is not None:
+            out[name] = md
+    return out
+
+
+@pytest.mark.parametrize('folder', ['doc/bench', 'doc/bench/ratios'])
+def test_committed_tables_are_what_the_results_render(folder):
+    """Each doc/bench/<part>.md is its part's render_md of the committed results JSON."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1] / folder
+    rendered = _rendered(root / 'results.json')
+    assert rendered, 'no part renders a table from the committed results'
+    committed = {p.stem: p.read_text(encoding='utf-8') for p in root.glob('*.md')}
+    assert committed == rendered, (
+        f'regenerate: rigidrot_bench --charts-from {folder}/results.json --out {folder}')
+
+
+def test_registry_parts_follow_the_convention():
+    from rigidrot_ros.bench import registry
+    for name, mod in registry.available(needs=False).items():
+        assert not isinstance(mod, registry.Unavailable), mod
+        assert mod.NAME == name and callable(mod.run) and callable(mod.main)
+        assert isinstance(mod.NEEDS, tuple)
+    with pytest.raises(KeyError):
+        registry.load('no_such_part')

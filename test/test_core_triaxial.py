@@ -356,8 +356,10 @@ def test_refusals_name_the_problem():
 def test_quick_benchmark_part_runs_and_checks_values(tmp_path):
     """``rigidrot_bench --quick --only triaxial``, in-process: files, and the exact rows."""
     from rigidrot_ros.bench import triaxial
-    from rigidrot_ros.bench.run import footer
-    res = triaxial.run(str(tmp_path), True, footer(), lambda line: None)
+    from rigidrot_ros.bench.common import footer
+    res = triaxial.run(True, lambda line: None)
+    triaxial.write(res, str(tmp_path), footer(), lambda line: None)
+    res = res['triaxial']
     for name in ('cost', 'work_precision', 'horizon', 'stability'):
         assert (tmp_path / f'triaxial_{name}.csv').is_file()
     assert (tmp_path / 'triaxial_work_precision.png').is_file()

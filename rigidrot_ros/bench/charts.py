@@ -71,23 +71,27 @@ def _finish(fig, foot, out, name):
     return paths
 
 
-def draw(results, out):
-    """Draw every chart the results allow; return the written paths."""
+def _pyplot():
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    foot = results['footer']
-    paths = []
-    for workload in ('query', 'stream'):
-        rows = [r for r in results.get('work_precision', []) if r['workload'] == workload]
-        if rows:
-            paths += _work_precision(rows, workload, foot, out, plt)
-    if results.get('horizon'):
-        paths += _horizon(results['horizon'], foot, out, plt)
-    if results.get('stability'):
-        paths += _stability(results['stability'], foot, out, plt, matplotlib,
-                            results.get('stability_crosscheck', []))
-    return paths
+    return matplotlib, plt
+
+
+def work_precision(rows, workload, foot, out):
+    """Draw the work-precision chart of one workload's rows; return the written paths."""
+    return _work_precision(rows, workload, foot, out, _pyplot()[1])
+
+
+def horizon(hz, foot, out):
+    """Draw the horizon-scaling chart; return the written paths."""
+    return _horizon(hz, foot, out, _pyplot()[1])
+
+
+def stability(st, foot, out, cross=()):
+    """Draw the stability map (marks from the cross-check ``cross``); the written paths."""
+    matplotlib, plt = _pyplot()
+    return _stability(st, foot, out, plt, matplotlib, cross)
 
 
 def _work_precision(rows, workload, foot, out, plt):
@@ -228,3 +232,32 @@ def _stability(st, foot, out, plt, matplotlib, cross=()):
                  '(sphere, p0, q0 = 0.3, -0.2 rad/s; r0 = 0.5 or U = 0.01)', fontsize=9)
     fig.tight_layout(rect=(0, 0.16, 1, 1))
     return _finish(fig, foot, out, 'stability')
+
+
+def ratios(rows, foot, out):
+    """Bar chart of the speed-ups over DOP853 (both forms), per part and scene."""
+    plt = _pyplot()[1]
+    timed = [r for r in rows if math.isfinite(r['speedup_vs_dop853'])]
+    if not timed:
+        return []
+    parts = list(dict.fromkeys(r['part'] for r in timed))
+    fig, axes = plt.subplots(1, len(parts), figsize=(4.6 * len(parts), 4.4), squeeze=False)
+    for ax, part in zip(axes[0], parts):
+        sel = [r for r in timed if r['part'] == part]
+        x = np.arange(len(sel))
+        ax.bar(x - 0.2, [r['speedup_vs_dop853'] for r in sel], 0.4,
+               label='vs DOP853 (peers.scipy_ivp)')
+        ax.bar(x + 0.2, [r['speedup_vs_dop853_lean'] for r in sel], 0.4,
+               label='vs DOP853, plain-float RHS')
+        ax.axhline(10.0, color='gray', lw=0.8, ls='--')
+        ax.set_yscale('log')
+        ax.set_xticks(x)
+        ax.set_xticklabels([r['scene'] for r in sel], rotation=35, ha='right', fontsize=7)
+        ax.set_title(f'{part} ({sel[0]["samples"]} samples to {sel[0]["horizon_s"]:g} s)',
+                     fontsize=8)
+        ax.set_ylabel('DOP853 CPU time / exact CPU time (solve included)', fontsize=7)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle('exact solution (tol 1e-12) against scipy DOP853 (rtol = atol = 1e-12)',
+                 fontsize=9)
+    fig.tight_layout(rect=(0, 0.03, 1, 0.95))
+    return _finish(fig, foot, out, 'ratios')

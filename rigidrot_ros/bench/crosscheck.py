@@ -8,20 +8,27 @@ used different representations (say Taylor against ₁F₁), their agreement is 
 shares no evaluation formula; where they used the same one, it only compares two
 implementations of the special functions, and the chart says so.
 
-The scenes are rebuilt from the cells as :func:`rigidrot_ros.bench.run.stability_map`
+The scenes are rebuilt from the cells as :func:`rigidrot_ros.bench.stability.stability_map`
 builds them: a unit sphere, omega0 = (0.3, -0.2, r0), torque (0, 0, U), with r0 = 0.5 on
 the U rows and U = 0.01 on the r0 rows.
 """
 
 import math
+import os
+import sys
 import time
 
 import numpy as np
 
+from rigidrot_ros.bench import common
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
 
-__all__ = ['representation', 'stability_crosscheck', 'stability_scene']
+__all__ = ['representation', 'stability_crosscheck', 'stability_scene', 'run']
+
+NAME = 'crosscheck'
+NEEDS = ()
+KEYS = ('stability_crosscheck',)
 
 
 def stability_scene(axis, value):
@@ -74,3 +81,45 @@ def stability_crosscheck(cells, log, tol=1e-12):
             f'mpmath {out["mpmath_method"]:28s} diff {out["flint_vs_mpmath_rad"]:9.2e}'
             f'{"  (different representations)" if out["independent"] else ""}')
     return rows
+
+
+def run(quick=False, log=print, results=None):
+    """Cross-check the stability map in ``results``; return ``{'stability_crosscheck': rows}``.
+
+    Raises :class:`~rigidrot_ros.bench.common.MissingInput` where ``results`` holds no map.
+    """
+    if not (results or {}).get('stability'):
+        raise common.MissingInput('the stability map', 'stability')
+    return {'stability_crosscheck': stability_crosscheck(results['stability'], log)}
+
+
+def write(res, out, foot, log):
+    """Write ``stability_crosscheck.csv``."""
+    common.write_csv(os.path.join(out, 'stability_crosscheck.csv'),
+                     res['stability_crosscheck'], foot)
+
+
+def render_md(results):
+    """Per row of the map: the representations each backend took and their agreement."""
+    rows = results.get('stability_crosscheck')
+    if not rows:
+        return None
+    lines = [[r['axis'], common.fmt(r['value']), common.fmt(r['T_s']),
+              r['flint_method'] or '—', r['mpmath_method'] or '—',
+              common.fmt(r['flint_vs_mpmath_rad']), 'yes' if r['independent'] else 'no']
+             for r in rows]
+    return common.md_fragment(
+        'Cross-check of the stability map: flint against mpmath at tol 1e-12',
+        common.part_footer(results, NAME),
+        common.md_table(['row', 'value', 'T [s]', 'flint', 'mpmath', 'angle [rad]',
+                         'different representations'], lines))
+
+
+def main(argv=None):
+    """``python -m rigidrot_ros.bench.crosscheck --out DIR``: cross-check DIR's map."""
+    from rigidrot_ros.bench import driver
+    return driver.part_main(NAME, argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

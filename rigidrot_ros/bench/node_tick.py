@@ -28,14 +28,20 @@ unless already set; use your own ``ROS_DOMAIN_ID``.
 
 import argparse
 import os
+import sys
 import time
 
 import numpy as np
 
-from rigidrot_ros.bench.run import ratio_scenes
+from rigidrot_ros.bench import common
 from rigidrot_ros.core import solve
 
+NAME = 'node_tick'
+NEEDS = ('rclpy',)
+KEYS = ('node_tick',)
 GAPS_S = (0.0, 1e-4, 1e-3, 3e-3, 1e-2)
+#: The node's diagnostics keys summarised per setting (median and worst 1 s window).
+DIAG_KEYS = ('eval_p99_us', 'tick_p99_us', 'latency_p99_us', 'eval_mean_us', 'tick_mean_us')
 
 
 def _stats(us):
@@ -178,46 +184,106 @@ def _no_lookahead(cls):
 
 
 def _windows(diags, key):
+    """Median and worst window of diagnostics ``key``, or None where no window has it."""
     v = np.array([float(d[key]) for d in diags if d.get(key)])
-    return f'{key[:-3]:14s} median {np.median(v):7.1f}  worst {v.max():7.1f} us' if len(v) \
+    return {'median': float(np.median(v)), 'worst': float(v.max())} if len(v) else None
+
+
+def _line(key, w):
+    return f'{key[:-3]:14s} median {w["median"]:7.1f}  worst {w["worst"]:7.1f} us' if w \
         else f'{key}: no windows'
+
+
+def _summary(us):
+    us = np.asarray(us)
+    return dict(common.percentiles(us), max_us=float(us.max()))
+
+
+def run(quick=False, log=print, seconds=None, presets=None):
+    """Measure the settings per preset; return ``{'node_tick': {...}}`` (latencies, us).
+
+    ``seconds`` per setting (default 10, 1 with ``quick``); ``presets`` scene names
+    (default all; with ``quick`` the default preset only).
+    """
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    seconds = seconds or (1.0 if quick else 10.0)
+    scenes = common.ratio_scenes()
+    n = int(round(seconds * 100))
+    res = {'seconds': seconds, 'ros_calls': {}, 'presets': {}}
+    log("a tick's ROS calls, each after 10 ms idle:")
+    for label, us in ros_calls(min(n, 300)).items():
+        log(f'  {label:26s} {_stats(us)}')
+        res['ros_calls'][label] = _summary(us)
+    for name in presets or (['default'] if quick else list(scenes)):
+        scene = scenes[name]
+        row = res['presets'][name] = {'after_gap': {}, 'node': {}}
+        log(f'{name}:')
+        us = tight(scene, n)
+        row['tight'] = _summary(us)
+        log(f'  tight loop           {_stats(us)}')
+        for gap in GAPS_S:
+            first, again = after_gap(scene, min(n, 300), gap)
+            row['after_gap'][f'{gap * 1e3:g} ms'] = _summary(first)
+            log(f'  after {gap * 1e3:4.1f} ms idle   {_stats(first)}')
+            if gap == GAPS_S[-1]:
+                row['right_after'] = _summary(again)
+                log(f'    a call right after {_stats(again)}')
+        us = batch_after_gap(scene)
+        row['batch_after_gap'] = _summary(us)
+        log(f'  batch of 256 after 10 ms idle, per sample {_stats(us)}')
+        for label, on in (('look-ahead on ', True), ('look-ahead off', False)):
+            diags, got = in_node(scene, seconds, lookahead=on)
+            log(f'  node, {label} ({len(diags)} windows, {got} attitude messages received,'
+                f' ticks late {diags[-1]["ticks_late"] if diags else "?"}):')
+            node = row['node']['on' if on else 'off'] = {
+                'windows': len(diags), 'received': got,
+                'ticks_late': diags[-1]['ticks_late'] if diags else None}
+            for key in DIAG_KEYS:
+                node[key] = _windows(diags, key)
+                log(f'    {_line(key, node[key])}')
+            if on and diags:
+                node['lookahead'] = diags[-1]['lookahead']
+                log(f'    look-ahead: {diags[-1]["lookahead"]}, worst batch '
+                    f'{max(float(d["lookahead_batch_max_us"]) for d in diags):.0f} us, '
+                    f'{diags[-1]["lookahead_sample_us"]} us a sample')
+    return {'node_tick': res}
+
+
+def render_md(results):
+    """Per setting, the range over presets of the median and the worst window (us)."""
+    res = results.get('node_tick')
+    if not res or not res.get('presets'):
+        return None
+    rows = []
+    for on, label in (('on', 'look-ahead on'), ('off', 'look-ahead off')):
+        for key in DIAG_KEYS:
+            ws = [p['node'][on][key] for p in res['presets'].values()
+                  if p['node'].get(on, {}).get(key)]
+            if ws:
+                rows.append([f'{key[:-3]}, {label}',
+                             common.span([w['median'] for w in ws], unit='µs'),
+                             common.span([w['worst'] for w in ws], unit='µs')])
+    rows += [[f'ROS call after 10 ms idle: {k} (p50, p99)',
+              f'{common.fmt(v["p50_us"])} µs', f'{common.fmt(v["p99_us"])} µs']
+             for k, v in res['ros_calls'].items()]
+    return common.md_fragment(
+        f'The node at 100 Hz, as its diagnostics report it ({len(res["presets"])} presets, '
+        f'{res["seconds"]:g} s each, 1 s windows; ranges over the presets)',
+        common.part_footer(results, NAME),
+        common.md_table(['setting', 'median window', 'worst window'], rows))
 
 
 def main(argv=None):
     """Print the settings' latencies per preset."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--seconds', type=float, default=10.0,
                     help='seconds per setting (the gap sweep takes 100 calls a second)')
     ap.add_argument('--preset', action='append', help='scene name (default: all)')
     opts = ap.parse_args(argv)
-    scenes = ratio_scenes()
-    n = int(round(opts.seconds * 100))
-    print("a tick's ROS calls, each after 10 ms idle:")
-    for label, us in ros_calls(min(n, 300)).items():
-        print(f'  {label:26s} {_stats(us)}', flush=True)
-    for name in opts.preset or list(scenes):
-        scene = scenes[name]
-        print(f'{name}:')
-        print(f'  tight loop           {_stats(tight(scene, n))}')
-        for gap in GAPS_S:
-            first, again = after_gap(scene, min(n, 300), gap)
-            print(f'  after {gap * 1e3:4.1f} ms idle   {_stats(first)}')
-            if gap == GAPS_S[-1]:
-                print(f'    a call right after {_stats(again)}')
-        print(f'  batch of 256 after 10 ms idle, per sample {_stats(batch_after_gap(scene))}')
-        for label, on in (('look-ahead on ', True), ('look-ahead off', False)):
-            diags, got = in_node(scene, opts.seconds, lookahead=on)
-            print(f'  node, {label} ({len(diags)} windows, {got} attitude messages received,'
-                  f' ticks late {diags[-1]["ticks_late"] if diags else "?"}):')
-            for key in ('eval_p99_us', 'tick_p99_us', 'latency_p99_us', 'eval_mean_us',
-                        'tick_mean_us'):
-                print(f'    {_windows(diags, key)}')
-            if on and diags:
-                print(f'    look-ahead: {diags[-1]["lookahead"]}, worst batch '
-                      f'{max(float(d["lookahead_batch_max_us"]) for d in diags):.0f} us, '
-                      f'{diags[-1]["lookahead_sample_us"]} us a sample', flush=True)
+    run(log=lambda line: print(line, flush=True), seconds=opts.seconds,
+        presets=opts.preset or list(common.ratio_scenes()))
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

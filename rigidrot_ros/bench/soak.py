@@ -9,6 +9,8 @@ gives the growth in MB per minute. SIGINT ends it; the node must then exit 0 and
 its bag.
 """
 
+import argparse
+import math
 import os
 import shutil
 import signal
@@ -19,7 +21,29 @@ import time
 
 import numpy as np
 
-__all__ = ['soak', 'rss_mb', 'slope_mb_per_min']
+from rigidrot_ros.bench import common
+
+__all__ = ['soak', 'rss_mb', 'slope_mb_per_min', 'run']
+
+NAME = 'soak'
+NEEDS = ()
+KEYS = ('soak',)
+
+
+def _minutes(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a positive number, got {text!r}')
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f'must be a positive number, got {value}')
+    return value
+
+
+def add_arguments(ap):
+    """Add ``--soak-minutes`` to the parser ``ap``."""
+    ap.add_argument('--soak-minutes', type=_minutes, default=10.0, metavar='MIN',
+                    help='length of the soak part (--only soak), minutes (default 10)')
 
 
 def rss_mb(pid):
@@ -158,3 +182,51 @@ def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
         f'({slope * 60 * 24:+.1f} MB/day); node exit {node.returncode}, bag '
         f'{bag_bytes / 1e6:.1f} MB')
     return out
+
+
+def run(quick=False, log=print, soak_minutes=10.0):
+    """Soak for ``soak_minutes``; return ``{'soak': result of soak()}``."""
+    return {'soak': soak(soak_minutes, log)}
+
+
+def write(res, out, foot, log):
+    """Write ``soak.csv``: the RSS samples."""
+    common.write_csv(os.path.join(out, 'soak.csv'),
+                     [{'t_s': t, 'rss_mb': m} for t, m in res['soak']['samples']], foot)
+
+
+def failed(results):
+    """Return a line where the node exited with a non-zero status, else none."""
+    res = results.get('soak')
+    if not res or res['exit_code'] == 0:
+        return []
+    return [f'SOAK: attitude_node exited with status {res["exit_code"]}: '
+            f'{res["stderr_tail"][-500:]}']
+
+
+def render_md(results):
+    """Render the soak's RSS and slope as a table; None where the results hold no soak."""
+    res = results.get('soak')
+    if not res:
+        return None
+    row = [common.fmt(res['minutes']), common.fmt(res['rate_hz']),
+           'yes' if res['record'] else 'no', common.fmt(res['warmup_s']),
+           f'{common.fmt(res["rss_start_mb"], 4)} → {common.fmt(res["rss_end_mb"], 4)}',
+           f'{res["slope_mb_per_min"]:+.3f} ± {res["slope_ci95_mb_per_min"]:.3f}',
+           str(res['exit_code']), common.fmt(res['bag_bytes'] / 1e6)]
+    return common.md_fragment(
+        'Soak: the installed attitude_node with a subscriber, RSS from /proc',
+        common.part_footer(results, NAME),
+        common.md_table(['minutes', 'rate [Hz]', 'recording', 'warm-up [s]',
+                         'RSS after warm-up [MB]', 'slope [MB/min] (95 %)', 'node exit',
+                         'bag [MB]'], [row]))
+
+
+def main(argv=None):
+    """``python -m rigidrot_ros.bench.soak [--soak-minutes MIN]``: this part alone."""
+    from rigidrot_ros.bench import driver
+    return driver.part_main(NAME, argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

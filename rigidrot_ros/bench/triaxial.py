@@ -15,20 +15,23 @@ it would take too long (streams, T > 1e3 s) the exact model itself, whose agreem
 that integration is shown by the query rows and by ``test/test_core_triaxial.py``.
 """
 
-import json
 import math
 import os
+import sys
 import time
 
 import mpmath
 import numpy as np
 
-from rigidrot_ros.bench import peers
-from rigidrot_ros.bench.run import run_method, timed, write_csv
+from rigidrot_ros.bench import common
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
 
-__all__ = ['taylor_reference', 'SCENE', 'run', 'draw']
+__all__ = ['taylor_reference', 'SCENE', 'run', 'draw', 'draw_charts', 'render_md']
+
+NAME = 'triaxial'
+NEEDS = ('scipy',)
+KEYS = ('triaxial',)
 
 #: The work-precision and horizon scene: a generic triaxial body, m = 0.37.
 SCENE = Scene(inertia=(1.0, 2.0, 3.0), omega0=(0.3, -0.2, 0.5), attitude0=(0.1, 0.2, 0.3, 0.9))
@@ -103,19 +106,8 @@ def taylor_reference(scene, times, deg=30):
 
 
 def _peer_methods(quick):
-    rtols = [1e-6, 1e-9, 1e-12] if quick else [1e-5, 1e-7, 1e-9, 1e-11, 1e-13]
-    steps = [0.05, 0.01] if quick else [0.1, 0.05, 0.02, 0.01, 0.005]
-    out = []
-    for rt in rtols:
-        for m in ('DOP853', 'RK45'):
-            if m == 'RK45' and rt < 1e-11:
-                continue
-            out.append((m, 'rtol', rt, lambda sc, t, b, m=m, rt=rt: peers.scipy_ivp(
-                sc, t, m, rt, budget=b)))
-    for h in steps:
-        out.append(('RK4', 'h', h, lambda sc, t, b, h=h: peers.rk4(sc, t, h, budget=b)))
-        out.append(('RKMK4', 'h', h, lambda sc, t, b, h=h: peers.rkmk4(sc, t, h, budget=b)))
-    return out
+    return common.peer_sweep([1e-6, 1e-9, 1e-12] if quick else [1e-5, 1e-7, 1e-9, 1e-11, 1e-13],
+                             [0.05, 0.01] if quick else [0.1, 0.05, 0.02, 0.01, 0.005])
 
 
 def _exact(sc, t, b=None):
@@ -124,6 +116,7 @@ def _exact(sc, t, b=None):
 
 def work_precision(quick, repeats, budget, log):
     """One query at T and a 100 Hz stream over T, for SCENE."""
+    from rigidrot_ros.bench import peers
     horizon = 5.0 if quick else 60.0
     rows = []
     q_ref_query = taylor_reference(SCENE, [horizon])[1]
@@ -139,7 +132,7 @@ def work_precision(quick, repeats, budget, log):
         methods = [('exact (triaxial)', 'tol', 1e-12, _exact)] + _peer_methods(quick)
         for name, knob, value, fn in methods:
             try:
-                cpu, q = timed(lambda: fn(SCENE, t_eval, budget), repeats)
+                cpu, q = common.timed(lambda: fn(SCENE, t_eval, budget), repeats)
                 err = float(quat.angle_between(q, ref).max())
                 if name.startswith('exact') and workload == 'stream':
                     err = own_stream                # not against itself: see above
@@ -162,42 +155,21 @@ def horizon_scaling(quick, budget, log):
     ref_max = 100.0 if quick else 1e3
     refs = dict(zip([T for T in horizons if T <= ref_max],
                     taylor_reference(SCENE, [T for T in horizons if T <= ref_max])[1]))
-    rows = []
-    given_up = set()
-    for T in horizons:
-        t_eval = np.array([T])
-        ref = refs.get(T)
-        ref_name = '42-digit Taylor'
-        if ref is None:
-            ref = solve(SCENE).at(t_eval).quaternion[0]
-            ref_name = 'exact (bound <= 1e-13)'
-        for target in (1e-9, 1e-12):
-            best = {}
-            for name, knob, value, fn in [('exact (triaxial)', 'tol', 1e-12, _exact)] + \
-                    _peer_methods(quick):
-                if name in best or (name, target) in given_up:
-                    continue
-                if T >= 1e3 and knob == 'h':
-                    continue                      # 1e5+ Python steps: over any budget
-                try:
-                    cpu, q = timed(lambda: fn(SCENE, t_eval, budget))
-                    err = float(quat.angle_between(q[0], ref))
-                except peers.TimeBudget:
-                    continue
-                if err <= target:
-                    best[name] = (cpu, knob, value, err)
-            names = ['exact (triaxial)'] + sorted({m for m, *_ in _peer_methods(quick)})
-            for name in names:
-                if name not in best:
-                    given_up.add((name, target))
-                cpu, knob, value, err = best.get(name, (math.nan, '', math.nan, math.nan))
-                rows.append({'T_s': T, 'target_rad': target, 'method': name, 'cpu_s': cpu,
-                             'knob': knob, 'value': value, 'error_rad': err,
-                             'reference': ref_name,
-                             'status': 'ok' if name in best else 'not reached'})
-                log(f'triaxial T={T:<8g} target {target:g} {name:16s} cpu {cpu:9.4f} s '
-                    f'{knob}={value:<8g} err {err:9.2e}')
-    return rows
+
+    def reference(T):
+        if T in refs:
+            return refs[T], {'reference': '42-digit Taylor'}
+        return (solve(SCENE).at(np.array([T])).quaternion[0],
+                {'reference': 'exact (bound <= 1e-13)'})
+
+    methods = [(name, knob, value, lambda t, b, fn=fn: fn(SCENE, t, b)) for
+               name, knob, value, fn in [('exact (triaxial)', 'tol', 1e-12, _exact)] +
+               _peer_methods(quick)]
+    names = ['exact (triaxial)'] + sorted({m for m, *_ in _peer_methods(quick)})
+    return common.horizon_rows(
+        horizons, methods, names, reference, budget, log,
+        lambda name, knob, value, T, target: T >= 1e3 and knob == 'h',  # 1e5+ Python steps
+        label='triaxial ')
 
 
 def separatrix_scene(delta):
@@ -209,6 +181,7 @@ def separatrix_scene(delta):
 
 def stability_map(quick, budget, log):
     """Status of each method over the signed distance to the separatrix x horizon T."""
+    from rigidrot_ros.bench import peers
     deltas = [-1e-3, 0.0, 1e-9] if quick else \
         [-1e-2, -1e-5, -1e-8, -1e-11, -1e-14, 0.0, 1e-14, 1e-11, 1e-8, 1e-5, 1e-2]
     ts = [1.0, 10.0] if quick else [1.0, 10.0, 100.0, 1e3]
@@ -247,7 +220,7 @@ def stability_map(quick, budget, log):
                                   'status': 'fail: time-out', 'error_rad': math.nan,
                                   'cpu_s': math.nan})
                     continue
-                cpu, err, status = run_method(
+                cpu, err, status = common.run_method(
                     fn, scene, np.array([T]), budget,
                     lambda q, ref=ref: float(quat.angle_between(q[0], ref)))
                 if status == 'fail: time-out':
@@ -292,26 +265,29 @@ def cost(quick, log):
     return rows
 
 
-def run(out, quick, foot, log, repeats=None, budget=None):
-    """Run every triaxial part; write CSVs and charts into ``out``; return the results."""
-    repeats = repeats or (1 if quick else 3)
-    budget = budget or (1.0 if quick else 20.0)
-    res = {
+def run(quick=False, log=print):
+    """Run every triaxial part; return ``{'triaxial': {cost, work_precision, horizon, ...}}``."""
+    repeats = 1 if quick else 3
+    budget = 1.0 if quick else 20.0
+    return {'triaxial': {
         'cost': cost(quick, log),
         'work_precision': work_precision(quick, repeats, budget, log),
         'horizon': horizon_scaling(quick, budget, log),
         'stability': stability_map(quick, 10.0 if not quick else 1.0, log),
-    }
+    }}
+
+
+def write(res, out, foot, log):
+    """Write the CSVs, ``triaxial_results.json`` and the charts into ``out``."""
+    res = res['triaxial']
     for key, rows in res.items():
-        write_csv(os.path.join(out, f'triaxial_{key}.csv'), rows, foot)
-    with open(os.path.join(out, 'triaxial_results.json'), 'w', encoding='utf-8') as fh:
-        json.dump(dict(res, footer=foot), fh, indent=1, default=float)
-    for path in draw(res, out, foot):
+        common.write_csv(os.path.join(out, f'triaxial_{key}.csv'), rows, foot)
+    common.write_json(os.path.join(out, 'triaxial_results.json'), dict(res, footer=foot))
+    for path in draw_charts(res, out, foot):
         log(f'wrote {path}')
-    return res
 
 
-def draw(res, out, foot):
+def draw_charts(res, out, foot):
     """Chart the triaxial rows (PNG and SVG); return the written paths."""
     import matplotlib
     matplotlib.use('Agg')
@@ -388,3 +364,53 @@ def draw(res, out, foot):
         fig.tight_layout(rect=(0, 0.1, 1, 1))
         paths += _finish(fig, foot, out, 'triaxial_stability')
     return paths
+
+
+def draw(results, out):
+    """Draw the triaxial charts from merged results (``'triaxial'``); the written paths."""
+    if not results.get('triaxial'):
+        return []
+    return draw_charts(results['triaxial'], out, common.part_footer(results, NAME))
+
+
+def render_md(results):
+    """Per-sample cost, the horizon table and the separatrix map's counts, from the results."""
+    from rigidrot_ros.bench import horizon, stability
+    res = results.get('triaxial')
+    if not res:
+        return None
+    body = ''
+    if res.get('cost'):
+        body += common.md_table(
+            ['model', 'method', 'set-up [ms]', 'scalar call [µs]', 'at t = 1e5 s [µs]',
+             'batch [µs a sample]'],
+            [[r['model'], r['method'], common.fmt(1e3 * r['setup_s']),
+              common.fmt(r['scalar_us']), common.fmt(r['scalar_at_1e5_s_us']),
+              f'{common.fmt(r["batch_us_per_sample"])} ({r["batch_size"]} samples)']
+             for r in res['cost']]) + '\n'
+    if res.get('work_precision'):
+        body += common.md_table(
+            ['workload', 'method', 'knob', 'CPU [ms]', 'error [rad]', 'status'],
+            [[r['workload'], r['method'], f'{r["knob"]} {common.fmt(r["value"])}',
+              common.fmt(1e3 * r['cpu_s']), common.fmt(r['error_rad']), r['status']]
+             for r in res['work_precision']]) + '\n'
+    if res.get('horizon'):
+        body += ('CPU time [ms] of one query at T at the cheapest setting meeting 1e-9 / '
+                 '1e-12 rad (— not reached):\n\n' + horizon.table(res['horizon']) + '\n')
+    if res.get('stability'):
+        body += ('Across the separatrix, cells per status:\n\n'
+                 + stability.status_counts(res['stability'], 'delta x horizons'))
+    return common.md_fragment(
+        'Torque-free triaxial body: I = (1, 2, 3), omega0 = (0.3, -0.2, 0.5) rad/s '
+        '(reference: 42-digit Taylor integration)', common.part_footer(results, NAME),
+        body)
+
+
+def main(argv=None):
+    """``python -m rigidrot_ros.bench.triaxial``: this part alone."""
+    from rigidrot_ros.bench import driver
+    return driver.part_main(NAME, argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

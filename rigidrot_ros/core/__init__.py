@@ -1,6 +1,12 @@
-"""Exact attitude and angular velocity of a spherical or axisymmetric rigid body.
+"""Exact attitude and angular velocity of a rotating rigid body.
 
-Also the torque-free triaxial body (Euler-Poinsot, :mod:`.triaxial`).
+Romano's exact solutions (spherical and axisymmetric bodies, torque-free or under a
+constant torque fixed in the body or in the virtual sphere, :mod:`.models`) and the
+torque-free triaxial body (Euler-Poinsot, :mod:`.triaxial`). :func:`solve` classifies a
+:class:`Scene` and builds the solution class its model is registered with
+(:data:`SOLUTIONS`); every solution is a :class:`BaseSolution` with ``at``, ``omega_at``,
+``omega_dot_at``, ``torque_body_at``, ``rate_envelope``, ``model``, ``method``, ``tol`` and
+``scene``.
 
 Pure math (numpy, mpmath, optionally python-flint); nothing here imports rclpy.
 Conventions: frames N (inertial) and B (body); ``R_NB`` means ``v_N = R_NB @ v_B``;
@@ -9,12 +15,13 @@ in B, rad/s.
 """
 
 from .kernel import available_backends, PrecisionError
-from .models import FLOAT_FLOOR, MIN_TOL, MODELS, NoExactSolution, Samples, Solution, solve
+from .models import MIN_TOL, MODELS, NoExactSolution, Solution, SOLUTIONS, solve
 from .scene import Scene, TORQUE_FRAMES
+from .solution import BaseSolution, FLOAT_FLOOR, RateEnvelope, Samples
 from .triaxial import TriaxialSolution
 
 __all__ = [
     'Scene', 'solve', 'Solution', 'Samples', 'NoExactSolution', 'PrecisionError',
     'MODELS', 'TORQUE_FRAMES', 'FLOAT_FLOOR', 'MIN_TOL', 'available_backends',
-    'TriaxialSolution',
+    'TriaxialSolution', 'BaseSolution', 'RateEnvelope', 'SOLUTIONS',
 ]

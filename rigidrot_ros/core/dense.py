@@ -52,6 +52,13 @@ CACHE = 256
 WALK = 8
 #: Batches build runs of at least this many consecutive windows at once (numpy).
 RUN_MIN = 8
+#: Checkpoints for random access: the spinor at the anchor of every window, per direction,
+#: from t = 0 outwards (chained as batches chain, re-anchored exactly where the chained
+#: bound would pass 0.9 tol), in compact arrays of 40 bytes a window (two complex, one
+#: bound). At most this many per direction (2.6 MB): beyond, windows chain as before.
+SWEEP_MAX = 1 << 16
+#: Checkpoints are swept in blocks of this many windows (numpy temporaries ~1.3 MB).
+SWEEP_BLOCK = 1024
 
 
 class _Win:
@@ -87,6 +94,11 @@ class DenseSpinor:
         self._octaves = {}
         self._cache = OrderedDict()
         self._batch = False             # inside many(): defer trimming the cache
+        # random access: checkpoints (see SWEEP_MAX) and the windows built from them
+        self._ck = {sign: [np.empty(0, complex), np.empty(0, complex), np.empty(0), 0]
+                    for sign in (1, -1)}
+        self._offsets = {1: [0], -1: [0]}           # windows before octave e (index e + 1)
+        self._scache = OrderedDict()
         self.exact_anchors = 0
         self.windows_built = 0
 
@@ -387,12 +399,169 @@ class DenseSpinor:
             while len(self._cache) > CACHE:
                 self._cache.popitem(last=False)
 
+    # -- checkpoints for random access ----------------------------------------------------
+    def _index(self, key):
+        """Return the checkpoint index (sweep order) of a window key; None past the grid."""
+        sign, e, j = key
+        offs = self._offsets[sign]
+        while len(offs) <= e + 1:
+            lo, hi, h = self._octave(sign, len(offs) - 2)
+            if h is None:
+                return None
+            offs.append(offs[-1] + int((hi - lo) / h))
+        n = offs[e + 1] + j
+        return n if n < SWEEP_MAX else None
+
+    def _key_of(self, sign, n):
+        offs = self._offsets[sign]
+        e = int(np.searchsorted(offs, n, side='right')) - 2
+        return sign, e, n - offs[e + 1]
+
+    def _sweep(self, sign, upto):
+        """Extend the checkpoints of a direction to index ``upto`` (inclusive), in blocks."""
+        ck = self._ck[sign]
+        done = ck[3]
+        if upto < done:
+            return True
+        # past the query: to the end of the next octave (amortised), within SWEEP_MAX
+        sign_, e, _ = self._key_of(sign, upto)
+        target = upto + 1
+        for ee in (e + 1, e + 2):
+            if self._index((sign, ee - 1, 0)) is None:
+                break
+            lo, hi, h = self._octave(sign, ee - 1)
+            end = self._index((sign, ee - 1, 0))
+            if end is None:
+                break
+            target = max(target, min(SWEEP_MAX, end + int((hi - lo) / h)))
+        target = min(target, SWEEP_MAX)
+        c1s = np.concatenate([ck[0], np.empty(target - done, complex)])
+        c2s = np.concatenate([ck[1], np.empty(target - done, complex)])
+        errs = np.concatenate([ck[2], np.empty(target - done)])
+        state = None
+        if done:
+            state = self._ck_end
+        n = done
+        while n < target:
+            m = min(SWEEP_BLOCK, target - n)
+            keys = [self._key_of(sign, i) for i in range(n, n + m)]
+            if any(self._octave(k[0], k[1])[2] is None for k in keys):
+                target = n
+                break
+            state = self._sweep_block(keys, state, c1s, c2s, errs, n)
+            n += m
+        ck[0], ck[1], ck[2], ck[3] = c1s[:target], c2s[:target], errs[:target], target
+        self._ck_end = state
+        return upto < target
+
+    def _sweep_block(self, keys, state, c1s, c2s, errs, n0):
+        """Chain the anchors of consecutive windows (as :meth:`_build_run`), store them."""
+        nw = len(keys)
+        a = np.empty(nw)
+        hs = np.empty(nw)
+        for i, (sign, e, j) in enumerate(keys):
+            lo, hi, h = self._octave(sign, e)
+            a[i] = sign * (lo + j * h)
+            hs[i] = sign * h
+        r0, u, d, dbar = self.r0, self.u, self.d, self.dbar
+        xa = r0 + u * a
+        ra = np.hypot(xa, self.dabs) * (1 + 4 * _EPS)
+        tau = np.abs(hs)
+        one = np.ones(nw, dtype=complex)
+        zero = np.zeros(nw, dtype=complex)
+        cur = [one, zero, zero, one]                 # A_0 = I (a11, a12, a21, a22)
+        prv = [zero, zero, zero, zero]
+        mats = [cur]
+        m_prev, m_n = np.zeros(nw), np.ones(nw)
+        tpow = np.ones(nw)
+        s0, s1 = np.ones(nw), np.zeros(nw)
+        mpow = np.ones(nw)
+        n = 0
+        while True:
+            k = 0.5j / (n + 1)
+            a11, a12, a21, a22 = cur
+            p11, p12, p21, p22 = prv
+            nxt = [(xa * a11 + dbar * a21 + u * p11) * k, (xa * a12 + dbar * a22 + u * p12) * k,
+                   (d * a11 - xa * a21 - u * p21) * k, (d * a12 - xa * a22 - u * p22) * k]
+            prv, cur = cur, nxt
+            mats.append(cur)
+            m_prev, m_n = m_n, (0.5 * ra * m_n + 0.5 * u * m_prev) / (n + 1)
+            n += 1
+            tpow = tpow * tau
+            prev_term = mpow
+            mpow = m_n * tpow
+            s0 += mpow
+            s1 += n * mpow
+            q_n = (0.5 * ra * tau + 0.5 * u * tau * tau) / (n + 1)
+            if (np.all(q_n <= 0.25) and np.all(np.maximum(mpow, prev_term) <= 1e-19)) \
+                    or n > 200:
+                break
+        # propagators Phi = sum A_n hs^n by Horner's rule, as _build_run
+        phi = [m.copy() for m in mats[-1]]
+        for mt in reversed(mats[:-1]):
+            for c in range(4):
+                phi[c] *= hs
+                phi[c] += mt[c]
+        tail = 4.0 * np.maximum(mpow, prev_term)
+        d_x = self.d_r0 + self.d_u * np.abs(a) + 2.0 * _EPS * (abs(r0) + 2.0 * np.abs(u * a))
+        pert = ((d_x + self.d_d) * tau / 2 + self.d_u * tau * tau / 4) * (1 + 1e-9)
+        # the chained end value, bounded exactly as in _build_run
+        end_unit = (_EPS * (12.1 * s1 + 4.7 * s0 + 2.0 * (s0 + s1)) + tail) * (1 + 1e-9)
+        end_l, pert_l, a_l = end_unit.tolist(), pert.tolist(), a.tolist()
+        phis = list(zip(*(p.tolist() for p in phi)))
+        limit = self.chain_limit
+        for i in range(nw):
+            if state is not None and state[2] + 2.0 * ((1 + state[2]) * end_l[i] + pert_l[i]) \
+                    > limit:
+                state = None
+            if state is None:
+                if a_l[i] == 0.0:
+                    state = (1.0 + 0j, 0j, 0.0)
+                else:
+                    (x, y, z, w), err_a = self.kernel.evaluate(a_l[i])
+                    state = (complex(w, z), complex(-y, x), err_a)
+                    self.exact_anchors += 1
+            c1, c2, e_a = state
+            c1s[n0 + i], c2s[n0 + i], errs[n0 + i] = c1, c2, e_a
+            f11, f12, f21, f22 = phis[i]
+            state = (f11 * c1 + f12 * c2, f21 * c1 + f22 * c2,
+                     e_a + (1 + e_a) * end_l[i] + pert_l[i])
+        return state
+
+    def checkpoint_window(self, key):
+        """Return the window of a key built from its checkpoint; None beyond the grid.
+
+        Its value depends only on the checkpoint, never on the order of queries.
+        """
+        win = self._scache.get(key)
+        if win is not None:
+            self._scache.move_to_end(key)
+            return win
+        n = self._index(key)
+        if n is None or not self._sweep(key[0], n):
+            return None
+        ck = self._ck[key[0]]
+        sign, e, j = key
+        lo, hi, h = self._octave(sign, e)
+        win = self._series(sign * (lo + j * h), sign * h, complex(ck[0][n]), complex(ck[1][n]),
+                           float(ck[2][n]))
+        self._scache[key] = win
+        if len(self._scache) > CACHE:
+            self._scache.popitem(last=False)
+        return win
+
+    def checkpoint_bytes(self):
+        """Bytes held by the checkpoint arrays (both directions)."""
+        return sum(ck[0].nbytes + ck[1].nbytes + ck[2].nbytes for ck in self._ck.values())
+
     # -- evaluation -----------------------------------------------------------------------
     def at(self, t):
         """Return the kernel quaternion (x, y, z, w) tuple and its bound at one float time."""
         k = self.key(t)
         if k is not None:
-            win = self.window(k)
+            win = self.checkpoint_window(k)
+            if win is None:
+                win = self.window(k)
             if win.ok:
                 s1, s2 = self._horner(win.c1, win.c2, t - win.a)
                 return (s2.imag, -s2.real, s1.imag, s1.real), win.bound

@@ -2,8 +2,9 @@
 
 A body with spherical inertia I and a constant body-fixed torque along its third axis
 turns with ``omega_KN_K(t) = (p, q, r0 + U t)``, ``U = |m| / I`` (Romano 2008; Sec. 3 and
-Theorem 1 of Romano 2008b). Everything in :mod:`rigidrot_ros.core` reduces to this
-problem, starting from the identity attitude.
+Theorem 1 of Romano 2008b). Every one of Romano's models (:mod:`.models`: spherical and
+axisymmetric bodies) reduces to this problem, starting from the identity attitude; the
+torque-free triaxial body (:mod:`.triaxial`) does not (Jacobi elliptic functions).
 
 Instead of the stereographic variables of Theorem 1 the kernel solves the same
 kinematics in SU(2) (spinor) form. With ``q = (x, y, z, w)`` and

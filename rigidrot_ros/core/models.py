@@ -1,11 +1,18 @@
-"""Model selection and evaluation: :func:`solve` and :class:`Solution`.
+"""Model selection (:func:`solve`, the registry :data:`SOLUTIONS`) and Romano's models.
+
+:func:`solve` classifies a scene and builds the solution class registered for its model:
+:class:`Solution` here for Romano's spherical and axisymmetric bodies, and
+:class:`~.triaxial.TriaxialSolution` for the torque-free triaxial body (Jacobi elliptic
+functions, not reduced to the kernel below). Both keep the contract of
+:class:`~.solution.BaseSolution`.
 
 Frames: N inertial; B body (principal axes); B' the body axes cyclically permuted so that
 the symmetry axis is the third; S the paper's virtual sphere (Romano, CMDA 2008, Sec. 4),
 equal to B' at t = 0 and turning relative to it about the symmetry axis by ``-f(t)``; K
 fixed in S with its third axis along the torque (Corollary 2). A matrix ``R_XY`` maps
 Y-components to X-components, ``v_X = R_XY @ v_Y``; quaternions are (x, y, z, w), active,
-``q_XY`` the quaternion of ``R_XY``. Every model is evaluated as
+``q_XY`` the quaternion of ``R_XY``. Every one of Romano's models (:data:`ROMANO_MODELS`)
+is evaluated as
 
     q_NB(t) = q_NB(0) ⊗ q_BB' ⊗ q_SK ⊗ k(t) ⊗ q_KS ⊗ q_z(f(t)) ⊗ q_B'B,
 
@@ -30,7 +37,7 @@ from .kernel import (
 )
 from .method import DELTA_SWITCH, spinor_kernel  # noqa: F401  (DELTA_SWITCH re-exported)
 from .scene import Scene
-from .solution import BaseSolution, FLOAT_FLOOR, Samples
+from .solution import BaseSolution, FLOAT_FLOOR, RateEnvelope, Samples
 from .taylor import TaylorKernel
 from .triaxial import TriaxialSolution
 
@@ -196,7 +203,9 @@ def _default_backend():
 
 
 class Solution(BaseSolution):
-    """The exact motion of a scene; evaluate it with :meth:`at`.
+    """The exact motion of a spherical or axisymmetric body (Romano's models).
+
+    Evaluate it with :meth:`at` (see :class:`~.solution.BaseSolution` for the contract).
 
     Attributes
     ----------
@@ -222,6 +231,7 @@ class Solution(BaseSolution):
         self.tol = tol
         self.backend = backend
         self.model, k = _classify(scene)
+        self._axis = k                                         # symmetry (or fixed) axis
         perm = _cyclic(k)                                      # R_B'B
         self._perm_T = perm.T
         q_b1b = quat.from_matrix(perm)                         # q_B'B
@@ -410,6 +420,29 @@ class Solution(BaseSolution):
             w_b1 = np.stack([a * c + b * s, b * c - a * s, self._r0 + self._rdot * tt],
                             axis=-1)
             return w_b1[..., self._perm_idx]
+
+    def rate_envelope(self):
+        """Return the :class:`~.solution.RateEnvelope` of the closed-form rate.
+
+        'linear' for a sphere or a fixed axis (omega linear in t); otherwise the
+        constants of ``omega_B' = (a cos f + b sin f, b cos f - a sin f, r)`` (Eq. 39, 47,
+        56, 58), ``f' = c1 + c2 t``, ``a, b, r`` linear in t.
+        """
+        scene = self.scene
+        inertia = np.array(scene.inertia, dtype=float)
+        m = np.array(scene.torque, dtype=float)
+        w0 = np.array(scene.omega0, dtype=float)
+        if self.model in ('fixed-axis', 'torque-free-sphere', 'sphere'):
+            return RateEnvelope('linear', accel=float(np.linalg.norm(m / inertia)))
+        k = self._axis
+        tr = [(k + 1) % 3, (k + 2) % 3]
+        i_t, i_3 = inertia[tr[0]], inertia[k]
+        a = (i_t - i_3) / i_3
+        # f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2): f'(x) = c1 + c2 x
+        return RateEnvelope(
+            'closed-form', c1=float(abs(a * i_3 / i_t * w0[k])), c2=float(abs(a * m[k] / i_t)),
+            w_t=float(np.sum(np.abs(w0[tr]))), m_t=float(np.sum(np.abs(m[tr]))) / i_t,
+            r0=float(abs(w0[k])), rdot=float(abs(m[k] / i_3)))
 
     @property
     def method(self):

@@ -21,7 +21,8 @@ import numpy as np
 
 from . import quaternion as quat
 
-__all__ = ['BaseSolution', 'Samples', 'RateEnvelope', 'as_times', 'FLOAT_FLOOR']
+__all__ = ['BaseSolution', 'Samples', 'RateEnvelope', 'majorant_envelope', 'as_times',
+           'FLOAT_FLOOR']
 
 #: Attitude error (rad) of composing float64 quaternions, included in every error bound.
 #: Some 30 roundings of 1.1e-16 (products, sines, the reduced angles) stay below 4e-15;
@@ -112,6 +113,26 @@ class RateEnvelope:
     c: float = 0.0
     mu: float = 0.0
     accel: float = 0.0
+
+
+def majorant_envelope(scene, model):
+    """Return Cauchy's majorant of Euler's equations for a body-fixed torque.
+
+    Valid for any model of a body under a torque constant in B: ``|w_i| <= y`` with
+    ``y' = mu + c y^2``, ``c = max |I_j - I_k| / I_i``, ``mu = max |m_i / I_i|``.
+
+    Raises
+    ------
+    ValueError
+        For a torque that turns in B (``torque_frame='virtual'``): no bound here.
+    """
+    if scene.torque_frame != 'body':
+        raise ValueError(f'cannot bound the rate of model {model!r} with a torque turning in '
+                         f'the body; delta_angle needs a bound')
+    inertia = np.array(scene.inertia, dtype=float)
+    m = np.array(scene.torque, dtype=float)
+    c = max(abs(inertia[(i + 1) % 3] - inertia[(i + 2) % 3]) / inertia[i] for i in range(3))
+    return RateEnvelope('majorant', c=float(c), mu=float(np.max(np.abs(m) / inertia)))
 
 
 class BaseSolution:
@@ -216,8 +237,12 @@ class BaseSolution:
             return (m - np.cross(w, inertia * w)) / inertia
 
     def rate_envelope(self):
-        """Return the :class:`RateEnvelope` of this solution's body rate (for sensors)."""
-        raise NotImplementedError
+        """Return the :class:`RateEnvelope` of this solution's body rate (for sensors).
+
+        The default is the majorant of Euler's equations (:func:`majorant_envelope`),
+        valid for a torque constant in B; models with a closed-form rate say more.
+        """
+        return majorant_envelope(self.scene, self.model)
 
     # -- shared helpers --------------------------------------------------------------
     def _checked(self, t):

@@ -480,7 +480,7 @@ def _frame(inertia, w):
 class TriaxialSolution(BaseSolution):
     """The exact torque-free motion of a triaxial body; evaluate it with :meth:`at`.
 
-    Same interface as :class:`rigidrot_ros.core.models.Solution`.
+    Keeps the contract of :class:`~.solution.BaseSolution` (the torque is zero).
 
     Attributes
     ----------

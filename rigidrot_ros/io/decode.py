@@ -4,9 +4,9 @@ One place turns every supported message type into what scoring needs. Quaternion
 (x, y, z, w), ``q_NB`` (rotates body vectors into the inertial frame N); rates are
 omega of B relative to N, in B, rad/s.
 
-==================================  ==================================================
+===================================  ==================================================
 type                                 streams
-==================================  ==================================================
+===================================  ==================================================
 geometry_msgs/QuaternionStamped      orientation
 geometry_msgs/Vector3Stamped         angular_velocity (not ``delta_angle`` /
                                      ``delta_rotation``: increments, not rates)
@@ -19,7 +19,7 @@ nav_msgs/Odometry                    pose orientation with the rotation block of
 geometry_msgs/PoseStamped            orientation
 geometry_msgs/PoseWithCovariance...  orientation with the rotation block of the covariance
 geometry_msgs/TransformStamped       orientation (``transform.rotation``)
-==================================  ==================================================
+===================================  ==================================================
 
 Covariances follow the message definitions: element 0 = -1 means "this field carries no
 estimate" (the field is not scored); all zeros means "unknown" (the field is scored, with

@@ -30,16 +30,14 @@ evaluated, and the attitude and rate messages built and serialized, ahead in bat
 tick reads the clock and publishes the bytes.
 """
 
-import difflib
 import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import QuaternionStamped, TransformStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rcl_interfaces.msg import ParameterType, SetParametersResult
-from rclpy.exceptions import ParameterException, ParameterNotDeclaredException
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import ParameterException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -57,42 +55,16 @@ from rigidrot_ros.io.recorder import Recorder, type_name_of
 from rigidrot_ros.node import cli, diagnostics, grid, outputs
 from rigidrot_ros.node.cli import SceneError
 from rigidrot_ros.node.lookahead import Lookahead
+from rigidrot_ros.node.ros_params import descriptor, UnknownParameterError
+from rigidrot_ros.node.ros_params import warn_unknown_overrides
 from rigidrot_ros.node.streams import make_streams, scene_time, STREAMS
 from rigidrot_ros.params import BY_NAME, PARAMS
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
 
-_TYPES = {'double': ParameterType.PARAMETER_DOUBLE,
-          'double[]': ParameterType.PARAMETER_DOUBLE_ARRAY,
-          'integer': ParameterType.PARAMETER_INTEGER, 'bool': ParameterType.PARAMETER_BOOL,
-          'string': ParameterType.PARAMETER_STRING,
-          'string[]': ParameterType.PARAMETER_STRING_ARRAY}
-#: Parameters rclpy declares by itself (rclpy.time_source, rclpy.type_description_service).
-_BUILTIN = ('use_sim_time', 'start_type_description_service')
 #: The truth outputs beyond the pair, by topic: message class.
 _EXTRA_TYPES = {'transform': TransformStamped, 'odom': Odometry, 'markers': MarkerArray}
 _LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
-
-
-def descriptor(p):
-    """Return the ``ParameterDescriptor`` of a table entry (:class:`rigidrot_ros.params.Param`)."""
-    desc = ParameterDescriptor(description=p.full_description(), type=_TYPES[p.type],
-                               read_only=p.read_only, dynamic_typing=True)
-    if p.range is not None and p.type == 'double':
-        desc.floating_point_range = [FloatingPointRange(from_value=float(p.range[0]),
-                                                        to_value=float(p.range[1]))]
-    if p.range is not None and p.type == 'integer':
-        desc.integer_range = [IntegerRange(from_value=p.range[0], to_value=p.range[1],
-                                           step=1)]
-    return desc
-
-
-class UnknownParameterError(ParameterNotDeclaredException):
-    """A parameter name the node does not declare; the message names it and the known ones."""
-
-    def __init__(self, names, known):
-        Exception.__init__(self, f'unknown parameter(s) {", ".join(map(str, names))}: '
-                                 f'attitude_node declares {", ".join(known)}')
 
 
 class AttitudeNode(Node):
@@ -105,7 +77,7 @@ class AttitudeNode(Node):
                 self.declare_parameter(p.name, p.default, descriptor(p))
             except ParameterException as exc:      # an override outside its declared range
                 raise SceneError(f'parameter {p.name}: {exc}') from None
-        self._warn_unknown_overrides()
+        self.unknown_overrides = warn_unknown_overrides(self)
         #: The parameters' current values (read once here, then kept by _on_post_set).
         self._values = {p.name: self.get_parameter(p.name).value for p in PARAMS}
         try:
@@ -159,19 +131,6 @@ class AttitudeNode(Node):
             String, '~/run', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                         durability=DurabilityPolicy.TRANSIENT_LOCAL))
 
-    def _warn_unknown_overrides(self):
-        """Warn about ``-p name:=value`` overrides that name no parameter of this node."""
-        known = set(BY_NAME) | set(_BUILTIN)
-        unknown = sorted(n for n in getattr(self, '_parameter_overrides', {})
-                         if n not in known and not self.has_parameter(n))
-        for name in unknown:
-            close = difflib.get_close_matches(name, sorted(known), n=1)
-            hint = f' (did you mean {close[0]}?)' if close else ''
-            self.get_logger().warning(
-                f'unknown parameter {name!r} ignored{hint}: attitude_node declares no such '
-                f'parameter')
-        self.unknown_overrides = unknown
-
     @property
     def solution(self):
         """Return the core solution being published."""
@@ -196,7 +155,7 @@ class AttitudeNode(Node):
         unknown = [getattr(p, 'name', p) for p in parameter_list
                    if not self.has_parameter(getattr(p, 'name', ''))]
         if unknown:
-            raise UnknownParameterError(unknown, sorted(BY_NAME))
+            raise UnknownParameterError(unknown)
 
     def _scene_summary(self):
         return ', '.join(f'{k} {self._values[k]!r}' for k in ('inertia', 'torque', 'omega0'))
@@ -218,7 +177,7 @@ class AttitudeNode(Node):
         """Return None if ``params`` may be set, else the reason (str)."""
         unknown = [n for n in names if n not in BY_NAME and not self.has_parameter(n)]
         if unknown:
-            return str(UnknownParameterError(unknown, sorted(BY_NAME)))
+            return str(UnknownParameterError(unknown))
         for p in params:
             if p.type_ == Parameter.Type.NOT_SET:
                 return f'parameter {p.name} cannot be unset (it would be undeclared)'

@@ -43,6 +43,8 @@ class SensorStream:
         The first sample's index.
     rate : float
         Samples per second of clock time, Hz.
+    model : object
+        The sensor model of the run (:class:`rigidrot_ros.sensors.Gyro`, ...).
     last : int
         The last sample index taken (``first - 1`` before any).
     bound : float
@@ -53,8 +55,9 @@ class SensorStream:
     topics = ()
     first = 0
 
-    def __init__(self, rate):
+    def __init__(self, rate, model):
         self.rate = float(rate)
+        self.model = model
         self.last = self.first - 1
         self.bound = 0.0
 
@@ -107,16 +110,12 @@ class ImuStream(SensorStream):
     topics = (('imu', Imu), ('delta_angle', Vector3Stamped), ('delta_rotation', Vector3Stamped))
     first = 1
 
-    def __init__(self, rate, gyro):
-        super().__init__(rate)
-        self.gyro = gyro
-
     def messages(self, k, t_start_ns, time_scale, frames):
         """Return the gyro reading over sample k's interval: imu, delta_angle, delta_rotation."""
         ns1 = self.stamp_ns(t_start_ns, k)
         t0 = scene_time(self.stamp_ns(t_start_ns, k - 1), t_start_ns, time_scale)
         t1 = scene_time(ns1, t_start_ns, time_scale)
-        r = self.gyro.read(t0, t1, budget=settings.SAMPLE_BUDGET_S)
+        r = self.model.read(t0, t1, budget=settings.SAMPLE_BUDGET_S)
         body = frames[1]
         stamp = msgs.stamp(ns1)
         self.bound = max(self.bound, r.delta_angle_bound, r.delta_rotation_bound)
@@ -132,14 +131,10 @@ class StarTrackerStream(SensorStream):
     topics = (('star_tracker', PoseWithCovarianceStamped),)
     first = 0
 
-    def __init__(self, rate, star_tracker):
-        super().__init__(rate)
-        self.star_tracker = star_tracker
-
     def messages(self, k, t_start_ns, time_scale, frames):
         """Return the star tracker's attitude reading of sample k."""
         ns = self.stamp_ns(t_start_ns, k)
-        r = self.star_tracker.read(scene_time(ns, t_start_ns, time_scale))
+        r = self.model.read(scene_time(ns, t_start_ns, time_scale))
         return [('star_tracker', msgs.star_tracker(msgs.stamp(ns), frames[0], r.quaternion,
                                                    r.covariance))]
 

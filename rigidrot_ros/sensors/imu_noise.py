@@ -196,10 +196,10 @@ class ImuNoise:
     bias_correlation_time : float
         Its correlation time ``tau``, s, in (0, 1e9].
     scale_factor : 3 floats
-        Scale-factor errors ``s`` (fraction: 1e-3 = 1000 ppm), |s_i| <= 0.5.
+        Scale-factor errors ``s`` (fraction: 1e-3 = 1000 ppm), ``|s_i| <= 0.5``.
     misalignment : 9 floats or 3x3
         ``M`` row-major, rad, zero diagonal (the diagonal is ``scale_factor``),
-        |M_ij| <= 0.1: axis i senses ``M_ij`` of the input along axis j.
+        ``|M_ij| <= 0.1``: axis i senses ``M_ij`` of the input along axis j.
     quantum : float
         LSB of the output value (rad/s or m/s^2); 0 = not quantised.
     increment_quantum : float

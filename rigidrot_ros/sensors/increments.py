@@ -35,6 +35,7 @@ import time
 import numpy as np
 
 from rigidrot_ros.core import quaternion as quat
+from rigidrot_ros.core.solution import majorant_envelope
 
 __all__ = ['delta_angle', 'delta_rotation', 'rotvec_from_quaternion', 'RateBound',
            'DELTA_TOL']
@@ -49,9 +50,6 @@ _A_RHO = 0.5 * (_RHO + 1.0 / _RHO)           # semi-axes of the Bernstein ellips
 _B_RHO = 0.5 * (_RHO - 1.0 / _RHO)
 _LOG_RHO = np.log(_RHO)
 _LOG_C = math.log(64.0 / 15.0) - np.log(_RHO ** 2 - 1.0)
-_LINEAR = ('fixed-axis', 'torque-free-sphere', 'sphere')
-_AXISYMMETRIC = ('torque-free-axisymmetric', 'axial-torque', 'transverse-virtual',
-                 'transverse-body', 'oblique-virtual')
 _MAX_PIECES = 4096
 
 
@@ -61,7 +59,8 @@ class RateBound:
     Parameters
     ----------
     solution : rigidrot_ros.core.Solution
-        Or any object with ``scene``, ``model`` and ``omega_at``.
+        Its :meth:`rate_envelope` says which bound applies; any object with ``scene``,
+        ``model`` and ``omega_at`` but no ``rate_envelope`` gets Euler's majorant.
 
     Raises
     ------
@@ -73,33 +72,14 @@ class RateBound:
     def __init__(self, solution):
         self.solution = solution
         self.last_rule = 0          # index into the rules of the last one that sufficed
-        scene = solution.scene
-        inertia = np.array(scene.inertia, dtype=float)
-        m = np.array(scene.torque, dtype=float)
-        w0 = np.array(scene.omega0, dtype=float)
-        self.kind = None
-        if solution.model in _LINEAR:
-            self.kind = 'linear'
-        elif solution.model in _AXISYMMETRIC:
-            self.kind = 'closed-form'
-            k = [j for j in range(3) if inertia[(j + 1) % 3] == inertia[(j + 2) % 3]][0]
-            tr = [(k + 1) % 3, (k + 2) % 3]
-            i_t, i_3 = inertia[tr[0]], inertia[k]
-            a = (i_t - i_3) / i_3
-            # f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2): f'(x) = c1 + c2 x
-            self.c1 = abs(a * i_3 / i_t * w0[k])
-            self.c2 = abs(a * m[k] / i_t)
-            self.w_t = float(np.sum(np.abs(w0[tr])))          # |a0| + |b0|
-            self.m_t = float(np.sum(np.abs(m[tr]))) / i_t     # |a'| + |b'|
-            self.r0, self.rdot = abs(w0[k]), abs(m[k] / i_3)
-        elif scene.torque_frame == 'body':
-            self.kind = 'majorant'
-            self.c = max(abs(inertia[(i + 1) % 3] - inertia[(i + 2) % 3]) / inertia[i]
-                         for i in range(3))
-            self.mu = float(np.max(np.abs(m) / inertia))
-        else:
-            raise ValueError(f'cannot bound the rate of model {solution.model!r} with a '
-                             f'torque turning in the body; delta_angle needs a bound')
+        # the solution says which form its rate takes (no model names here); an object
+        # without rate_envelope() gets the majorant of Euler's equations
+        ask = getattr(solution, 'rate_envelope', None)
+        env = ask() if ask is not None else majorant_envelope(solution.scene, solution.model)
+        self.envelope = env
+        self.kind = env.kind
+        self.c1, self.c2, self.w_t, self.m_t = env.c1, env.c2, env.w_t, env.m_t
+        self.r0, self.rdot, self.c, self.mu = env.r0, env.rdot, env.c, env.mu
 
     def truncation(self, t0, t1, n):
         """Return the best bound (over rho) of the n-point Gauss error on [t0, t1], rad.
@@ -149,8 +129,7 @@ class RateBound:
             dw = (self.c1 + self.c2 * tmax) * (self.w_t + self.m_t * tmax) + self.m_t \
                 + self.rdot
         elif self.kind == 'linear':
-            dw = float(np.linalg.norm(np.array(self.solution.scene.torque)
-                                      / np.array(self.solution.scene.inertia)))
+            dw = self.envelope.accel
         else:
             w = w * 2.0 + self.mu * h       # the majorant keeps |w| within 2x over 1 node
             dw = self.mu + self.c * w * w

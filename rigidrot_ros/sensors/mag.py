@@ -88,12 +88,12 @@ class Magnetometer:
     ----------
     solution : rigidrot_ros.core.Solution
     field : 3 floats
-        ``m_N``, the field in N, tesla (default :data:`EARTH_FIELD`), |m_i| <= 1e-2 T.
+        ``m_N``, the field in N, tesla (default :data:`EARTH_FIELD`), ``|m_i| <= 1e-2`` T.
     soft_iron : 9 floats or 3x3, optional
         ``S`` (row-major), default identity; refused if singular, ill-conditioned
-        (condition number > 1e3), of nonpositive determinant, or |S_ij| > 10.
+        (condition number > 1e3), of nonpositive determinant, or ``|S_ij| > 10``.
     hard_iron : 3 floats
-        ``b_hard`` in B, tesla, |b_i| <= 1e-2 T.
+        ``b_hard`` in B, tesla, ``|b_i| <= 1e-2`` T.
     noise_density : float
         ``sigma_m``, T/sqrt(Hz), in [0, 1e-3].
     seed : int

@@ -104,7 +104,7 @@ class GyroNoise:
         ``sigma_u``, rate random walk, rad/s^2/sqrt(Hz) (Kalibr
         ``gyroscope_random_walk``; Allan deviation ``K sqrt(tau / 3)``). In [0, 1].
     bias : 3 floats
-        Initial bias ``beta_0``, rad/s, in B (|component| <= 10 rad/s).
+        Initial bias ``beta_0``, rad/s, in B (``|component| <= 10`` rad/s).
     seed : int
         Seed of the generator, in [0, 2^63 - 1].
 

@@ -15,4 +15,3 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message):
         """Print ``<prog>: error: <message> (see <prog> --help)`` and exit with status 2."""
         self.exit(2, f'{self.prog}: error: {message} (see {self.prog} --help)\n')
-

@@ -3,7 +3,7 @@
 Every topic of a supported type (QuaternionStamped, Vector3Stamped, Imu, Odometry,
 PoseStamped, PoseWithCovarianceStamped, TransformStamped) is compared at each message's
 stamp with the exact solution recomputed from the log's run descriptions (all resets
-honoured), or with a second log (--truth). Attitude error: the angle |e| of
+honoured), or with a second log (--truth). Attitude error: the angle ``|e|`` of
 q_true^-1 * q_est = exp(e/2) (e in the body frame), rad. Rate error: norm of the
 difference, rad/s. Where a message carries an orientation covariance: NEES per sample and
 ANEES with its 95 % chi-square bounds. Topics it cannot score are listed with the reason.
