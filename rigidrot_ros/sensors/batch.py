@@ -268,14 +268,10 @@ def _ends(gyro, times):
     if last is not None and last[0] == times[0]:
         q[0], e[0] = last[1], last[2]
         first = 1
-    rest = times[first:]
-    if len(rest) <= 2:                  # one interval: scalar calls, as a single read made
-        for i, t in enumerate(rest.tolist(), first):
-            s = gyro.solution.at(t)
-            q[i], e[i] = s.quaternion, float(s.error_bound)
-    else:
-        s = gyro.solution.at(rest)
-        q[first:], e[first:] = s.quaternion, s.error_bound
+    at = gyro.solution.at
+    for i, t in enumerate(times[first:].tolist(), first):
+        s = at(t)
+        q[i], e[i] = s.quaternion, s.error_bound
     gyro._last = (float(times[-1]), q[-1].copy(), float(e[-1]))
     return q, e
 
