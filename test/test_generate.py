@@ -176,7 +176,7 @@ def _bag_bytes(path):
 
 def test_write_many_writes_the_bytes_of_write_one_by_one(tmp_path):
     """BagWriter.write_many (the generator's writer) against write: the same .mcap file."""
-    from rigidrot_ros.io.bag import BagWriter, read_bag
+    from rigidrot_ros.io.bag import BagWriter
     rng = np.random.default_rng(5)
     topics = ['/a', '/b', '/c']
     n = 700

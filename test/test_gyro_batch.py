@@ -6,13 +6,13 @@ import mpmath
 from mpmath import mp
 import numpy as np
 import pytest
+from test_sensors import _mp_rate
 
 from conftest import random_scene
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.sensors import Gyro, GyroNoise, ImuNoise, RateBound
 from rigidrot_ros.sensors.batch import delta_angle_many, rounding_many, truncation_many
 from rigidrot_ros.sensors.increments import _NODES, _RULES
-from test_sensors import _mp_rate
 
 FIELDS = ('omega', 'omega_avg', 'delta_angle', 'delta_angle_bound', 'delta_rotation',
           'delta_rotation_bound', 'bias', 'variance', 'quaternion', 'delta_angle_measured')
