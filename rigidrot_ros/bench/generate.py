@@ -95,10 +95,7 @@ def _stages(duration, log):
             c1 = time.perf_counter()
             raws = [gen._serialized(run, *st) for st in streams]
             c2 = time.perf_counter()
-            which, rows = gen._order(streams)
-            topics = [streams[i][1] for i in which.tolist()]
-            datas = [raws[i][j] for i, j in zip(which.tolist(), rows.tolist())]
-            stamps = [int(streams[i][2][j]) for i, j in zip(which.tolist(), rows.tolist())]
+            topics, datas, stamps = gen._merged(streams, raws)
             c3 = time.perf_counter()
             writer.write_many(topics, datas, stamps)
             c4 = time.perf_counter()

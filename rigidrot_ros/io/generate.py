@@ -22,6 +22,7 @@ memory stays bounded whatever the duration.
 import difflib
 import json
 import math
+import operator
 import signal
 import threading
 
@@ -316,6 +317,25 @@ def _order(streams):
     return which[order], row[order]
 
 
+def _merged(streams, items):
+    """Return a block's ``(topics, items, stamps)`` lists in the order the node publishes.
+
+    ``items[i]`` holds stream i's messages (or payloads), one per stamp.
+    """
+    which, rows = _order(streams)
+    if not len(which):
+        return [], [], []
+    first = np.cumsum([0] + [len(st) for _, _, st, _ in streams])
+    pick = (first[which] + rows).tolist()
+    flat = [x for part in items for x in part]
+    names = [t for _, t, st, _ in streams for _ in range(len(st))]
+    stamps = np.concatenate([st for _, _, st, _ in streams])[pick]
+    get = operator.itemgetter(*pick)
+    if len(pick) == 1:
+        return [get(names)], [get(flat)], stamps.tolist()
+    return list(get(names)), list(get(flat)), stamps.tolist()
+
+
 def _messages(run, order, topic, stamps, data):
     """Build the ROS messages of one stream, built by :mod:`rigidrot_ros.io.messages`."""
     frame, body = run.frame, run.body
@@ -430,10 +450,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         total = run.span_ns * 1e-9 * run.time_scale
         for lo, hi, streams in run.blocks():
             raws = [_serialized(run, *st) for st in streams]
-            which, rows = _order(streams)
-            topics = [streams[i][1] for i in which.tolist()]
-            datas = [raws[i][j] for i, j in zip(which.tolist(), rows.tolist())]
-            stamps = [int(streams[i][2][j]) for i, j in zip(which.tolist(), rows.tolist())]
+            topics, datas, stamps = _merged(streams, raws)
             cut = topics.index(RUN_TOPIC) if RUN_TOPIC in topics else len(topics)
             writer.write_many(topics[:cut], datas[:cut], stamps[:cut])
             if cut < len(topics):               # as the node's recorder: a metadata record
