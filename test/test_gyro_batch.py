@@ -82,9 +82,9 @@ def test_blocks_of_any_size_give_the_per_sample_bits(scene, noise):
 
 
 @pytest.mark.parametrize('scene', ['axial-torque', 'triaxial'])
-def test_the_attitudes_at_the_ends_are_the_scalar_solution_at(scene):
-    """One scalar ``solution.at`` per end (order-independent since the core's checkpoints),
-    whatever the block: a batch call's last bits depend on where the batch begins."""
+def test_the_attitudes_at_the_ends_are_solution_at_of_t_alone(scene):
+    """The ends' attitudes: whatever the block or the order, ``solution.at(t)``'s bits
+    (the core's samples depend on t alone); the rotation bound covers their bounds."""
     sol = solve(SCENES[scene])
     times = _grid(1000.0, 0, 40)
     block = Gyro(sol).read_many(times)

@@ -266,10 +266,8 @@ def _ends(gyro, times):
     if last is not None and last[0] == times[0]:
         q[0], e[0] = last[1], last[2]
         first = 1
-    at = gyro.solution.at
-    for i, t in enumerate(times[first:].tolist(), first):
-        s = at(t)
-        q[i], e[i] = s.quaternion, s.error_bound
+    s = gyro.solution.at(times[first:])     # one call: a sample's bits depend on t alone
+    q[first:], e[first:] = s.quaternion, s.error_bound
     gyro._last = (float(times[-1]), q[-1].copy(), float(e[-1]))
     return q, e
 
