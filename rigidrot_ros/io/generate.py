@@ -43,8 +43,6 @@ NODE_NAME = '/attitude_node'
 RUN_TOPIC = NODE_NAME + '/run'
 #: Clock seconds of samples handled together (evaluated, serialized, written).
 BLOCK_S = 1.0
-#: The node's look-ahead batches (tick 0 alone, then doubling up to its ceiling).
-_AHEAD = (8, 256)
 _SEC = 1_000_000_000
 _EPS = float(np.finfo(float).eps)
 
@@ -163,9 +161,6 @@ class _Run:
             self.imu_k = _grid_count(cfg.imu_rate, self.span_ns, first=1)
         if cfg.star_tracker:
             self.star_k = _grid_count(cfg.star_tracker_rate, self.span_ns)
-        self._ahead_next = 0            # the next truth index to evaluate
-        self._ahead_size = _AHEAD[0]
-        self._buf = None
 
     # -- time ------------------------------------------------------------------------------
     def scene_time(self, ns):
@@ -202,33 +197,14 @@ class _Run:
         return run_description(self.setup, self.start_ns, 1, NODE_NAME, topics)
 
     # -- truth -----------------------------------------------------------------------------
-    def _truth_samples(self, ks):
-        """Return the samples ``(q, omega, bound)`` (floats) of the truth ticks ``ks``, in order.
+    def _truth_samples(self, ks, stamps):
+        """Return ``(q, omega, bound)`` arrays of the truth ticks ``ks`` (one call).
 
-        Evaluated as the node's look-ahead does when it keeps within its budget: tick 0
-        alone (a scalar call), then batches from tick 1 doubling from 8 to 256 samples.
+        A sample's bits depend on its time alone (the core's checkpoints), so one batch
+        gives what the node's scalar ticks and look-ahead batches give.
         """
-        out = []
-        for k in ks:
-            if k == 0:
-                s = self.sol.at(self.scene_time(self.start_ns))
-                out.append((s.quaternion.tolist(), s.omega.tolist(), float(s.error_bound)))
-                self._ahead_next = 1
-                continue
-            if self._buf is None or k >= self._ahead_next:
-                n = self._ahead_size
-                start = max(self._ahead_next, k)
-                ts = np.array([self.scene_time(grid.stamp_ns(self.start_ns, self.rate, j))
-                               for j in range(start, start + n)])
-                s = self.sol.at(ts)
-                self._buf = (start, s.quaternion.tolist(), s.omega.tolist(),
-                             s.error_bound.tolist())
-                self._ahead_next = start + n
-                self._ahead_size = min(_AHEAD[1], 2 * n)
-            start, q, w, e = self._buf
-            i = k - start
-            out.append((q[i], w[i], e[i]))
-        return out
+        s = self.sol.at(np.array([self.scene_time(int(ns)) for ns in stamps]))
+        return s.quaternion, s.omega, s.error_bound
 
     # -- one block ---------------------------------------------------------------------------
     def block(self, lo_ns, hi_ns):
@@ -243,7 +219,7 @@ class _Run:
         ks = _sub(self.truth_k, rate, lo_ns, hi_ns)
         if len(ks):
             stamps = np.array(_stamps(self.start_ns, rate, ks), dtype=np.int64)
-            q, w, e = (np.array(c, dtype=float) for c in zip(*self._truth_samples(ks)))
+            q, w, e = self._truth_samples(ks, stamps)
             streams += [(0, '/attitude', stamps, {'q': q}),
                         (1, '/angular_velocity', stamps, {'v': w})]
             if cfg.transform:
