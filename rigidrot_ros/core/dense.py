@@ -38,6 +38,8 @@ import mpmath
 from mpmath import mp
 import numpy as np
 
+from .backends import PrecisionError
+
 __all__ = ['DenseSpinor', 'dense_spinor', 'RT']
 
 _EPS = 2.0 ** -52
@@ -57,6 +59,9 @@ BLOCK = 128
 #: Window indices (per direction) from this one on are blocks of one window each: their
 #: anchors are exact evaluations (the grid there is too fine to sweep).
 SWEEP_MAX = 1 << 16
+#: An exact anchor is evaluated to this fraction of the kernel's tol, and that is its
+#: bound (see DenseSpinor._exact).
+ANCHOR_TOL = 1.0 / 64
 #: Checkpoint blocks kept, least recently used dropped beyond this many bytes (2.6 MB).
 CHECKPOINT_BYTES = 40 * SWEEP_MAX
 
@@ -302,13 +307,36 @@ class DenseSpinor:
             if a == 0.0:
                 c1s[0], c2s[0], errs[0] = 1.0, 0.0, 0.0
             else:
-                (x, y, z, w), err_a = self.kernel.evaluate(a)
-                c1s[0], c2s[0], errs[0] = complex(w, z), complex(-y, x), err_a
-                self.exact_anchors += 1
+                c1s[0], c2s[0], errs[0] = self._exact(a)
         elif g:
             self._sweep_block(keys, None, c1s, c2s, errs, 0)
         self.blocks_filled += 1
         return c1s, c2s, errs
+
+    def _exact(self, a):
+        """The spinor (c1, c2) at an anchor by the exact kernel, and a bound fixed in advance.
+
+        The kernel adapts its working precision to what earlier calls needed, so the bound
+        it states (and, rarely, the last bit of a value) could depend on history. Here the
+        1F1 kernel starts from the precision it started with, and the kernel is asked for
+        ``ANCHOR_TOL`` of its tol, and the anchor's bound is that, not the one stated
+        (which is below it): the same for every anchor whatever came before.
+        """
+        kernel = self.kernel
+        cap = ANCHOR_TOL * self.tol
+        tol = kernel.tol
+        if hasattr(kernel, 'start_prec'):
+            kernel.prec = kernel.start_prec
+        kernel.tol = cap
+        try:
+            (x, y, z, w), err_a = kernel.evaluate(a)
+        except PrecisionError:
+            kernel.tol = tol
+            (x, y, z, w), err_a = kernel.evaluate(a)
+        finally:
+            kernel.tol = tol
+        self.exact_anchors += 1
+        return complex(w, z), complex(-y, x), max(float(err_a), cap)
 
     def _anchor_time(self, key):
         sign, e, j = key
@@ -379,9 +407,7 @@ class DenseSpinor:
                 if a_l[i] == 0.0:
                     state = (1.0 + 0j, 0j, 0.0)
                 else:
-                    (x, y, z, w), err_a = self.kernel.evaluate(a_l[i])
-                    state = (complex(w, z), complex(-y, x), err_a)
-                    self.exact_anchors += 1
+                    state = self._exact(a_l[i])
             c1, c2, e_a = state
             c1s[n0 + i], c2s[n0 + i], errs[n0 + i] = c1, c2, e_a
             f11, f12, f21, f22 = phis[i]
