@@ -22,11 +22,11 @@ Per interval ``[t0, t1]`` (``hh = (t1 - t0) / 2``, ``tm = (t0 + t1) / 2``):
   its bound is the truncation bound plus the rounding bound of
   :meth:`RateBound.rounding` (same formula, vectorised) plus ``3 eps |delta_angle|``.
 - ``delta_rotation = Log(q(t0)^-1 ⊗ q(t1))`` and its bound as
-  :func:`increments.delta_rotation`, vectorised; the attitudes are ``solution.at`` of the
-  block's ends (one call for the block, or a scalar call for a single new end, as the
-  per-sample read always did). Its bits are those of ``solution.at``.
-- the error model: ``noise.apply(omega_avg, dt)`` with one dt per row
-  (:class:`GyroNoise` or :class:`ImuNoise`), state carried from block to block.
+  :func:`increments.delta_rotation`, vectorised; the attitudes are one ``solution.at``
+  call for the block's ends (the end of the previous call kept), whose samples' bits
+  depend on their times alone (the core's checkpoints).
+- the error model: :meth:`ImuNoise.apply` or :meth:`GyroNoise.measure` of
+  ``(omega_avg, dt)`` with one dt per row, state carried from block to block.
 """
 
 from dataclasses import dataclass
@@ -319,7 +319,7 @@ def read_block(gyro, times, budget=None):
         sample = noise.apply(avg, dt)
         meas, bias, measured_increment = sample.value, sample.bias, sample.increment
     else:
-        meas, bias = noise.apply(avg, dt)
+        meas, bias = noise.measure(avg, dt)
     values, inverse = np.unique(dt, return_inverse=True)
     white = np.array([noise.white_variance(float(v)) for v in values])
     var = white[np.reshape(inverse, -1)] + (da_bound / dt) ** 2
