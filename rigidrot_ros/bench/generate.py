@@ -53,6 +53,70 @@ def _generate(duration, log):
     return res
 
 
+def _stages(duration, log):
+    """Wall time per stage of :func:`io.generate.generate_bag`'s loop, in this process.
+
+    The same blocks as the command, timed stage by stage: the truth ticks (``solution.at``
+    in the node's look-ahead batches), the gyro (``Gyro.read_many``: quadrature, the
+    attitudes at the ends, the error model), the star tracker, serialization
+    (:mod:`io.cdr`), merge order and the MCAP writer (``BagWriter.write_many``).
+    """
+    from rigidrot_ros.io import generate as gen
+    from rigidrot_ros.io.bag import BagWriter
+    values = dict(gen.parse_override(s) for s in SCENE)
+    spent = dict.fromkeys(('set-up', 'truth', 'gyro', 'star tracker', 'serialize',
+                           'order', 'write'), 0.0)
+    with tempfile.TemporaryDirectory(prefix='rigidrot_bench_stages_') as tmp:
+        t0 = time.perf_counter()
+        run = gen._Run(values, duration, 0)
+        writer = BagWriter(None, 'attitude_node', flush_period=0.5,
+                           path=os.path.join(tmp, 'bag'), split_seconds=0.0)
+        for topic, type_name in run.topics:
+            writer.add_topic(topic, type_name)
+        writer.add_topic(gen.RUN_TOPIC, 'std_msgs/msg/String')
+        gyro, star = run._gyro_block, run._star_block
+        clock = {'gyro': 0.0, 'star tracker': 0.0}
+
+        def timed(fn, key):
+            def call(*args):
+                c = time.perf_counter()
+                out = fn(*args)
+                clock[key] += time.perf_counter() - c
+                return out
+            return call
+        run._gyro_block, run._star_block = timed(gyro, 'gyro'), timed(star, 'star tracker')
+        spent['set-up'] = time.perf_counter() - t0
+        step = round(gen.BLOCK_S * 1e9)
+        lo = 0
+        while lo < run.span_ns:
+            hi = min(run.span_ns, lo + step)
+            c0 = time.perf_counter()
+            streams = run.block(lo, hi)
+            c1 = time.perf_counter()
+            raws = [gen._serialized(run, *st) for st in streams]
+            c2 = time.perf_counter()
+            topics, datas, stamps = gen._merged(streams, raws)
+            c3 = time.perf_counter()
+            writer.write_many(topics, datas, stamps)
+            c4 = time.perf_counter()
+            spent['truth'] += c1 - c0
+            spent['serialize'] += c2 - c1
+            spent['order'] += c3 - c2
+            spent['write'] += c4 - c3
+            lo = hi
+        c = time.perf_counter()
+        writer.close()
+        spent['write'] += time.perf_counter() - c
+    spent['truth'] -= clock['gyro'] + clock['star tracker']
+    spent.update(clock)
+    total = sum(spent.values())
+    ms = {k: v / duration * 1e3 for k, v in spent.items()}
+    log(f'stages over {duration:g} scene s ({total:.3g} s wall, {duration / total:.3g}x; '
+        'ms per scene second, under load): '
+        + ', '.join(f'{k} {v:.3g}' for k, v in ms.items()))
+    return {'scene_s': duration, 'wall_s': total, 'ms_per_scene_s': ms}
+
+
 def _serialize_costs(n, log):
     from rclpy.serialization import serialize_message
 
@@ -93,6 +157,7 @@ def run(quick=False, log=print, duration=None):
     if duration is None:
         duration = 20.0 if quick else 3600.0
     return {'generation': _generate(float(duration), log),
+            'stages': _stages(10.0 if quick else 120.0, log),
             'serialize': _serialize_costs(2000 if quick else 20000, log)}
 
 

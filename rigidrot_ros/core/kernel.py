@@ -271,6 +271,7 @@ class HyperKernel:
             need += ms0 + max(0, max(ms0, 2) - _mag(dbar))
         self.predicted = int(max(64, 24 + min(need, 1e9)))
         self.prec = min(self.predicted, self.max_prec)
+        self.start_prec = self.prec              # dense anchors start here (determinism)
         if not self.backend.certified and self.predicted > self.max_prec:
             # mpmath would grind through hopeless precisions: say so at once
             raise PrecisionError(

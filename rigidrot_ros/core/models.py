@@ -46,9 +46,12 @@ __all__ = ['solve', 'Solution', 'Samples', 'NoExactSolution', 'MODELS', 'FLOAT_F
 
 #: The smallest tol accepted, rad: twice the float64 floor.
 MIN_TOL = 2 * FLOAT_FLOOR
-#: Batches of at least this many times use dense output (:mod:`.dense`): one exact
-#: evaluation per window, the exact solution's Taylor series inside it.
-DENSE_MIN = 8
+#: Batches of at least this many times use dense output (:mod:`.dense`) where the kernel
+#: suits it: one exact evaluation per checkpoint block, the exact solution's Taylor series
+#: in each window. 1, so that a sample has the same bits in a batch of any size as alone
+#: (the scalar path uses dense output too); tests raise it to compare with evaluating
+#: sample by sample.
+DENSE_MIN = 1
 #: Batches are evaluated in chunks of this many samples: bounded temporary memory, and
 #: temporaries small enough to be reused rather than mapped afresh (measured here: 1e6
 #: samples in 0.74 s at 8192, 1.7 s at 32768).
@@ -472,7 +475,7 @@ class Solution(BaseSolution):
         neg = int(np.searchsorted(ts, 0.0, side='left'))
         chunks = [(max(0, e - CHUNK), e) for e in range(neg, 0, -CHUNK)]
         chunks += [(s, min(n, s + CHUNK)) for s in range(neg, n, CHUNK)]
-        dense = n >= DENSE_MIN and self._dense_at(max(abs(float(ts[0])), abs(float(ts[-1]))))
+        dense = self._dense is not None and n >= DENSE_MIN
         for a, b in chunks:
             tc = ts[a:b]
             qc, wc, ec = self._chunk(tc, dense)
@@ -485,34 +488,56 @@ class Solution(BaseSolution):
         return Samples(tt, q, omega, err)
 
     def _chunk(self, tc, dense):
-        """Quaternions, rates and bounds at the sorted times ``tc`` (one chunk)."""
+        """Quaternions, rates and bounds at the sorted times ``tc`` (one chunk).
+
+        Every sample gets the bits :meth:`_at_scalar` gives it alone: the same kernel
+        path (chosen per sample), and the same float operations in the same order
+        (numpy's elementwise products, sums, sqrt, sin, cos and arcsin round as Python's
+        do; no matrix product or reduction, whose order could depend on the batch).
+        """
         m = len(tc)
         kernel = self._kernel
-        if dense:
-            k = np.empty((m, 4))
-            kerr = np.empty(m)
+        k = np.empty((m, 4))
+        kerr = np.empty(m)
+        use = np.abs(tc) <= self._dense_tmax if dense else np.zeros(m, dtype=bool)
+        if use.all():
             self._dense.many(tc, k, kerr)
-        elif hasattr(kernel, 'evaluate_many'):
-            k, kerr = kernel.evaluate_many(tc)
         else:
-            k = np.empty((m, 4))
-            kerr = np.empty(m)
-            for i, ti in enumerate(tc):
-                k[i], kerr[i] = kernel.evaluate(float(ti))
+            if use.any():
+                kd, ed = np.empty((int(use.sum()), 4)), np.empty(int(use.sum()))
+                self._dense.many(tc[use], kd, ed)
+                k[use], kerr[use] = kd, ed
+            rest = ~use
+            if hasattr(kernel, 'evaluate_many'):
+                k[rest], kerr[rest] = kernel.evaluate_many(tc[rest])
+            else:
+                for i in np.flatnonzero(rest):
+                    k[i], kerr[i] = kernel.evaluate(float(tc[i]))
         kerr = kerr + self._input_error(tc)
         if self._unit_fix:
             # return unit quaternions at any tol: |k/|k| - k*| <= |k - k*| + ||k| - 1|
-            norm = np.linalg.norm(k, axis=-1)
-            bad = ~(norm > 0) | ~np.isfinite(norm)               # only at a meaningless tol
-            norm[bad] = 1.0
-            k[bad] = (0.0, 0.0, 0.0, 1.0)
-            k = k / norm[:, None]
-            kerr = kerr + np.abs(norm - 1.0) + np.where(bad, np.inf, 0.0)
+            # (as _at_scalar: only where the norm is off by more than 1e-15)
+            x, y, z, w = k.T
+            n2 = x * x + y * y + z * z + w * w
+            off = ~(np.abs(n2 - 1.0) <= 1e-15)
+            if off.any():
+                norm = np.sqrt(n2[off])
+                good = (norm > 0.0) & (norm < math.inf)
+                ko = k[off]
+                ko[good] = ko[good] / norm[good][:, None]
+                ko[~good] = (0.0, 0.0, 0.0, 1.0)              # only at a meaningless tol
+                k[off] = ko
+                eo = kerr[off] + np.abs(norm - 1.0)
+                eo[~good] = math.inf
+                kerr[off] = eo
         f, ferr = self._f.angles(tc)
         h = 0.5 * f
         c, s = np.cos(h), np.sin(h)
-        q2 = c[:, None] * self._p0 + s[:, None] * self._p1
-        q = quat.multiply(k @ self._lmat.T, q2)
+        p0, p1 = self._p0_t, self._p1_t
+        q2 = (c * p0[0] + s * p1[0], c * p0[1] + s * p1[1], c * p0[2] + s * p1[2],
+              c * p0[3] + s * p1[3])
+        mul = quat.multiply_floats
+        q = np.stack(mul(mul(self._left_t, tuple(k.T)), q2), axis=-1)
         omega = self._omega_b1(tc, f)
         # a component error e of a unit quaternion moves the attitude by <= 2 asin(e)
         err = 2.0 * np.arcsin(np.minimum(kerr, 1.0)) + ferr + FLOAT_FLOOR

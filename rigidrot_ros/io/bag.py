@@ -23,9 +23,11 @@ import time
 
 from mcap.data_stream import RecordBuilder
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.reader import make_reader, StreamReader
-from mcap.records import Channel, Message, Metadata, Schema
+from mcap.records import Channel, Message, MessageIndex, Metadata, Schema
 from mcap.writer import CompressionType, Writer
+import numpy as np
 import yaml
 
 from rigidrot_ros.io.msgdefs import schema_text
@@ -90,6 +92,17 @@ class _PackedRecords:
 
     def write(self, builder):
         builder.write(bytes(self.data))
+
+
+class _PackedIndex(MessageIndex):
+    """A chunk's message index for one channel, written with one pack (not 2 per entry)."""
+
+    def write(self, stream):
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(len(self.records) * 16)
+        stream.write(np.array(self.records, dtype='<u8').tobytes())
+        stream.finish_record()
 
 
 class BagWriter:
@@ -215,6 +228,93 @@ class BagWriter:
         f[0] = log_time_ns if f[0] is None else min(f[0], log_time_ns)
         f[1] = log_time_ns if f[1] is None else max(f[1], log_time_ns)
         f[2] += 1
+        self._dirty = True
+        self.maybe_flush()
+
+    def write_many(self, topics, datas, log_times_ns):
+        """Write serialized (CDR) messages in order, as :meth:`write` one by one would.
+
+        ``topics`` (one per message), ``datas`` (bytes) and ``log_times_ns`` (ints; the
+        publish times are the log times) are sequences of one length. The message records
+        are packed at once (numpy for the fixed fields) and go into the same chunks
+        :meth:`write` would put them in (a chunk closes once it passes the writer's chunk
+        size), with the same per-channel sequence numbers, message indexes and statistics;
+        only :meth:`maybe_flush`'s clock is consulted once per call instead of per message.
+        """
+        n = len(datas)
+        if not (len(topics) == n == len(log_times_ns)):
+            raise ValueError('write_many needs one topic, one payload and one stamp per '
+                             'message')
+        if n == 0:
+            return
+        if self._roll_due:
+            self._roll()
+        log = np.asarray(log_times_ns, dtype=np.int64)
+        cids = np.array([self._channels[t] for t in topics], dtype=np.int64)
+        seq = np.empty(n, dtype=np.int64)
+        for topic in set(topics):
+            mask = cids == self._channels[topic]
+            seq[mask] = self._counts[topic] + np.arange(int(np.count_nonzero(mask)))
+            self._counts[topic] += int(np.count_nonzero(mask))
+        sizes = np.fromiter((len(d) for d in datas), dtype=np.int64, count=n)
+        head = np.zeros(n, dtype=np.dtype([('op', 'u1'), ('len', '<u8'), ('cid', '<u2'),
+                                           ('seq', '<u4'), ('log', '<u8'), ('pub', '<u8')]))
+        head['op'] = 0x05                               # MCAP Message record
+        head['len'] = 22 + sizes
+        head['cid'], head['seq'], head['log'], head['pub'] = cids, seq, log, log
+        raw = head.tobytes()
+        width = head.dtype.itemsize                     # 31 bytes
+        ends = np.cumsum(width + sizes)                 # record ends from the first
+        writer = self._writer
+        chunk = writer._Writer__chunk_builder
+        stats = writer._Writer__statistics
+        limit = writer._Writer__chunk_size
+        lo = 0
+        while lo < n:
+            base = chunk.count
+            start = ends[lo - 1] if lo else 0
+            # as write(): a chunk is finished right after the message that passes the limit
+            over = np.flatnonzero(base + ends[lo:] - start > limit)
+            hi = lo + int(over[0]) + 1 if len(over) else n
+            offsets = base + np.concatenate([[0], ends[lo:hi - 1] - start])
+            times = log[lo:hi]
+            parts = []
+            for i in range(lo, hi):
+                parts.append(raw[i * width:(i + 1) * width])
+                parts.append(datas[i])
+            t_lo, t_hi = int(times.min()), int(times.max())
+            if chunk.num_messages == 0:
+                chunk.message_start_time = t_lo
+            else:
+                chunk.message_start_time = min(chunk.message_start_time, t_lo)
+            chunk.message_end_time = max(chunk.message_end_time, t_hi)
+            block = cids[lo:hi]
+            for cid in dict.fromkeys(block.tolist()):       # in order of first appearance
+                rows = np.flatnonzero(block == cid)
+                index = chunk.message_indices.get(cid)
+                if not index:
+                    index = chunk.message_indices[cid] = _PackedIndex(channel_id=cid,
+                                                                      records=[])
+                index.records.extend(zip(times[rows].tolist(), offsets[rows].tolist()))
+            chunk.num_messages += hi - lo
+            chunk.record_writer.write(b''.join(parts))
+            if stats.message_count == 0:
+                stats.message_start_time = t_lo
+            else:
+                stats.message_start_time = min(stats.message_start_time, t_lo)
+            stats.message_end_time = max(stats.message_end_time, t_hi)
+            for cid, count in zip(*np.unique(cids[lo:hi], return_counts=True)):
+                stats.channel_message_counts[int(cid)] += int(count)
+            stats.message_count += hi - lo
+            writer._Writer__maybe_finalize_chunk()
+            lo = hi
+        t_lo, t_hi = int(log.min()), int(log.max())
+        self._first = t_lo if self._first is None else min(self._first, t_lo)
+        self._last = t_hi if self._last is None else max(self._last, t_hi)
+        f = self._per_file[self._files[-1]]
+        f[0] = t_lo if f[0] is None else min(f[0], t_lo)
+        f[1] = t_hi if f[1] is None else max(f[1], t_hi)
+        f[2] += n
         self._dirty = True
         self.maybe_flush()
 

@@ -22,6 +22,7 @@ memory stays bounded whatever the duration.
 import difflib
 import json
 import math
+import operator
 import signal
 import threading
 
@@ -42,8 +43,6 @@ NODE_NAME = '/attitude_node'
 RUN_TOPIC = NODE_NAME + '/run'
 #: Clock seconds of samples handled together (evaluated, serialized, written).
 BLOCK_S = 1.0
-#: The node's look-ahead batches (tick 0 alone, then doubling up to its ceiling).
-_AHEAD = (8, 256)
 _SEC = 1_000_000_000
 _EPS = float(np.finfo(float).eps)
 
@@ -162,9 +161,6 @@ class _Run:
             self.imu_k = _grid_count(cfg.imu_rate, self.span_ns, first=1)
         if cfg.star_tracker:
             self.star_k = _grid_count(cfg.star_tracker_rate, self.span_ns)
-        self._ahead_next = 0            # the next truth index to evaluate
-        self._ahead_size = _AHEAD[0]
-        self._buf = None
 
     # -- time ------------------------------------------------------------------------------
     def scene_time(self, ns):
@@ -201,33 +197,14 @@ class _Run:
         return run_description(self.setup, self.start_ns, 1, NODE_NAME, topics)
 
     # -- truth -----------------------------------------------------------------------------
-    def _truth_samples(self, ks):
-        """Return the samples ``(q, omega, bound)`` (floats) of the truth ticks ``ks``, in order.
+    def _truth_samples(self, ks, stamps):
+        """Return ``(q, omega, bound)`` arrays of the truth ticks ``ks`` (one call).
 
-        Evaluated as the node's look-ahead does when it keeps within its budget: tick 0
-        alone (a scalar call), then batches from tick 1 doubling from 8 to 256 samples.
+        A sample's bits depend on its time alone (the core's checkpoints), so one batch
+        gives what the node's scalar ticks and look-ahead batches give.
         """
-        out = []
-        for k in ks:
-            if k == 0:
-                s = self.sol.at(self.scene_time(self.start_ns))
-                out.append((s.quaternion.tolist(), s.omega.tolist(), float(s.error_bound)))
-                self._ahead_next = 1
-                continue
-            if self._buf is None or k >= self._ahead_next:
-                n = self._ahead_size
-                start = max(self._ahead_next, k)
-                ts = np.array([self.scene_time(grid.stamp_ns(self.start_ns, self.rate, j))
-                               for j in range(start, start + n)])
-                s = self.sol.at(ts)
-                self._buf = (start, s.quaternion.tolist(), s.omega.tolist(),
-                             s.error_bound.tolist())
-                self._ahead_next = start + n
-                self._ahead_size = min(_AHEAD[1], 2 * n)
-            start, q, w, e = self._buf
-            i = k - start
-            out.append((q[i], w[i], e[i]))
-        return out
+        s = self.sol.at(np.array([self.scene_time(int(ns)) for ns in stamps]))
+        return s.quaternion, s.omega, s.error_bound
 
     # -- one block ---------------------------------------------------------------------------
     def block(self, lo_ns, hi_ns):
@@ -242,7 +219,7 @@ class _Run:
         ks = _sub(self.truth_k, rate, lo_ns, hi_ns)
         if len(ks):
             stamps = np.array(_stamps(self.start_ns, rate, ks), dtype=np.int64)
-            q, w, e = (np.array(c, dtype=float) for c in zip(*self._truth_samples(ks)))
+            q, w, e = self._truth_samples(ks, stamps)
             streams += [(0, '/attitude', stamps, {'q': q}),
                         (1, '/angular_velocity', stamps, {'v': w})]
             if cfg.transform:
@@ -314,6 +291,25 @@ def _order(streams):
     rank = np.concatenate([np.full(len(st), o) for o, _, st, _ in streams])
     order = np.lexsort((row, rank, stamp))
     return which[order], row[order]
+
+
+def _merged(streams, items):
+    """Return a block's ``(topics, items, stamps)`` lists in the order the node publishes.
+
+    ``items[i]`` holds stream i's messages (or payloads), one per stamp.
+    """
+    which, rows = _order(streams)
+    if not len(which):
+        return [], [], []
+    first = np.cumsum([0] + [len(st) for _, _, st, _ in streams])
+    pick = (first[which] + rows).tolist()
+    flat = [x for part in items for x in part]
+    names = [t for _, t, st, _ in streams for _ in range(len(st))]
+    stamps = np.concatenate([st for _, _, st, _ in streams])[pick]
+    get = operator.itemgetter(*pick)
+    if len(pick) == 1:
+        return [get(names)], [get(flat)], stamps.tolist()
+    return list(get(names)), list(get(flat)), stamps.tolist()
 
 
 def _messages(run, order, topic, stamps, data):
@@ -430,11 +426,12 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         total = run.span_ns * 1e-9 * run.time_scale
         for lo, hi, streams in run.blocks():
             raws = [_serialized(run, *st) for st in streams]
-            for i, j in zip(*_order(streams)):
-                topic = streams[i][1]
-                if topic == RUN_TOPIC:          # as the node's recorder: a metadata record
-                    writer.add_run(run.description())
-                writer.write(topic, raws[i][j], int(streams[i][2][j]))
+            topics, datas, stamps = _merged(streams, raws)
+            cut = topics.index(RUN_TOPIC) if RUN_TOPIC in topics else len(topics)
+            writer.write_many(topics[:cut], datas[:cut], stamps[:cut])
+            if cut < len(topics):               # as the node's recorder: a metadata record
+                writer.add_run(run.description())
+                writer.write_many(topics[cut:], datas[cut:], stamps[cut:])
             if progress is not None:
                 progress(hi * 1e-9 * run.time_scale, total)
             if stop:

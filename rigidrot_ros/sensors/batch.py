@@ -22,11 +22,11 @@ Per interval ``[t0, t1]`` (``hh = (t1 - t0) / 2``, ``tm = (t0 + t1) / 2``):
   its bound is the truncation bound plus the rounding bound of
   :meth:`RateBound.rounding` (same formula, vectorised) plus ``3 eps |delta_angle|``.
 - ``delta_rotation = Log(q(t0)^-1 ⊗ q(t1))`` and its bound as
-  :func:`increments.delta_rotation`, vectorised; the attitudes are ``solution.at`` of the
-  block's ends (one call for the block, or a scalar call for a single new end, as the
-  per-sample read always did). Its bits are those of ``solution.at``.
-- the error model: ``noise.apply(omega_avg, dt)`` with one dt per row
-  (:class:`GyroNoise` or :class:`ImuNoise`), state carried from block to block.
+  :func:`increments.delta_rotation`, vectorised; the attitudes are one ``solution.at``
+  call for the block's ends (the end of the previous call kept), whose samples' bits
+  depend on their times alone (the core's checkpoints).
+- the error model: :meth:`ImuNoise.apply` or :meth:`GyroNoise.measure` of
+  ``(omega_avg, dt)`` with one dt per row, state carried from block to block.
 """
 
 from dataclasses import dataclass
@@ -221,11 +221,9 @@ def delta_angle_many(solution, t0, t1, tol, bound, deadline=None):
     n, trunc = _rules(bound, hh, tm, tol)
     da = np.empty((m, 3))
     w = np.zeros(m)
-    for rule in np.unique(n):
+    for rule in sorted(set(n.tolist()) - {0}):
         idx = np.flatnonzero(n == rule)
-        if rule == 0:
-            continue
-        x, wts = _RULES[int(rule)]
+        x, wts = _RULES[rule]
         h_i, m_i = hh[idx, None], tm[idx, None]
         om = np.asarray(solution.omega_at((m_i + h_i * x).ravel()), dtype=float)
         om = om.reshape(len(idx), len(x), 3)
@@ -268,14 +266,8 @@ def _ends(gyro, times):
     if last is not None and last[0] == times[0]:
         q[0], e[0] = last[1], last[2]
         first = 1
-    rest = times[first:]
-    if len(rest) <= 2:                  # one interval: scalar calls, as a single read made
-        for i, t in enumerate(rest.tolist(), first):
-            s = gyro.solution.at(t)
-            q[i], e[i] = s.quaternion, float(s.error_bound)
-    else:
-        s = gyro.solution.at(rest)
-        q[first:], e[first:] = s.quaternion, s.error_bound
+    s = gyro.solution.at(times[first:])     # one call: a sample's bits depend on t alone
+    q[first:], e[first:] = s.quaternion, s.error_bound
     gyro._last = (float(times[-1]), q[-1].copy(), float(e[-1]))
     return q, e
 
@@ -301,7 +293,8 @@ def read_block(gyro, times, budget=None):
     ------
     ValueError
         Fewer than 2 ends, non-finite or non-increasing ends, no finite bound, or the
-        budget passed.
+        budget passed (checked in the quadrature of an interval that needs subintervals,
+        as :func:`increments.delta_angle` checks it).
     """
     ts = np.asarray(times, dtype=float)
     if ts.ndim != 1 or len(ts) < 2:
@@ -317,9 +310,6 @@ def read_block(gyro, times, budget=None):
     dt = t1 - t0
     da, da_bound = delta_angle_many(gyro.solution, t0, t1, gyro.tol, gyro._bound,
                                     deadline=deadline)
-    if deadline is not None and time.perf_counter() > deadline:
-        raise ValueError(f'the gyro block [{t0[0]}, {t1[-1]}] s ran out of its time budget '
-                         f'({budget:g} s); shorten it')
     q, e = _ends(gyro, ts)
     dr, dr_bound = delta_rotation_many(q[:-1], q[1:], e[:-1], e[1:])
     avg = da / dt[:, None]
@@ -329,7 +319,7 @@ def read_block(gyro, times, budget=None):
         sample = noise.apply(avg, dt)
         meas, bias, measured_increment = sample.value, sample.bias, sample.increment
     else:
-        meas, bias = noise.apply(avg, dt)
+        meas, bias = noise.measure(avg, dt)
     values, inverse = np.unique(dt, return_inverse=True)
     white = np.array([noise.white_variance(float(v)) for v in values])
     var = white[np.reshape(inverse, -1)] + (da_bound / dt) ** 2

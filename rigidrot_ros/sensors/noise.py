@@ -144,9 +144,9 @@ class GyroNoise:
 
         Bit-identical to ``n`` calls of :meth:`corrupt` with the same intervals.
         """
-        return self.apply(omega_avg, dt)[0]
+        return self.measure(omega_avg, dt)[0]
 
-    def apply(self, omega_avg, dt):
+    def measure(self, omega_avg, dt):
         """Measure consecutive intervals: ``(rates (n, 3), biases (n, 3))``, rad/s in B.
 
         ``dt`` is one interval length (s) or n of them; the bias of a sample is

@@ -5,6 +5,7 @@ relative to N, in B, rad/s. Times are scene seconds since t = 0.
 """
 
 from dataclasses import dataclass
+
 import numpy as np
 
 from .batch import read_block
