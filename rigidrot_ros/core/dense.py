@@ -6,10 +6,15 @@ The time axis is cut into a fixed grid of windows: each octave ``[2^e, 2^(e+1))`
 boundaries are exact floats, so ``t - a`` is exact (Sterbenz), and a window is the same
 whichever query builds it. Inside a window anchored at ``a`` (the end nearer t = 0) the
 exact solution's own Taylor series about ``a`` (the recurrence of :mod:`.taylor`, in
-float64) gives every sample by Horner's rule; the window's end value is the next window's
-anchor ("chaining"), until the accumulated bound reaches 0.9 of the kernel's tol, when the
-next anchor is evaluated exactly again (1F1, certified Taylor continuation or the
-adiabatic series). Nothing accumulates past that.
+float64) gives every sample by Horner's rule. The anchors are checkpoints kept in blocks
+of ``BLOCK`` consecutive windows (one window each past ``SWEEP_MAX``): a block starts from
+an exact evaluation (1F1, certified Taylor continuation or the adiabatic series; the
+identity at t = 0) and chains window to window, re-anchored exactly where the chained
+bound would pass 0.9 of the kernel's tol. A block is computed whole, lazily, the first
+time a query needs it, and kept in a bounded store (``CHECKPOINT_BYTES``). So a sample is
+a function of t alone: the same bits from a scalar call, from a batch of any size or
+order, and whatever was evaluated before (issue 18: the node and the offline generator
+agree byte for byte).
 
 Bound for every sample of a window (2-norm of the spinor error), all terms a priori:
 
@@ -498,6 +503,7 @@ class DenseSpinor:
                     segs.append((off + s + a0, off + s + b0, win))
                 else:
                     slow.append((off + s + a0, off + s + b0))
+
 
 def dense_spinor(kernel, ts):
     """Quaternions (n, 4) and component-error bounds (n,) of ``kernel`` at sorted ``ts``."""
