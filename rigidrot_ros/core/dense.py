@@ -319,7 +319,7 @@ class DenseSpinor:
         return c1s, c2s, errs
 
     def _exact(self, a):
-        """The spinor (c1, c2) at an anchor by the exact kernel, and a bound fixed in advance.
+        """Return the spinor (c1, c2) at an anchor by the exact kernel, and a fixed bound.
 
         The kernel adapts its working precision to what earlier calls needed, so the bound
         it states (and, rarely, the last bit of a value) could depend on history. Here the
