@@ -43,7 +43,6 @@ import mpmath
 from mpmath import mp
 import numpy as np
 
-from .backends import PrecisionError
 
 __all__ = ['DenseSpinor', 'dense_spinor', 'RT']
 
@@ -64,9 +63,11 @@ BLOCK = 128
 #: Window indices (per direction) from this one on are blocks of one window each: their
 #: anchors are exact evaluations (the grid there is too fine to sweep).
 SWEEP_MAX = 1 << 16
-#: An exact anchor is evaluated to this fraction of the kernel's tol, and that is its
-#: bound (see DenseSpinor._exact).
+#: An exact anchor's bound is at least this fraction of the kernel's tol (see
+#: DenseSpinor._exact).
 ANCHOR_TOL = 1.0 / 64
+#: ... but not below this (the kernels' own float floor is about 2.3e-16).
+ANCHOR_FLOOR = 4e-15
 #: Checkpoint blocks kept, least recently used dropped beyond this many bytes (2.6 MB).
 CHECKPOINT_BYTES = 40 * SWEEP_MAX
 
@@ -323,23 +324,16 @@ class DenseSpinor:
 
         The kernel adapts its working precision to what earlier calls needed, so the bound
         it states (and, rarely, the last bit of a value) could depend on history. Here the
-        1F1 kernel starts from the precision it started with, and the kernel is asked for
-        ``ANCHOR_TOL`` of its tol, and the anchor's bound is that, not the one stated
-        (which is below it): the same for every anchor whatever came before.
+        1F1 kernel starts from the precision it started with, and the anchor's bound is
+        ``max(stated, cap)`` with ``cap = max(ANCHOR_TOL tol, ANCHOR_FLOOR)`` (at most tol):
+        the stated bound is nearly always far below cap, so the bound is the same for
+        every anchor whatever came before.
         """
         kernel = self.kernel
-        cap = ANCHOR_TOL * self.tol
-        tol = kernel.tol
+        cap = min(self.tol, max(ANCHOR_TOL * self.tol, ANCHOR_FLOOR))
         if hasattr(kernel, 'start_prec'):
             kernel.prec = kernel.start_prec
-        kernel.tol = cap
-        try:
-            (x, y, z, w), err_a = kernel.evaluate(a)
-        except PrecisionError:
-            kernel.tol = tol
-            (x, y, z, w), err_a = kernel.evaluate(a)
-        finally:
-            kernel.tol = tol
+        (x, y, z, w), err_a = kernel.evaluate(a)
         self.exact_anchors += 1
         return complex(w, z), complex(-y, x), max(float(err_a), cap)
 
