@@ -5,7 +5,7 @@ import pytest
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.core.dense import SWEEP_MAX
+from rigidrot_ros.core.dense import CHECKPOINT_BYTES
 
 SCENES = {
     'default': Scene(inertia=(2, 2, 1), torque=(0, 0, 0.05), omega0=(0.3, -0.2, 0.5)),
@@ -50,7 +50,7 @@ def test_checkpoint_memory_is_bounded():
     dense = sol._dense
     for x in (3.0, 50.0, 400.0, -20.0):
         sol.at(x)
-    assert 0 < dense.checkpoint_bytes() <= 2 * 40 * SWEEP_MAX
+    assert 0 < dense.checkpoint_bytes() <= CHECKPOINT_BYTES
     # the windows built for scalar queries stay within their LRU
     for x in np.linspace(0.0, 100.0, 1000):
         sol.at(float(x))

@@ -3,8 +3,8 @@
 For every preset (``config/*.yaml``) and the spacecraft scene, and each horizon T: solve
 at tol = 1e-12, then 200 scalar ``sol.at(t)`` calls with t uniform in [0, T] s, timed one
 by one (first pass: nothing cached but what ``solve`` built); p50 and p99 in µs. Memory
-per solution: the bytes its random-access checkpoints hold (``dense.SWEEP_MAX`` bounds
-them) and the peak traced by tracemalloc over the calls. Accuracy in the same run: every
+per solution: the bytes its random-access checkpoints hold (``dense.CHECKPOINT_BYTES``
+bounds them) and the peak traced by tracemalloc over the calls. Accuracy in the same run: every
 sample against a reference solved at the tightest tol its model accepts, evaluated as a
 batch (a different path): the angle between them within the sum of the two bounds.
 """
@@ -20,7 +20,7 @@ import numpy as np
 
 from rigidrot_ros.core import MIN_TOL, PrecisionError, Scene, solve
 from rigidrot_ros.core import quaternion as quat
-from rigidrot_ros.core.dense import CACHE, SWEEP_MAX
+from rigidrot_ros.core.dense import CACHE, CHECKPOINT_BYTES
 
 NAME = 'random_access'
 NEEDS = ('numpy', 'yaml')
@@ -30,9 +30,10 @@ NEEDS = ('numpy', 'yaml')
 SPACECRAFT = Scene(inertia=(2.0, 2.0, 3.0), torque=(0.0, 0.0, 2e-4), omega0=(0.3, -0.2, 0.5))
 CALLS = 200
 TOL = 1e-12
-#: Bytes a solution's random-access state can hold at most: checkpoints (40 B a window,
-#: SWEEP_MAX a direction) and two caches of CACHE windows (about 2 kB each).
-MEMORY_BOUND = 2 * 40 * SWEEP_MAX + 2 * CACHE * 2048
+#: Bytes a solution's random-access state can hold at most: checkpoint blocks (40 B a
+#: window, CHECKPOINT_BYTES in all, plus the one block being added) and the cache of CACHE
+#: windows (about 2 kB each).
+MEMORY_BOUND = CHECKPOINT_BYTES + 40 * 128 + CACHE * 2048
 
 
 def scenes():

@@ -6,10 +6,15 @@ The time axis is cut into a fixed grid of windows: each octave ``[2^e, 2^(e+1))`
 boundaries are exact floats, so ``t - a`` is exact (Sterbenz), and a window is the same
 whichever query builds it. Inside a window anchored at ``a`` (the end nearer t = 0) the
 exact solution's own Taylor series about ``a`` (the recurrence of :mod:`.taylor`, in
-float64) gives every sample by Horner's rule; the window's end value is the next window's
-anchor ("chaining"), until the accumulated bound reaches 0.9 of the kernel's tol, when the
-next anchor is evaluated exactly again (1F1, certified Taylor continuation or the
-adiabatic series). Nothing accumulates past that.
+float64) gives every sample by Horner's rule. The anchors are checkpoints kept in blocks
+of ``BLOCK`` consecutive windows (one window each past ``SWEEP_MAX``): a block starts from
+an exact evaluation (1F1, certified Taylor continuation or the adiabatic series; the
+identity at t = 0) and chains window to window, re-anchored exactly where the chained
+bound would pass 0.9 of the kernel's tol. A block is computed whole, lazily, the first
+time a query needs it, and kept in a bounded store (``CHECKPOINT_BYTES``). So a sample is
+a function of t alone: the same bits from a scalar call, from a batch of any size or
+order, and whatever was evaluated before (issue 18: the node and the offline generator
+agree byte for byte).
 
 Bound for every sample of a window (2-norm of the spinor error), all terms a priori:
 
@@ -38,7 +43,6 @@ import mpmath
 from mpmath import mp
 import numpy as np
 
-from .backends import PrecisionError
 
 __all__ = ['DenseSpinor', 'dense_spinor', 'RT']
 
@@ -59,9 +63,11 @@ BLOCK = 128
 #: Window indices (per direction) from this one on are blocks of one window each: their
 #: anchors are exact evaluations (the grid there is too fine to sweep).
 SWEEP_MAX = 1 << 16
-#: An exact anchor is evaluated to this fraction of the kernel's tol, and that is its
-#: bound (see DenseSpinor._exact).
+#: An exact anchor's bound is at least this fraction of the kernel's tol (see
+#: DenseSpinor._exact).
 ANCHOR_TOL = 1.0 / 64
+#: ... but not below this (the kernels' own float floor is about 2.3e-16).
+ANCHOR_FLOOR = 4e-15
 #: Checkpoint blocks kept, least recently used dropped beyond this many bytes (2.6 MB).
 CHECKPOINT_BYTES = 40 * SWEEP_MAX
 
@@ -314,27 +320,20 @@ class DenseSpinor:
         return c1s, c2s, errs
 
     def _exact(self, a):
-        """The spinor (c1, c2) at an anchor by the exact kernel, and a bound fixed in advance.
+        """Return the spinor (c1, c2) at an anchor by the exact kernel, and a fixed bound.
 
         The kernel adapts its working precision to what earlier calls needed, so the bound
         it states (and, rarely, the last bit of a value) could depend on history. Here the
-        1F1 kernel starts from the precision it started with, and the kernel is asked for
-        ``ANCHOR_TOL`` of its tol, and the anchor's bound is that, not the one stated
-        (which is below it): the same for every anchor whatever came before.
+        1F1 kernel starts from the precision it started with, and the anchor's bound is
+        ``max(stated, cap)`` with ``cap = max(ANCHOR_TOL tol, ANCHOR_FLOOR)`` (at most tol):
+        the stated bound is nearly always far below cap, so the bound is the same for
+        every anchor whatever came before.
         """
         kernel = self.kernel
-        cap = ANCHOR_TOL * self.tol
-        tol = kernel.tol
+        cap = min(self.tol, max(ANCHOR_TOL * self.tol, ANCHOR_FLOOR))
         if hasattr(kernel, 'start_prec'):
             kernel.prec = kernel.start_prec
-        kernel.tol = cap
-        try:
-            (x, y, z, w), err_a = kernel.evaluate(a)
-        except PrecisionError:
-            kernel.tol = tol
-            (x, y, z, w), err_a = kernel.evaluate(a)
-        finally:
-            kernel.tol = tol
+        (x, y, z, w), err_a = kernel.evaluate(a)
         self.exact_anchors += 1
         return complex(w, z), complex(-y, x), max(float(err_a), cap)
 
@@ -498,6 +497,7 @@ class DenseSpinor:
                     segs.append((off + s + a0, off + s + b0, win))
                 else:
                     slow.append((off + s + a0, off + s + b0))
+
 
 def dense_spinor(kernel, ts):
     """Quaternions (n, 4) and component-error bounds (n,) of ``kernel`` at sorted ``ts``."""
