@@ -268,3 +268,16 @@ def test_write_many_writes_the_bytes_of_write_one_by_one(tmp_path):
     with AnyReader([tmp_path / 'write_many']) as reader:       # rosbags: an outside reader
         seen = sorted((ts, c.topic, bytes(raw)) for c, ts, raw in reader.messages())
     assert seen == sorted(zip(stamps, which, datas))
+
+
+def test_vectorised_stamps_are_the_node_grid():
+    """io.generate._stamps (numpy) against node.grid.stamp_ns (Python ints), index by index."""
+    from rigidrot_ros.io.generate import _stamps
+    from rigidrot_ros.node import grid
+    rng = np.random.default_rng(3)
+    for rate in [1000.0, 100.0, 10.0, 3.0, 7.3, 333.3, 999.9999] + list(rng.uniform(1, 2000, 5)):
+        for origin in (0, 1_795_552_911_119_937_992):
+            k0 = int(rng.integers(0, 4_000_000))
+            ks = range(k0, k0 + 3000)
+            want = [grid.stamp_ns(origin, rate, k) for k in ks]
+            assert _stamps(origin, rate, ks).tolist() == want, (rate, origin, k0)

@@ -46,7 +46,6 @@ import yaml
 
 from rigidrot_ros.io import cdr
 from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.node import grid
 from rigidrot_ros.node import scheduler
 from rigidrot_ros.node.streams import scene_time as _scene_time
 
@@ -143,7 +142,14 @@ def _grid_count(rate, span_ns, first=0):
 
 
 def _stamps(start_ns, rate, ks):
-    return [grid.stamp_ns(start_ns, rate, k) for k in ks]
+    """Return :func:`grid.stamp_ns` of the indices ``ks`` (int64 array), vectorised.
+
+    ``origin + round(k * 1e9 / rate)``: the same float64 product and quotient, and
+    ``np.rint`` rounds half to even as Python's ``round`` does, so every stamp is the
+    node's (the byte-identity tests compare them).
+    """
+    k = np.arange(ks.start, ks.stop, dtype=np.int64)
+    return int(start_ns) + np.rint(k * 1e9 / rate).astype(np.int64)
 
 
 class _Run:
@@ -195,7 +201,11 @@ class _Run:
 
     # -- time ------------------------------------------------------------------------------
     def scene_time(self, ns):
-        """Return the scene time (s) of clock stamp ``ns``, by the node's own function."""
+        """Return the scene time (s) of clock stamp(s) ``ns``, by the node's own function.
+
+        An int64 array gives each element the bits of the scalar call (the same integer
+        difference, converted to float64 once, and the same two products).
+        """
         return _scene_time(ns, self.start_ns, self.time_scale)
 
     @property
@@ -238,7 +248,7 @@ class _Run:
         A sample's bits depend on its time alone (the core's checkpoints), so one batch
         gives what the node's scalar ticks and look-ahead batches give.
         """
-        s = self.sol.at(np.array([self.scene_time(int(ns)) for ns in stamps]))
+        s = self.sol.at(self.scene_time(stamps))
         return s.quaternion, s.omega, s.error_bound
 
     # -- one block ---------------------------------------------------------------------------
@@ -256,7 +266,7 @@ class _Run:
         rate, cfg = self.rate, self.cfg
         ks = _sub(self.truth_k, rate, lo_ns, hi_ns)
         if len(ks):
-            stamps = np.array(_stamps(self.start_ns, rate, ks), dtype=np.int64)
+            stamps = _stamps(self.start_ns, rate, ks)
             q, w, e = self._truth_samples(ks, stamps)
             streams += [(0, '/attitude', stamps, {'q': q}),
                         (1, '/angular_velocity', stamps, {'v': w})]
@@ -292,9 +302,13 @@ class _Run:
         every sample, kept or not, in index order as the node does; dropped rows go.
         """
         track = self.tracks[name]
-        stamps, keep = track.marks(ks)
-        true = np.array([track.stamp_ns(k) for k in ks], dtype=np.int64)
-        log = true + track.timing.latency_ns
+        t = track.timing
+        true = _stamps(self.start_ns, track.rate, ks)
+        if t.stamp_jitter > 0 or t.drop_probability > 0 or t.offset_ns != 0:
+            stamps, keep = track.marks(ks)
+        else:                           # marks() would draw nothing: the grid itself
+            stamps, keep = true, np.ones(len(ks), dtype=bool)
+        log = true + t.latency_ns
         if not keep.all():
             stamps, true, log = stamps[keep], true[keep], log[keep]
             parts = [(o, t, {k: v[keep] for k, v in d.items()}) for o, t, d in parts]
@@ -305,9 +319,7 @@ class _Run:
         ks = self._window('imu', self.imu_k, rate, lo_ns, hi_ns)
         if not len(ks):
             return []
-        ns = np.array(_stamps(self.start_ns, rate, range(ks.start - 1, ks.stop)),
-                      dtype=np.int64)
-        ends = np.array([self.scene_time(int(x)) for x in ns])
+        ends = self.scene_time(_stamps(self.start_ns, rate, range(ks.start - 1, ks.stop)))
         # the gyro's block path (sensors.batch): the per-sample reads' bits, all at once
         b = self.gyro.read_many(ends)
         imu = {'w': b.omega, 'var': b.variance}
@@ -324,10 +336,9 @@ class _Run:
         ks = self._window('star_tracker', self.star_k, rate, lo_ns, hi_ns)
         if not len(ks):
             return []
-        true = _stamps(self.start_ns, rate, ks)
         q, cov = np.empty((len(ks), 4)), np.empty((len(ks), 3, 3))
-        for i, ns in enumerate(true):
-            r = self.star.read(self.scene_time(int(ns)))
+        for i, t in enumerate(self.scene_time(_stamps(self.start_ns, rate, ks)).tolist()):
+            r = self.star.read(t)
             q[i], cov[i] = r.quaternion, r.covariance
         return self._timed('star_tracker', ks, [(9, '/star_tracker', {'q': q, 'cov': cov})])
 
@@ -338,8 +349,8 @@ class _Run:
             return []
         dt = self.time_scale / rate             # as MagStream.messages
         field, cov = np.empty((len(ks), 3)), np.empty((len(ks), 3, 3))
-        for i, ns in enumerate(_stamps(self.start_ns, rate, ks)):
-            r = self.mag.read(self.scene_time(int(ns)), dt)
+        for i, t in enumerate(self.scene_time(_stamps(self.start_ns, rate, ks)).tolist()):
+            r = self.mag.read(t, dt)
             field[i], cov[i] = r.field, r.covariance
         return self._timed('mag', ks, [(10, '/mag', {'m': field, 'cov': cov})])
 
