@@ -281,3 +281,20 @@ def test_vectorised_stamps_are_the_node_grid():
             ks = range(k0, k0 + 3000)
             want = [grid.stamp_ns(origin, rate, k) for k in ks]
             assert _stamps(origin, rate, ks).tolist() == want, (rate, origin, k0)
+
+
+def test_the_helper_process_gives_the_same_bag(tmp_path, monkeypatch):
+    """Attitudes evaluated ahead in a second process: the same .mcap, byte for byte."""
+    from rigidrot_ros.io import generate as gen
+    values = _values(SENSORS + ['-p', 'imu.rate:=1000.0'] + ACCEL_MAG)
+    used = []
+    block = gen._Run.block
+    monkeypatch.setattr(gen._Run, 'block', lambda self, lo, hi, pre=None: (
+        used.append(pre is not None), block(self, lo, hi, pre))[1])
+    out = {}
+    for helper in (False, True):
+        used.clear()
+        path = generate_bag(values, 3.5, tmp_path / str(helper), start_ns=77, helper=helper)
+        out[helper] = [f.read_bytes() for f in sorted(Path(path).glob('*.mcap'))]
+        assert used == [helper] * 4                   # every block from the helper, or none
+    assert len(out[True]) == 1 and out[True] == out[False]
