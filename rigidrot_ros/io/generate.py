@@ -566,7 +566,7 @@ def _qos_yamls(p):
 
 
 def _helper_main():
-    """The helper process (``python -m rigidrot_ros.io.generate``): ``solution.at`` on call.
+    """Serve ``solution.at`` as the helper process (``python -m rigidrot_ros.io.generate``).
 
     Reads pickles from stdin: first the parameter values, then tuples of time arrays
     (scene s), None to stop; answers each with a list of ``(q, omega, bound)`` (None for
@@ -641,7 +641,7 @@ class _Helper:
         self._ok = self._ok and self._send(times)
 
     def result(self):
-        """Return the next queued result (list of ``(q, omega, bound)`` or None each)."""
+        """Return the next queued answer: a list of ``(q, omega, bound)`` (or None) per array."""
         if not self._ok:
             return None
         try:
