@@ -304,6 +304,7 @@ SENSOR_PARAMS = _imu_terms('imu.gyro_', 'rad/s', 'rad', 10.0, 1.0, 'gyro') + (
             'reset', 0.0, 1e-3, 'T/sqrt(Hz)'),
     _seed('mag.seed', 0, 'seed of the magnetometer noise (its own stream even for the '
           'value of another seed)'),
+    *_timing('mag', 'magnetometer'),
 )
 
 

@@ -82,6 +82,22 @@ def test_imu_and_star_tracker(frame):
            [msgs.star_tracker(msgs.stamp(s), frame, qq, cc) for s, qq, cc in zip(st, q, cov)])
 
 
+@pytest.mark.parametrize('frame', FRAMES)
+def test_imu_with_accelerometer_and_magnetic_field(frame):
+    rng = np.random.default_rng(200 + len(frame))
+    n = 30
+    st, w, f = _stamps(rng, n), _values(rng, n, 3), _values(rng, n, 3)
+    var, avar = np.abs(_values(rng, n, 2)).T
+    _check(cdr.imu(st, w, var, frame, f, avar),
+           [msgs.imu(msgs.stamp(s), frame, ww, vv, ff, aa)
+            for s, ww, vv, ff, aa in zip(st, w, var, f, avar)])
+    m, cov = _values(rng, n, 3), _values(rng, n, 9).reshape(n, 3, 3)
+    _check(cdr.magnetic_field(st, m, cov, frame),
+           [msgs.magnetic_field(msgs.stamp(s), frame, mm, cc) for s, mm, cc in zip(st, m, cov)])
+    with pytest.raises(ValueError, match='accel_variance'):
+        cdr.imu(st, w, var, frame, f)
+
+
 @pytest.mark.parametrize('frame, child', [(a, b) for a in FRAMES[:9] for b in
                                           ('', 'b', 'body', 'inertial', 'x' * 13)]
                          + [(FRAMES[-1], FRAMES[-2])])

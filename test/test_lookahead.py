@@ -8,7 +8,7 @@ import pytest
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, BATCH_BUDGET_S, Lookahead
-from rigidrot_ros.node.lookahead import SensorAhead, STRIKES, WARMUP_S
+from rigidrot_ros.node.lookahead import LATE_SHARE, PERIOD_SHARE, SensorAhead, STRIKES, WARMUP_S
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
 PERIOD = 0.01
@@ -160,8 +160,11 @@ def test_a_gyro_like_cost_keeps_the_lookahead_on_and_sized_at_khz_rates(rate):
         n = la.size
     fixed, per = la._fit()
     assert fixed == pytest.approx(4e-4, rel=1e-6) and per == pytest.approx(1.5e-6, rel=1e-6)
-    if 4e-4 + 1.5e-6 * AHEAD_MIN <= 0.6 / rate:     # room between two samples: aim there
-        assert 4e-4 + 1.5e-6 * n <= 0.6 / rate
+    for share in (PERIOD_SHARE, LATE_SHARE):        # room between two samples: aim there,
+        if 4e-4 + 1.5e-6 * AHEAD_MIN <= share / rate:   # else within 1.2 periods
+            assert 4e-4 + 1.5e-6 * n <= share / rate
+            assert 4e-4 + 1.5e-6 * min(2 * n, AHEAD_MAX) > share / rate or n == AHEAD_MAX
+            break
     else:                                           # no room: large batches within budget
         assert n == AHEAD_MAX and 4e-4 + 1.5e-6 * n <= BATCH_BUDGET_S
 

@@ -17,8 +17,9 @@ API
   :class:`Batch` (one contiguous buffer, ``len()``, indexing and iteration give
   ``bytes`` per message, ``tolist()``).
 - Builders with the semantics of :mod:`rigidrot_ros.io.messages` (same values, field for
-  field): :func:`attitude`, :func:`vector`, :func:`imu`, :func:`star_tracker`,
-  :func:`transform`, :func:`odometry`.
+  field): :func:`attitude`, :func:`vector`, :func:`imu` (with or without an
+  accelerometer), :func:`star_tracker`, :func:`transform`, :func:`odometry`,
+  :func:`magnetic_field`.
 """
 
 from dataclasses import dataclass
@@ -26,7 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ['serialize_batch', 'type_name_of', 'Batch', 'Layout', 'KINDS', 'attitude',
-           'vector', 'imu', 'star_tracker', 'transform', 'odometry', 'ENCAPSULATION']
+           'vector', 'imu', 'star_tracker', 'transform', 'odometry', 'magnetic_field',
+           'ENCAPSULATION']
 
 #: XCDR1 little-endian encapsulation header (CDR_LE, options 0).
 ENCAPSULATION = b'\x00\x01\x00\x00'
@@ -55,6 +57,8 @@ KINDS = {
     'TransformStamped': Layout('geometry_msgs/msg/TransformStamped', 7, child=True),
     # pose 7 + 36, twist 6 + 36
     'Odometry': Layout('nav_msgs/msg/Odometry', 85, child=True),
+    # magnetic field 3, its covariance 9
+    'MagneticField': Layout('sensor_msgs/msg/MagneticField', 12),
 }
 
 
@@ -195,8 +199,14 @@ def vector(stamps_ns, v, frame_id):
     return serialize_batch('Vector3Stamped', stamps_ns, _rows(v, 3, 'v'), frame_id)
 
 
-def imu(stamps_ns, omega, variance, frame_id):
-    """``Imu`` of gyro samples, as :func:`messages.imu`: no orientation, no acceleration."""
+def imu(stamps_ns, omega, variance, frame_id, linear_acceleration=None,
+        accel_variance=None):
+    """``Imu`` of gyro (and accelerometer) samples, as :func:`messages.imu`: no orientation.
+
+    Without ``linear_acceleration`` the field stays zero with
+    ``linear_acceleration_covariance[0] = -1`` (not provided); with it (``(n, 3)``, m/s^2)
+    ``accel_variance`` ``(n,)`` goes on that covariance's diagonal.
+    """
     w = _rows(omega, 3, 'omega')
     var = np.asarray(variance, dtype=float).reshape(-1)
     vals = np.zeros((len(w), 37))
@@ -204,8 +214,29 @@ def imu(stamps_ns, omega, variance, frame_id):
     vals[:, 4] = -1.0                   # orientation_covariance[0]: not provided
     vals[:, 13:16] = w
     vals[:, 16] = vals[:, 20] = vals[:, 24] = var
-    vals[:, 28] = -1.0                  # linear_acceleration_covariance[0]: not provided
+    if linear_acceleration is None:
+        vals[:, 28] = -1.0              # linear_acceleration_covariance[0]: not provided
+    else:
+        if accel_variance is None:
+            raise ValueError('imu: linear_acceleration needs accel_variance (its covariance)')
+        vals[:, 25:28] = _rows(linear_acceleration, 3, 'linear_acceleration')
+        avar = np.asarray(accel_variance, dtype=float).reshape(-1)
+        vals[:, 28] = vals[:, 32] = vals[:, 36] = avar
     return serialize_batch('Imu', stamps_ns, vals, frame_id)
+
+
+def magnetic_field(stamps_ns, field, covariance, frame_id):
+    """``MagneticField`` of magnetometer samples, as :func:`messages.magnetic_field`.
+
+    ``field``: ``(n, 3)`` tesla; ``covariance``: ``(n, 3, 3)`` (or one ``(3, 3)`` for
+    every sample), T^2, row-major into ``magnetic_field_covariance``.
+    """
+    f = _rows(field, 3, 'field')
+    cov = np.broadcast_to(np.asarray(covariance, dtype=float), (len(f), 3, 3))
+    vals = np.empty((len(f), 12))
+    vals[:, :3] = f
+    vals[:, 3:] = cov.reshape(len(f), 9)
+    return serialize_batch('MagneticField', stamps_ns, vals, frame_id)
 
 
 def _cov6(rot_blocks):

@@ -59,7 +59,7 @@ from rigidrot_ros.node.cli import SceneError
 from rigidrot_ros.node.lookahead import Lookahead, SensorAhead
 from rigidrot_ros.node.ros_params import descriptor, UnknownParameterError
 from rigidrot_ros.node.ros_params import warn_unknown_overrides
-from rigidrot_ros.node.streams import ImuStream, StarTrackerStream
+from rigidrot_ros.node.streams import ImuStream, MagStream, StarTrackerStream
 from rigidrot_ros.node.streams import make_streams, scene_time, STREAMS
 from rigidrot_ros.params import BY_NAME, PARAMS
 from rigidrot_ros.settings import SAMPLE_BUDGET_S
@@ -69,6 +69,13 @@ __all__ = ['AttitudeNode', 'main', 'SceneError']
 #: The truth outputs beyond the pair, by topic: message class.
 _EXTRA_TYPES = {'transform': TransformStamped, 'odom': Odometry, 'markers': MarkerArray}
 _LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
+#: A scheduler call this many timer periods after its due time is a catch-up (see _refill).
+_CATCH_UP = 0.5
+#: A catch-up call still runs a batch when fewer samples than this are buffered ahead.
+_KEEP_AHEAD = 3
+#: Seconds between the recorder's chunk flushes: a flush's cost grows with the chunk, and
+#: a flush of 0.4 s of kHz streams took 1.5 ms (p99 3.7 ms, under load), past a period.
+RECORD_FLUSH_S = 0.1
 
 
 class AttitudeNode(Node):
@@ -254,23 +261,40 @@ class AttitudeNode(Node):
             if truth:
                 self._counters.tick_times.append(time.perf_counter_ns() - c_tick)
             self._record_tick(now_ns, items)
-        self._refill()
+        # a call that came late (a catch-up) leaves its batch to the next call while the
+        # buffers hold enough: a batch now would make the next samples late too
+        self._refill(behind=now_ns - self._grid_due_ns(now_ns) > _CATCH_UP * self._timer_ns)
         if time.monotonic() >= self._next_diag:
             self._next_diag = max(self._next_diag + 1.0, time.monotonic() + 0.5)
             self._publish_diagnostics()
 
-    def _refill(self):
-        """Run at most one look-ahead batch: of the stream whose buffer runs out first."""
+    def _grid_due_ns(self, now_ns):
+        """Return the scheduler grid time this call was due at (the last one at or before now)."""
+        if self._grid0 is None or now_ns < self._grid0:
+            return now_ns
+        return now_ns - (now_ns - self._grid0) % self._timer_ns
+
+    def _refill(self, behind=False):
+        """Run at most one look-ahead batch: of the stream whose buffer runs out first.
+
+        ``behind``: this call came late; then the batch waits for a later call unless its
+        stream has fewer than :data:`_KEEP_AHEAD` samples buffered.
+        """
         best, when = None, None
         if self._ahead is not None and self._ahead.needs(self._tick_k):
-            best, when = (self._ahead, self._tick_k), self._ahead._next / self._period_hz
+            best = (self._ahead, self._tick_k)
+            when = self._ahead.ahead_of(self._tick_k) / self._period_hz
         for s in self._sensors:
             if s.ahead.needs(s.track.last):
-                t = s.ahead._next / s.track.rate
+                t = s.ahead.ahead_of(s.track.last) / s.track.rate
                 if when is None or t < when:
                     best, when = (s.ahead, s.track.last), t
-        if best is not None:
-            best[0].refill(best[1])
+        if best is None:
+            return
+        if behind and best[0].ahead_of(best[1]) >= _KEEP_AHEAD:
+            self._counters.deferred += 1
+            return
+        best[0].refill(best[1])
 
     # -- the truth ---------------------------------------------------------------------------
     def _anchor(self, now_ns):
@@ -481,7 +505,7 @@ class AttitudeNode(Node):
         path = self._values['record_path'] or 'runs'
         topics = [t for t in (self._values['record_topics'] or []) if t]
         try:
-            writer = BagWriter(path, self.get_name(), flush_period=0.4)
+            writer = BagWriter(path, self.get_name(), flush_period=RECORD_FLUSH_S)
         except OSError as exc:
             raise SceneError(f'cannot record to {path!r}: {exc}') from None
         try:
@@ -557,11 +581,14 @@ class _Sensor:
     A sample is ``(true_ns, stamp_ns, keep, error, row)``: its grid time, the stamp its
     messages carry (:meth:`Track.marks`), whether it is published (not dropped), the
     exception that kept it from being read (else None), and its values (a tuple, one
-    entry per array of the batch). The gyro is read a batch at a time
-    (:meth:`Gyro.read_many`, bit for bit the per-sample reads) and the star tracker
-    sample by sample, each batch serialized by :mod:`rigidrot_ros.io.cdr` one call per
-    topic; a stream of another kind is read and built per sample by its own ``messages``
-    (and stamped by it: its stamp is not jittered nor offset).
+    entry per array of the batch). The imu is read a block at a time: the gyro by
+    :meth:`Gyro.read_many` (bit for bit the per-sample reads) and, where there is one,
+    the accelerometer over the same intervals (:meth:`_read_accel`); the star tracker and
+    the magnetometer sample by sample. Each batch is serialized by
+    :mod:`rigidrot_ros.io.cdr`, one call per topic, and every one of these streams
+    carries its timing model (stamps jittered and offset, samples dropped, latency). A
+    stream of another kind is read and built per sample by its own ``messages`` (and
+    stamped by it: its stamp is not jittered nor offset).
     """
 
     def __init__(self, node, stream, t_start_ns, rank):
@@ -573,11 +600,12 @@ class _Sensor:
         self.pending = []               # grid times (ns) published by this call
         self.latencies = []             # publication - grid time, ns, this window
         kind = type(stream)
-        if kind is ImuStream and hasattr(stream.model, 'read_many') and \
-                [t for t, _ in stream.topics] == ['imu', 'delta_angle', 'delta_rotation']:
-            self._read, self._build = self._read_gyro, self._build_gyro
+        if kind is ImuStream and hasattr(stream.model, 'read_many'):
+            self._read, self._build = self._read_imu, self._build_imu
         elif kind is StarTrackerStream:
             self._read, self._build = self._read_star, self._build_star
+        elif kind is MagStream:
+            self._read, self._build = self._read_mag, self._build_mag
         else:
             self._read, self._build = self._read_generic, None
         self.types = dict(stream.topics)
@@ -595,8 +623,12 @@ class _Sensor:
         return [(t, int(s), bool(kp), e, r)
                 for t, s, kp, e, r in zip(true, stamps.tolist(), keep.tolist(), errors, rows)]
 
-    def _read_gyro(self, ks):
-        """Read the gyro over the intervals of ``ks``: one block (per sample if it fails)."""
+    def _read_imu(self, ks):
+        """Read the imu over the intervals of ``ks``: gyro, then accelerometer (if any).
+
+        The gyro as one block (per sample if the block fails), the accelerometer over the
+        same intervals (:meth:`_read_accel`).
+        """
         c0 = time.perf_counter()
         ends = np.array([self._scene(self.track.stamp_ns(k))
                          for k in range(ks.start - 1, ks.stop)])
@@ -620,17 +652,40 @@ class _Sensor:
                              block.delta_rotation))
         rows = iter(rows)
         rows = [None if e is not None else next(rows) for e in errors]
+        if self.stream.accel is not None:
+            rows, errors = self._read_accel(ends, rows, errors)
         self._count(n, c0)
         out = self._samples(ks, rows, errors)
         return out, out
 
-    def _read_star(self, ks):
+    def _read_accel(self, ends, rows, errors):
+        """Append the accelerometer's ``(specific force, variance, delta_velocity)`` to rows.
+
+        Over each interval ``[ends[i], ends[i + 1]]`` whose gyro read succeeded, in order,
+        as :meth:`ImuStream.messages` reads it after the gyro (a failed gyro interval
+        leaves the accelerometer's noise stream untouched, as there); a failed read makes
+        that sample an error.
+        """
+        acc = self.stream.accel
+        out_rows, out_errors = [], []
+        for i, (row, err) in enumerate(zip(rows, errors)):
+            if err is None:
+                try:
+                    a = acc.read(ends[i], ends[i + 1], budget=SAMPLE_BUDGET_S)
+                    row = row + (a.specific_force, a.variance, a.delta_velocity)
+                except Exception as exc:    # noqa: B902 - reported when the sample is due
+                    row, err = None, exc
+            out_rows.append(row)
+            out_errors.append(err)
+        return out_rows, out_errors
+
+    def _read_each(self, ks, read):
+        """Read the samples ``ks`` one by one with ``read(k) -> row``, errors kept per sample."""
         c0 = time.perf_counter()
         rows, errors = [], []
         for k in ks:
             try:
-                r = self.stream.model.read(self._scene(self.track.stamp_ns(k)))
-                rows.append((r.quaternion, r.covariance))
+                rows.append(read(k))
                 errors.append(None)
             except Exception as exc:    # noqa: B902 - reported when the sample is due
                 rows.append(None)
@@ -639,21 +694,24 @@ class _Sensor:
         out = self._samples(ks, rows, errors)
         return out, out
 
+    def _read_star(self, ks):
+        def read(k):
+            r = self.stream.model.read(self._scene(self.track.stamp_ns(k)))
+            return r.quaternion, r.covariance
+        return self._read_each(ks, read)
+
+    def _read_mag(self, ks):
+        dt = self.node._setup.time_scale / self.stream.rate     # as MagStream.messages
+
+        def read(k):
+            r = self.stream.model.read(self._scene(self.track.stamp_ns(k)), dt)
+            return r.field, r.covariance
+        return self._read_each(ks, read)
+
     def _read_generic(self, ks):
-        c0 = time.perf_counter()
-        rows, errors = [], []
         node = self.node
-        for k in ks:
-            try:
-                rows.append(self.stream.messages(k, self.t_start_ns, node._setup.time_scale,
-                                                 node._frames))
-                errors.append(None)
-            except Exception as exc:    # noqa: B902 - reported when the sample is due
-                rows.append(None)
-                errors.append(exc)
-        self._count(len(ks), c0)
-        out = self._samples(ks, rows, errors)
-        return out, out
+        return self._read_each(ks, lambda k: self.stream.messages(
+            k, self.t_start_ns, node._setup.time_scale, node._frames))
 
     def _count(self, n, c0):
         per = (time.perf_counter() - c0) / max(n, 1)
@@ -678,21 +736,36 @@ class _Sensor:
             return [(topic, msg, None) for topic, msg in sample[4]]
         return self._build([sample[1]], [sample[4]])[0]
 
-    def _build_gyro(self, stamps, rows):
+    def _build_imu(self, stamps, rows):
         body = self.node._frames[1]
-        w, var, da, dr = (np.array(c) for c in zip(*rows))
-        imu = cdr.imu(stamps, w, var, body).tolist()
-        a = cdr.vector(stamps, da, body).tolist()
-        r = cdr.vector(stamps, dr, body).tolist()
-        t = self.types
-        return [[('imu', t['imu'], x), ('delta_angle', t['delta_angle'], y),
-                 ('delta_rotation', t['delta_rotation'], z)] for x, y, z in zip(imu, a, r)]
+        cols = [np.array(c) for c in zip(*rows)]
+        w, var, da, dr = cols[:4]
+        accel = len(cols) > 4           # with the accelerometer's three columns
+        if accel:
+            f, avar, dv = cols[4:]
+            imu = cdr.imu(stamps, w, var, body, f, avar).tolist()
+        else:
+            imu = cdr.imu(stamps, w, var, body).tolist()
+        cols = [imu, cdr.vector(stamps, da, body).tolist(),
+                cdr.vector(stamps, dr, body).tolist()]
+        topics = ['imu', 'delta_angle', 'delta_rotation']
+        if accel:
+            cols.append(cdr.vector(stamps, dv, body).tolist())
+            topics.append('delta_velocity')
+        classes = [self.types[name] for name in topics]
+        return [list(zip(topics, classes, raws)) for raws in zip(*cols)]
 
     def _build_star(self, stamps, rows):
         q, cov = (np.array(c) for c in zip(*rows))
         raw = cdr.star_tracker(stamps, q, cov, self.node._frames[0]).tolist()
         cls = self.types['star_tracker']
         return [[('star_tracker', cls, x)] for x in raw]
+
+    def _build_mag(self, stamps, rows):
+        f, cov = (np.array(c) for c in zip(*rows))
+        raw = cdr.magnetic_field(stamps, f, cov, self.node._frames[1]).tolist()
+        cls = self.types['mag']
+        return [[('mag', cls, x)] for x in raw]
 
     # -- accounting --------------------------------------------------------------------------
     def published(self, pub_ns, counters):

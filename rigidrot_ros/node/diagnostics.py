@@ -13,7 +13,8 @@ or in its last multiprecision evaluation; the samples themselves are float64);
 ``tick_*`` (the whole scheduler call that published truth ticks, up to its messages'
 publication) and ``latency_*`` (the wake-up latency: from a tick's stamp to the start of
 the call that publishes it, node clock), each mean, p99 and max over the window, µs;
-``lookahead*`` (the truth's); per sensor stream ``<name>_samples`` (since start-up),
+``lookahead*`` (the truth's; ``lookahead_deferred``: batches of any stream that a late
+call left to a later one, since start-up); per sensor stream ``<name>_samples`` (since start-up),
 ``<name>_sample_mean_us``/``_max_us`` (reading one sample, its share of a batch, over the
 window), ``<name>_latency_mean_us``/``_p99_us``/``_max_us`` (publication time minus the
 sample's true time, over the window; with a ``<name>.latency`` model at least that) and
@@ -58,6 +59,7 @@ class Window:
     new_skips: bool
     errors: int
     last_error: str
+    deferred: int = 0
 
 
 @dataclass
@@ -77,6 +79,7 @@ class Counters:
     skipped_reported: int = 0
     late: int = 0
     missed: int = 0
+    deferred: int = 0       # look-ahead batches a late call left to the next one
     errors: int = 0
     last_error: str = ''
 
@@ -100,7 +103,7 @@ class Counters:
                      latency_s=_summary(self.latencies, 1e-9), streams=streams,
                      published=self.published, late=self.late, missed=self.missed,
                      skipped=self.skipped, new_skips=self.skipped > self.skipped_reported,
-                     errors=self.errors, last_error=self.last_error)
+                     errors=self.errors, last_error=self.last_error, deferred=self.deferred)
         self.times, self.tick_times, self.latencies, self.sample_times = [], [], [], {}
         self.skipped_reported = self.skipped
         self.errors = 0
@@ -171,6 +174,7 @@ def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_b
         'lookahead': ('' if ahead is None else f'{ahead.size} samples a batch'
                       if ahead.size else f'off: {ahead.off_reason}'),
         'lookahead_batches': str(len(batches)),
+        'lookahead_deferred': str(w.deferred),
         'lookahead_batch_max_us': f'{max(batches, default=0.0) * 1e6:.1f}',
         'lookahead_sample_us': f'{(ahead.last_per_sample if ahead else 0.0) * 1e6:.2f}',
     })

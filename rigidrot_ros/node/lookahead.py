@@ -9,13 +9,17 @@ and topic. A tick then takes its bytes from the buffer and publishes them; the n
 most one batch per scheduler call, after that call has published, so a batch never delays
 the messages already due.
 
-**Batch sizes.** A batch costs a fixed part (a gyro batch about 0.4 ms, a truth batch about
-0.15 ms, measured on the 2-core machine under load) plus a small part per sample (1.5 and
-0.3 µs). The size is chosen from that cost model, fitted to the CPU times of the recent
-batches (:meth:`Ahead._fit`): the largest that is predicted to fit the budget
-(:data:`BATCH_BUDGET_S`, the most a batch may hold the executor: the samples it delays are
-published by the next call, late but not lost), at most double the last, within
-[:data:`AHEAD_MIN`, :data:`AHEAD_MAX`]. A batch of :data:`AHEAD_MIN` that does not fit is
+**Batch sizes.** A batch costs a fixed part plus a small part per sample (measured in
+the node at 1 kHz on the 2-core machine under load, CPU: a truth batch about 0.7 ms, a
+gyro batch 0.5 to 2 ms). The size is chosen from that cost model, fitted to the CPU times
+of the recent batches (:meth:`Ahead._fit`): the largest that is predicted to fit the
+budget, at most double the last, within [:data:`AHEAD_MIN`, :data:`AHEAD_MAX`]. The
+budget is :data:`PERIOD_SHARE` of the stream's period (a batch then fits between two
+samples), or where the fixed part does not allow that :data:`LATE_SHARE` of it, else
+:data:`BATCH_BUDGET_S`. A batch holds the executor: the samples due
+meanwhile go out with the next call, late (more than a period after their stamp once a
+batch passes about 1.7 periods at 1 kHz) but not lost; so a batch is kept short rather
+than rare. A batch of :data:`AHEAD_MIN` that does not fit is
 a strike; :data:`STRIKES` strikes in a row turn the look-ahead off, except within its first
 :data:`WARMUP_S` seconds (first calls, caches, the process starting: measured 3 slow
 batches in a row at start-up on a loaded machine), when they only keep the size small.
@@ -32,7 +36,7 @@ import time
 import numpy as np
 
 __all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'AHEAD_MIN', 'AHEAD_MAX', 'BATCH_BUDGET_S',
-           'STRIKES', 'WARMUP_S']
+           'PERIOD_SHARE', 'LATE_SHARE', 'STRIKES', 'WARMUP_S']
 
 #: The first batch's size, and the smallest.
 AHEAD_MIN = 8
@@ -44,6 +48,10 @@ AHEAD_MAX = 256
 BATCH_BUDGET_S = 2e-3
 #: The share of a period a batch aims at when its fixed cost leaves room for it.
 PERIOD_SHARE = 0.6
+#: Else the share of a period a batch stays under, where its fixed cost allows: past
+#: about 1.7 periods a batch makes the next sample late (published over a period after
+#: its stamp).
+LATE_SHARE = 1.2
 #: Batches in a row beyond the budget at the smallest size before the look-ahead stops.
 STRIKES = 3
 #: Seconds after a look-ahead starts during which slow batches are no strikes.
@@ -99,6 +107,10 @@ class Ahead:
             return entry
         return self._one(k), None
 
+    def ahead_of(self, k):
+        """Return how many samples after index k are buffered (or evaluated) already."""
+        return max(self._next, k + 1) - (k + 1)
+
     def needs(self, k):
         """Return True if, after index k, at most half a batch is buffered ahead."""
         if self.size < AHEAD_MIN:
@@ -150,11 +162,16 @@ class Ahead:
         """Choose the next batch size from the cost model; count a strike, or turn off."""
         self._costs = (self._costs + [(n, cost)])[-_HISTORY:]
         fixed, per = self._fit()
+        # a batch aims at PERIOD_SHARE of a period (it then fits between two samples);
+        # where its fixed cost does not allow that, at the smallest batch, never at more
+        # than the budget: a longer batch makes the samples after it late
         budget = self.budget_s
-        aim = PERIOD_SHARE * self.period_s
-        if fixed + per * AHEAD_MIN <= aim < budget:
-            budget = aim                  # a batch may fit between two samples: aim there
-        fits = int((budget - fixed) / per) if budget > fixed else 0
+        for share in (PERIOD_SHARE, LATE_SHARE):
+            aim = share * self.period_s
+            if fixed + per * AHEAD_MIN <= aim < budget:
+                budget = aim
+                break
+        fits = int((budget - fixed) / per + 1e-9) if budget > fixed else 0
         if fits >= AHEAD_MIN and cost <= max(budget, 2.0 * (fixed + per * n)):
             self.size = min(AHEAD_MAX, 2 * n, fits)
             self._strikes = 0

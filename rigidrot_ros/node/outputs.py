@@ -85,7 +85,8 @@ def run_description(setup, start_ns, run_index, node_name, topics):
     sol = setup.solution
     cfg = setup.sensors
     timing = {name: timing_of(setup.values, name).as_dict()
-              for name, on in (('imu', cfg.imu), ('star_tracker', cfg.star_tracker)) if on}
+              for name, on in (('imu', cfg.imu), ('star_tracker', cfg.star_tracker),
+                               ('mag', cfg.mag)) if on}
     return {
         'rigidrot_run': RUN_FORMAT, 'run': run_index, 'start_ns': int(start_ns),
         'time_scale': setup.time_scale, 'scene': sol.scene.as_dict(), 'tol': sol.tol,

@@ -4,7 +4,9 @@
 - :func:`init_ros` runs ``rclpy.init`` and turns a failure (a missing ``--params-file``, a
   malformed ``-p``) into one line of text instead of rcl's log line and a traceback; it
   makes the first Ctrl-C shut ROS down without a KeyboardInterrupt (:func:`_quiet_sigint`).
-- :func:`spin_until_shutdown` spins until Ctrl-C, SIGTERM or a shutdown, then cleans up.
+- :func:`spin_until_shutdown` spins until Ctrl-C, SIGTERM or a shutdown, then cleans up,
+  on the executor :func:`make_executor` chooses (:data:`EXECUTOR`; the environment
+  variable ``RIGIDROT_EXECUTOR`` = ``single`` or ``events`` overrides it, for measuring).
 """
 
 import os
@@ -18,7 +20,8 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ['split_ros_args', 'init_ros', 'spin_until_shutdown']
+__all__ = ['split_ros_args', 'init_ros', 'spin_until_shutdown', 'make_executor', 'EXECUTOR',
+           'EXECUTORS']
 
 
 def split_ros_args(argv):
@@ -143,8 +146,43 @@ def init_ros(prog, ros_args):
     return reason
 
 
+#: The executors :func:`make_executor` knows, by name.
+EXECUTORS = ('single', 'events')
+#: The executor the console scripts spin on (see doc/node.md for the measurement).
+EXECUTOR = 'single'
+
+
+def make_executor(name=None):
+    """Return a new executor: ``name``, else ``$RIGIDROT_EXECUTOR``, else :data:`EXECUTOR`.
+
+    ``'single'`` is rclpy's ``SingleThreadedExecutor``; ``'events'`` its
+    ``rclpy.experimental.EventsExecutor`` (experimental in Jazzy). Anything else raises
+    ValueError naming the variable.
+    """
+    name = name or os.environ.get('RIGIDROT_EXECUTOR') or EXECUTOR
+    if name == 'single':
+        from rclpy.executors import SingleThreadedExecutor
+        return SingleThreadedExecutor()
+    if name == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor()
+    raise ValueError(f'RIGIDROT_EXECUTOR must be one of {", ".join(EXECUTORS)}, got {name!r}')
+
+
+def _spin(node):
+    executor = make_executor()
+    try:
+        executor.add_node(node)
+        executor.spin()
+    finally:
+        executor.remove_node(node)
+        executor.shutdown()
+
+
 def spin_until_shutdown(node, loop=None):
-    """Run ``loop(node)`` (default ``rclpy.spin``), then destroy the node and shut down.
+    """Run ``loop(node)`` (default: spin on :func:`make_executor`), then clean up.
+
+    Destroys the node and shuts ROS down.
 
     Ctrl-C, an external shutdown (SIGINT/SIGTERM through rclpy's handlers) and a publish
     that races the shutdown (``RCLError`` once the context is gone) end it quietly; any
@@ -152,7 +190,7 @@ def spin_until_shutdown(node, loop=None):
     finishes its file.
     """
     try:
-        (loop or rclpy.spin)(node)
+        (loop or _spin)(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except _rclpy.RCLError:
