@@ -70,9 +70,10 @@ __all__ = ['AttitudeNode', 'main', 'SceneError']
 _EXTRA_TYPES = {'transform': TransformStamped, 'odom': Odometry, 'markers': MarkerArray}
 _LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
 #: A scheduler call this many timer periods after its due time is a catch-up (see _refill).
-_CATCH_UP = 0.5
-#: A catch-up call still runs a batch when fewer samples than this are buffered ahead.
-_KEEP_AHEAD = 3
+_CATCH_UP = 1.0
+#: A catch-up call still runs a batch when its stream has less than this buffered ahead:
+#: seconds of samples, and samples.
+_KEEP_AHEAD_S, _KEEP_AHEAD = 4e-3, 3
 #: Seconds between the recorder's chunk flushes: a flush's cost grows with the chunk, and
 #: a flush of 0.4 s of kHz streams took 1.5 ms (p99 3.7 ms, under load), past a period.
 RECORD_FLUSH_S = 0.1
@@ -278,7 +279,7 @@ class AttitudeNode(Node):
         """Run at most one look-ahead batch: of the stream whose buffer runs out first.
 
         ``behind``: this call came late; then the batch waits for a later call unless its
-        stream has fewer than :data:`_KEEP_AHEAD` samples buffered.
+        stream has less than :data:`_KEEP_AHEAD_S` (or :data:`_KEEP_AHEAD` samples) buffered.
         """
         best, when = None, None
         if self._ahead is not None and self._ahead.needs(self._tick_k):
@@ -291,7 +292,7 @@ class AttitudeNode(Node):
                     best, when = (s.ahead, s.track.last), t
         if best is None:
             return
-        if behind and best[0].ahead_of(best[1]) >= _KEEP_AHEAD:
+        if behind and when >= _KEEP_AHEAD_S and best[0].ahead_of(best[1]) >= _KEEP_AHEAD:
             self._counters.deferred += 1
             return
         best[0].refill(best[1])
