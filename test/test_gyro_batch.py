@@ -32,6 +32,10 @@ NOISES = {
                                 bias_correlation_time=2.0, scale_factor=(1e-3, -2e-3, 5e-4),
                                 misalignment=[[0, 1e-3, 0], [0, 0, -2e-3], [1e-3, 0, 0]],
                                 quantum=1e-6, increment_quantum=1e-8),
+    # a dense misalignment: a BLAS product u @ C^T gave other bits in a batch than alone
+    'imu-dense': lambda: ImuNoise(1.7e-4, seed=3, scale_factor=(1e-3, -2e-3, 5e-4),
+                                  misalignment=[[0, 1.1e-3, -7e-4], [3e-4, 0, -2e-3],
+                                                [1e-3, 9e-4, 0]]),
 }
 SCENES = {
     'axisymmetric': Scene(inertia=(2.0, 2.0, 1.0), omega0=(0.3, -0.2, 0.5)),
@@ -181,3 +185,20 @@ def test_bad_blocks_are_refused_and_the_budget_keeps_the_stream():
         gyro.read_many([0.0, 0.001, 1e7], budget=0.02)
     fresh = Gyro(sol, GyroNoise(1.7e-4, 2e-5, seed=3))
     assert np.array_equal(gyro.read_many([0.0, 0.01]).omega, fresh.read_many([0.0, 0.01]).omega)
+
+
+@pytest.mark.parametrize('kind', ['gyro', 'accel'])
+def test_the_error_matrix_acts_row_by_row(kind):
+    """ImuNoise.apply with scale factor and a dense misalignment: a batch gives each row
+    the bits of a call with that row alone (a BLAS ``u @ C^T`` did not)."""
+    def make(density=1e-3):
+        return ImuNoise(density, seed=1, scale_factor=(1e-3, -2e-3, 5e-4), kind=kind,
+                        misalignment=[[0, 1.1e-3, -7e-4], [3e-4, 0, -2e-3], [1e-3, 9e-4, 0]])
+    u = np.random.default_rng(0).standard_normal((2000, 3)) * 9.8
+    batch = make().apply(u, 1e-3).value
+    one = make()
+    single = np.array([one.apply(u[i:i + 1], 1e-3).value[0] for i in range(len(u))])
+    assert batch.tobytes() == single.tobytes()
+    ideal = make(0.0)
+    np.testing.assert_allclose(ideal.apply(u, 1e-3).value, u @ ideal.matrix.T, rtol=4e-16,
+                               atol=1e-14)     # still C u, to rounding

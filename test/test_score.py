@@ -653,3 +653,44 @@ def test_reindex_never_merges_a_foreign_mcap(tmp_path):
     with pytest.raises(BagError, match='no file named'):
         reindex(str(bag))
     assert not (bag / 'metadata.yaml').exists()
+
+
+def _timed_score(tmp_path, name, timing):
+    """Score a generated run of ideal sensors with the given timing parameters."""
+    from rigidrot_ros.io.generate import generate_bag
+    values = {'imu.enable': True, 'imu.rate': 100.0, 'imu.gyro_noise_density': 0.0,
+              'imu.gyro_random_walk': 0.0, 'star_tracker.enable': True,
+              'star_tracker.cross_boresight_arcsec': 0.0,
+              'star_tracker.about_boresight_arcsec': 0.0, 'omega0': [0.3, -0.2, 0.5]}
+    values.update(timing)
+    c = read_bag(generate_bag(values, 4.0, tmp_path / name, start_ns=START))
+    return {r['topic']: r for r in score_against_runs(c, extract_streams(c)[0])}
+
+
+def test_sensor_clock_offset_is_removed_and_jitter_is_named(tmp_path):
+    """sensor_timing of ~/run: an offset stamp is scored at its true time (the errors of
+    the run without the offset, sample for sample, also for a sample stamped before the
+    run's start); jittered stamps are scored at the stamp, and the result says so."""
+    plain = _timed_score(tmp_path, 'plain', {})
+    offset = _timed_score(tmp_path, 'offset', {'imu.clock_offset': 0.5,
+                                               'star_tracker.clock_offset': -0.3})
+    for topic in ('/star_tracker', '/imu'):
+        assert 'timing' not in plain[topic]
+        assert offset[topic]['count'] == plain[topic]['count'] > 30
+        assert_allclose(offset[topic]['t'], plain[topic]['t'], rtol=0, atol=1e-9)
+        assert_allclose(offset[topic]['error'], plain[topic]['error'], rtol=0, atol=1e-12)
+        assert offset[topic]['timing']['scored_at'].endswith('(the true sample time)')
+    assert offset['/star_tracker']['timing']['clock_offset_s'] == -0.3
+    assert plain['/star_tracker']['max'] < 1e-9           # an ideal star tracker, exact
+    # scored at the stamp, the offset would have cost |omega| * 0.3 s of attitude
+    assert offset['/star_tracker']['max'] < 1e-9
+    jitter = _timed_score(tmp_path, 'jitter', {'star_tracker.stamp_jitter': 1e-3,
+                                               'star_tracker.clock_offset': 0.1})
+    star = jitter['/star_tracker']
+    assert 'not recoverable' in star['timing']['scored_at']
+    w = float(np.linalg.norm([0.3, -0.2, 0.5]))
+    # jitter shows up as error: about sigma |omega| rad (rms of |e| of a 1-D jitter)
+    assert 0.3 * 1e-3 * w < star['rms'] < 3 * 1e-3 * w
+    # a sample jittered to before the run's start belongs to no run: skipped, counted
+    assert star['count'] + star.get('skipped', 0) == plain['/star_tracker']['count']
+    assert star['count'] >= plain['/star_tracker']['count'] - 1

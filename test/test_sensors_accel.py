@@ -214,3 +214,128 @@ def test_bad_values_are_refused_naming_the_parameter(kwargs, words):
     with pytest.raises(ValueError, match='delta_velocity needs finite'):
         delta_velocity(sol, math.nan, 1.0, (0, 0, 0), G_UP)
     assert DV_TOL > 0
+
+
+# -- the block path (Accelerometer.read_many): read is its one-interval case ----------------
+BLOCK_FIELDS = ('specific_force', 'specific_force_avg', 'specific_force_true',
+                'delta_velocity', 'delta_velocity_bound', 'delta_velocity_measured', 'bias',
+                'variance')
+ACCEL_NOISES = {
+    'ideal': lambda: ImuNoise(kind='accel'),
+    'all-terms': lambda: ImuNoise(2e-3, 1e-4, (0.01, -0.02, 0.003), seed=5, kind='accel',
+                                  bias_stddev=1e-3, bias_instability=1e-4,
+                                  bias_correlation_time=2.0, scale_factor=(1e-3, -2e-3, 5e-4),
+                                  misalignment=[[0, 1e-3, 0], [0, 0, -2e-3], [1e-3, 0, 0]],
+                                  quantum=1e-6, increment_quantum=1e-8),
+}
+ACCEL_SCENES = {
+    'axisymmetric': Scene(inertia=(2.0, 2.0, 1.0), omega0=(0.3, -0.2, 0.5)),
+    'axial-torque': Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05),
+                          omega0=(0.3, -0.2, 0.5)),
+    'transverse-virtual': Scene(inertia=(2.0, 2.0, 1.0), torque=(0.03, 0.0, 0.0),
+                                torque_frame='virtual', omega0=(0.3, -0.2, 0.5)),
+}
+
+
+def _accel_rows(sol, noise, times, sizes, lever=(0.1, -0.2, 0.05), gravity=G_UP):
+    """Read the intervals of ``times`` in blocks of the given sizes (0: one ``read``)."""
+    acc = Accelerometer(sol, noise(), lever_arm=lever, gravity=gravity)
+    rows, i, j = [], 0, 0
+    while i < len(times) - 1:
+        size = sizes[j % len(sizes)]
+        j += 1
+        if size == 0:
+            r = acc.read(times[i], times[i + 1])
+            rows.append({f: np.asarray(getattr(r, f), dtype=float).tobytes()
+                         for f in BLOCK_FIELDS})
+            i += 1
+            continue
+        b = acc.read_many(times[i:i + size + 1])
+        for k in range(len(b)):
+            rows.append({f: np.asarray(getattr(b, f)[k], dtype=float).tobytes()
+                         for f in BLOCK_FIELDS})
+        i += len(b)
+    return rows
+
+
+@pytest.mark.parametrize('scene', sorted(ACCEL_SCENES))
+@pytest.mark.parametrize('noise', sorted(ACCEL_NOISES))
+def test_accel_blocks_of_any_size_give_the_per_sample_bits(scene, noise):
+    sol = solve(ACCEL_SCENES[scene])
+    # the node's grid: stamps in ns, so the intervals differ in their last bits
+    times = np.array([round(k * 1e9 / 1000.0) * 1e-9 for k in range(0, 201)])
+    single = _accel_rows(sol, ACCEL_NOISES[noise], times, [0])
+    for sizes in ([1], [8], [200], [3, 0, 17, 1, 64, 0, 0, 5]):
+        got = _accel_rows(sol, ACCEL_NOISES[noise], times, sizes)
+        assert len(got) == len(single) == 200
+        for f in BLOCK_FIELDS:
+            assert [r[f] for r in got] == [r[f] for r in single], (sizes, f)
+
+
+@pytest.mark.parametrize('model', ['axial-torque', 'transverse-virtual', 'oblique-virtual',
+                                   'torque-free-triaxial'])
+def test_block_delta_v_against_the_30_digit_quadrature(model, rng):
+    """Each row of one block (mixed lengths, so mixed rules) within its bound of mpmath."""
+    from rigidrot_ros.sensors.accel import delta_velocity_many
+    scene = _scene(model, rng)
+    sol = solve(scene)
+    motion, rhs = _mp_motion(scene)
+    r = tuple(rng.uniform(-0.5, 0.5, 3))
+    t0 = np.array([0.2, 0.31, 0.9])
+    t1 = np.array([0.21, 0.9, 1.4])
+    for g in (G_UP, (0.0, 0.0, 0.0)):
+        dv, bound = delta_velocity_many(sol, t0, t1, r, g)
+        with mp.workdps(30):
+            rm = [mpmath.mpf(v) for v in r]
+            gm = [mpmath.mpf(v) for v in g]
+        for i in range(3):
+            with mp.workdps(30):
+                ref = _mp_delta_v(motion, rhs, t0[i], t1[i], rm, gm)
+                err = float(mpmath.sqrt(sum((mpmath.mpf(float(a)) - b) ** 2
+                                            for a, b in zip(dv[i], ref))))
+            assert err <= bound[i] and bound[i] <= 1e-12, (model, g, i, err, bound[i])
+
+
+def test_vectorised_truncation_is_the_scalar_formula(rng):
+    """L(rho) of the block path gives the scalar _truncation (which the coarse-rule test
+    above proves to hold) to rounding, for every rule, model, lever and gravity."""
+    from rigidrot_ros.sensors.accel import _log_truncation_many
+    from rigidrot_ros.sensors.batch import _truncation as from_log
+    for model in ('axial-torque', 'transverse-virtual', 'oblique-virtual',
+                  'torque-free-triaxial', 'sphere'):
+        sol = solve(_scene(model, rng))
+        rb = RateBound(sol)
+        t0 = np.array([0.0, 0.5, 3.0])
+        t1 = np.array([2.0, 0.51, 3.3])
+        for lever, grav in ((0.5, 9.8), (0.5, 0.0), (0.0, 9.8)):
+            log_l = _log_truncation_many(rb, t0, t1, lever, grav)
+            for n in (2, 3, 4, 6, 12):
+                got = from_log(log_l, np.full(3, float(n)))
+                want = [_truncation(rb, a, b, n, lever, grav) for a, b in zip(t0, t1)]
+                assert_allclose(got, want, rtol=1e-12, atol=0)
+
+
+def test_long_intervals_fall_back_to_delta_velocity_alone_and_budget_keeps_the_stream():
+    sol = solve(Scene(inertia=(2.0, 2.0, 1.0), torque=(0.03, 0.0, 0.0),
+                      torque_frame='virtual', omega0=(0.3, -0.2, 0.5)))
+    acc = Accelerometer(sol, lever_arm=(0.3, 0.0, 0.1), gravity=G_UP)
+    times = np.array([0.0, 0.01, 40.0, 40.01])
+    b = acc.read_many(times)
+    for i in range(3):
+        dv, bnd = delta_velocity(sol, times[i], times[i + 1], acc.lever_arm, acc.gravity)
+        if i == 1:                              # the long one: subintervals, the same bits
+            assert dv.tobytes() == b.delta_velocity[1].tobytes() and bnd == \
+                b.delta_velocity_bound[1]
+        assert_allclose(b.delta_velocity[i], dv, rtol=0, atol=b.delta_velocity_bound[i] + bnd)
+    noisy = Accelerometer(sol, ImuNoise(1e-3, seed=2, kind='accel'), lever_arm=(0.3, 0, 0.1),
+                          gravity=G_UP)
+    with pytest.raises(ValueError, match='time budget'):
+        noisy.read_many(times, budget=0.0)
+    fresh = Accelerometer(sol, ImuNoise(1e-3, seed=2, kind='accel'), lever_arm=(0.3, 0, 0.1),
+                          gravity=G_UP)
+    assert noisy.read(0.0, 0.01).specific_force.tobytes() == \
+        fresh.read(0.0, 0.01).specific_force.tobytes()      # the noise stream untouched
+    with pytest.raises(ValueError, match='at least 2'):
+        acc.read_many([0.0])
+    with pytest.raises(ValueError, match='t0 < t1'):
+        acc.read_many([0.0, 0.2, 0.1])

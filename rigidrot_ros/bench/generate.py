@@ -74,7 +74,7 @@ def _stages(duration, log):
         for topic, type_name in run.topics:
             writer.add_topic(topic, type_name)
         writer.add_topic(gen.RUN_TOPIC, 'std_msgs/msg/String')
-        gyro, star = run._gyro_block, run._star_block
+        gyro, star = run._imu_block, run._star_block
         clock = {'gyro': 0.0, 'star tracker': 0.0}
 
         def timed(fn, key):
@@ -84,7 +84,7 @@ def _stages(duration, log):
                 clock[key] += time.perf_counter() - c
                 return out
             return call
-        run._gyro_block, run._star_block = timed(gyro, 'gyro'), timed(star, 'star tracker')
+        run._imu_block, run._star_block = timed(gyro, 'gyro'), timed(star, 'star tracker')
         spent['set-up'] = time.perf_counter() - t0
         step = round(gen.BLOCK_S * 1e9)
         lo = 0

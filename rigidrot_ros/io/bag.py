@@ -256,14 +256,14 @@ class BagWriter:
             mask = cids == self._channels[topic]
             seq[mask] = self._counts[topic] + np.arange(int(np.count_nonzero(mask)))
             self._counts[topic] += int(np.count_nonzero(mask))
-        sizes = np.fromiter((len(d) for d in datas), dtype=np.int64, count=n)
+        sizes = np.fromiter(map(len, datas), dtype=np.int64, count=n)
         head = np.zeros(n, dtype=np.dtype([('op', 'u1'), ('len', '<u8'), ('cid', '<u2'),
                                            ('seq', '<u4'), ('log', '<u8'), ('pub', '<u8')]))
         head['op'] = 0x05                               # MCAP Message record
         head['len'] = 22 + sizes
         head['cid'], head['seq'], head['log'], head['pub'] = cids, seq, log, log
-        raw = head.tobytes()
         width = head.dtype.itemsize                     # 31 bytes
+        heads = head.view(f'V{width}').tolist()         # each record's head, as bytes
         ends = np.cumsum(width + sizes)                 # record ends from the first
         writer = self._writer
         chunk = writer._Writer__chunk_builder
@@ -278,10 +278,9 @@ class BagWriter:
             hi = lo + int(over[0]) + 1 if len(over) else n
             offsets = base + np.concatenate([[0], ends[lo:hi - 1] - start])
             times = log[lo:hi]
-            parts = []
-            for i in range(lo, hi):
-                parts.append(raw[i * width:(i + 1) * width])
-                parts.append(datas[i])
+            parts = [b''] * (2 * (hi - lo))
+            parts[0::2] = heads[lo:hi]
+            parts[1::2] = datas[lo:hi]
             t_lo, t_hi = int(times.min()), int(times.max())
             if chunk.num_messages == 0:
                 chunk.message_start_time = t_lo

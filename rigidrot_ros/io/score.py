@@ -13,6 +13,16 @@ Error conventions (quaternions (x, y, z, w), ``q_NB``):
   ``cov_frame='inertial'`` the covariance is read as that of ``e_N = R_NB e``
   (``q_est = exp(e_N / 2) ⊗ q_true``) instead.
 - rate: ``omega_est - omega_true`` in B, its norm in rad/s.
+- sensor timing: a run description's ``sensor_timing`` (the node's and the generator's
+  timing models) says which sensor topics (``imu``, ``star_tracker``, ``mag`` of the
+  node, by the last component of the topic name and the run's ``topics``) carry stamps
+  that are not their true sample times. A **clock offset** c is recovered exactly: the
+  message is scored at ``stamp - c`` (and belongs to the run whose start that time
+  follows). **Stamp jitter** cannot be: neither the bag nor the run records a sample's
+  true time, so the message is scored at ``stamp - c`` and the jitter shows up as error
+  (about ``sigma_j |omega|`` rad of attitude, ``sigma_j |omega_dot|`` of rate, which a
+  stated covariance does not include); each such result says so
+  (``timing``: ``clock_offset_s``, ``stamp_jitter_s``, ``scored_at``).
 - consistency: ``NEES = e^T P^-1 e`` per sample with an orientation covariance ``P``;
   ANEES is its mean over the M samples that have one, and its 95 % bounds are
   ``chi2.ppf([0.025, 0.975], 3 M) / M``. They assume independent samples; the errors of a
@@ -150,16 +160,72 @@ def _runs(bag, topic=None):
     return [r for r in runs if str(r.get('node', '')) in own]
 
 
+#: The node's sensors whose topics may carry a timing model (``sensor_timing`` of a run).
+TIMED_SENSORS = ('imu', 'star_tracker', 'mag')
+
+
+def sensor_timing(run, topic):
+    """Return the timing model (dict) of the run's sensor that publishes ``topic``, or None.
+
+    A topic is the sensor's if its last name component is the sensor's name and the run
+    lists it among its topics (a run without a topic list: by the name alone), so an
+    estimator's ``/filter/imu`` under another node is not taken for the node's sensor.
+    """
+    if topic is None:
+        return None
+    name = topic.rsplit('/', 1)[-1]
+    timing = run.get('sensor_timing') or {}
+    if name not in TIMED_SENSORS or name not in timing:
+        return None
+    listed = run.get('topics')
+    if listed and topic not in listed:
+        return None
+    return timing[name]
+
+
+def _offset_ns(run, topic):
+    t = sensor_timing(run, topic)
+    return 0 if t is None else round(float(t.get('clock_offset_s', 0.0)) * 1e9)
+
+
 def scene_times(bag, stamps, topic=None):
-    """(run index per stamp, scene time t per stamp, runs); index -1 before the first run."""
+    """(run index per stamp, scene time t per stamp, runs); index -1 before the first run.
+
+    The scene time is that of the true sample time where the run's ``sensor_timing``
+    gives ``topic`` a clock offset (``stamp - offset``, module text); else of the stamp.
+    """
     runs = _runs(bag, topic)
+    stamps = np.asarray(stamps, dtype=np.int64)
     starts = np.array([int(r['start_ns']) for r in runs], dtype=np.int64)
-    idx = np.searchsorted(starts, stamps, side='right') - 1
+    offsets = np.array([_offset_ns(r, topic) for r in runs], dtype=np.int64)
+    idx = np.full(len(stamps), -1)
+    true = stamps.copy()
+    for i in range(len(runs)):          # each run's offset; a later run takes over
+        shifted = stamps - offsets[i]
+        sel = shifted >= starts[i]
+        if i + 1 < len(runs):
+            sel &= shifted < starts[i + 1]
+        idx[sel] = i
+        true[sel] = shifted[sel]
     t = np.full(len(stamps), np.nan)
     for i, r in enumerate(runs):
         sel = idx == i
-        t[sel] = (stamps[sel] - starts[i]) * 1e-9 * float(r.get('time_scale', 1.0))
+        t[sel] = (true[sel] - starts[i]) * 1e-9 * float(r.get('time_scale', 1.0))
     return idx, t, runs
+
+
+def _timing_note(runs, topic):
+    """Return the ``timing`` entry of a result: the models of the runs for ``topic``."""
+    models = [m for m in (sensor_timing(r, topic) for r in runs) if m is not None]
+    if not models or not any(m.get('clock_offset_s') or m.get('stamp_jitter_s')
+                             for m in models):
+        return None
+    m = models[-1]
+    jitter = float(m.get('stamp_jitter_s', 0.0))
+    return {'clock_offset_s': float(m.get('clock_offset_s', 0.0)), 'stamp_jitter_s': jitter,
+            'scored_at': 'stamp - clock_offset' + (
+                ' (the stamp jitter is not recoverable from the log: it shows up as '
+                'error)' if jitter > 0 else ' (the true sample time)')}
 
 
 def _summary(stream, t, err, comp=None, nees_values=None):
@@ -248,7 +314,11 @@ def score_against_runs(bag, streams, cov_frame='body'):
                 comp[sel] = d
                 err[sel] = np.linalg.norm(d, axis=-1)
         nv = nees(comp, s.cov) if (s.field == ORIENTATION and s.cov is not None) else None
-        results.append(_summary(s, t, err, comp, nv))
+        out = _summary(s, t, err, comp, nv)
+        note = _timing_note(runs, s.topic)
+        if note is not None:
+            out['timing'] = note
+        results.append(out)
     return results
 
 
@@ -302,7 +372,7 @@ def score_against_stream(bag, streams, truth_bag, truth_streams, cov_frame='body
     results = []
     for s in streams:
         ref = _reference(s, truth_bag, truth_streams)
-        _, t, _ = scene_times(bag, s.stamps, s.topic)
+        _, t, runs = scene_times(bag, s.stamps, s.topic)
         _, tr, _ = scene_times(truth_bag, ref.stamps, ref.topic)
         keep = np.isfinite(tr) & np.all(np.isfinite(ref.values), axis=1)
         order = np.argsort(tr[keep])
@@ -335,6 +405,9 @@ def score_against_stream(bag, streams, truth_bag, truth_streams, cov_frame='body
         out = _summary(s, t, err, comp, nv)
         out['truth_topic'] = ref.topic
         out['truth_gaps'] = gaps
+        note = _timing_note(runs, s.topic)
+        if note is not None:
+            out['timing'] = note
         results.append(out)
     return results
 
@@ -345,4 +418,5 @@ def check_bag(bag):
         raise BagError(f'{bag.path}: the log holds no messages')
 
 
-__all__ += ['RATE', 'scene_times', 'TRUTH_NAMES', 'GAP_FACTOR']
+__all__ += ['RATE', 'scene_times', 'TRUTH_NAMES', 'GAP_FACTOR', 'sensor_timing',
+            'TIMED_SENSORS']

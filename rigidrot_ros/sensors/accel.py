@@ -30,6 +30,13 @@ Over an interval ``[t0, t1]`` a rate-integrating accelerometer reports
   ellipse's semi-minor axis, ``sqrt(2)`` the complex cross product's norm).
   The attitude's own error bound ``e`` (rad) adds ``|g| e (t1 - t0)``, float64 rounding
   a few ulp per node.
+
+A block of consecutive intervals is read at once (:meth:`Accelerometer.read_many`,
+:func:`delta_velocity_many`): the rule of each interval from one vectorised pass over
+the ellipses, the nodes of all intervals of one rule in one ``omega_at`` and one
+``solution.at`` call, sums over the nodes in a fixed order, elementwise products only
+(no BLAS), so a row's bits depend on its interval alone; :meth:`Accelerometer.read` is
+the block of one interval (the gyro's arrangement, :mod:`.batch`).
 """
 
 from dataclasses import dataclass
@@ -39,14 +46,15 @@ import time
 import numpy as np
 
 from rigidrot_ros.core import quaternion as quat
+from .batch import norm3, rules_from_log
 from .imu_noise import ImuNoise
 from .increments import _A_RHO, _B_RHO, _LOG_C, _LOG_RHO, _MAX_PIECES, _NODES, _RHO, _RULES
 from .increments import RateBound
 from .noise import check_vector
 
-__all__ = ['Accelerometer', 'AccelReading', 'specific_force', 'delta_velocity',
-           'rate_bound_on_ellipse', 'DV_TOL', 'STANDARD_GRAVITY', 'MAX_LEVER_ARM',
-           'MAX_GRAVITY']
+__all__ = ['Accelerometer', 'AccelReading', 'AccelBlock', 'specific_force', 'delta_velocity',
+           'delta_velocity_many', 'rate_bound_on_ellipse', 'DV_TOL', 'STANDARD_GRAVITY',
+           'MAX_LEVER_ARM', 'MAX_GRAVITY']
 
 #: Default target of the Δv error bound, m/s.
 DV_TOL = 1e-13
@@ -262,18 +270,172 @@ def specific_force(solution, t, lever_arm, gravity):
     tt = np.asarray(t, dtype=float)
     w = np.asarray(solution.omega_at(tt), dtype=float)
     wd = np.asarray(solution.omega_dot_at(tt), dtype=float)
-    f = np.cross(wd, r) + np.cross(w, np.cross(w, r))
-    lever = float(np.linalg.norm(r))
-    size = (np.linalg.norm(wd, axis=-1) + np.sum(w * w, axis=-1)) * lever
+    # elementwise throughout: a sample's bits depend on its t alone, in any batch
+    f = _cross(wd, r) + _cross(w, _cross(w, r))
+    lever = float(norm3(r))
+    size = (norm3(wd) + (w[..., 0] * w[..., 0] + w[..., 1] * w[..., 1]
+                         + w[..., 2] * w[..., 2])) * lever
     err = np.zeros(np.shape(tt))
     if np.any(g != 0.0):
         s = solution.at(tt)
-        r_nb = quat.to_matrix(np.asarray(s.quaternion, dtype=float))
-        f = f - np.einsum('...ji,j->...i', r_nb, g)
-        gn = float(np.linalg.norm(g))
+        f = f - _gravity_in_body(np.asarray(s.quaternion, dtype=float), g)
+        gn = float(norm3(g))
         err = err + gn * np.asarray(s.error_bound, dtype=float)
         size = size + gn
     return f, err + 64.0 * _EPS * size
+
+
+def _cross(a, b):
+    """Return ``a x b`` over the last axis by elementwise products (no BLAS)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def _gravity_in_body(q, g):
+    """``R_BN g_N = R_NB^T g_N`` (..., 3) of quaternions ``q_NB`` (..., 4), elementwise."""
+    m = quat.to_matrix(q)
+    return np.stack([m[..., 0, i] * g[0] + m[..., 1, i] * g[1] + m[..., 2, i] * g[2]
+                     for i in range(3)], axis=-1)
+
+
+def _ellipse_rate_many(bound, t0, t1):
+    """:func:`rate_bound_on_ellipse` for arrays of intervals: ``W`` (m, rho), rad/s."""
+    hh, tm = 0.5 * (t1 - t0), 0.5 * (t0 + t1)
+    reach = np.abs(tm)[:, None] + hh[:, None] * _RHO_FULL
+    scene = bound.solution.scene
+    with np.errstate(over='ignore', invalid='ignore'):
+        if bound.kind == 'linear':
+            w0 = float(np.linalg.norm(scene.omega0))
+            wd = float(np.linalg.norm(np.asarray(scene.torque) / np.asarray(scene.inertia)))
+            return w0 + wd * reach
+        if bound.kind == 'closed-form':
+            y = hh[:, None] * _B_RHO * (bound.c1 + bound.c2 * reach)
+            trans = (bound.w_t + bound.m_t * reach) * np.cosh(y)
+            axial = bound.r0 + bound.rdot * reach
+            return np.sqrt(2.0 * trans * trans + axial * axial)
+        om = np.asarray(bound.solution.omega_at(tm), dtype=float).reshape(len(tm), 3)
+        w = np.max(np.abs(om), axis=-1)[:, None] * (1 + 1e-12) + 1e-300
+        r = hh[:, None] * _RHO_FULL
+        if bound.c == 0.0:
+            y = w + bound.mu * r
+        elif bound.mu == 0.0:
+            y = np.where(bound.c * w * r < 1.0, w / (1.0 - bound.c * w * r), np.inf)
+        else:
+            sq = math.sqrt(bound.mu / bound.c)
+            phase = math.sqrt(bound.mu * bound.c) * r + np.arctan(w / sq)
+            y = np.where(phase < 0.5 * math.pi, sq * np.tan(phase), np.inf)
+        return math.sqrt(3.0) * y
+
+
+def _log_truncation_many(bound, t0, t1, lever, grav):
+    """``L`` (m, rho): the log of :func:`_truncation`'s sum without ``rho^-(2n - 2)``.
+
+    The same two terms (centripetal ``2 |r| W^2``, gravity ``|g| exp(sqrt 2 W hh B_rho)``,
+    each times ``64 / (15 (rho^2 - 1)) sqrt 3 hh``), added in the log (logaddexp).
+    """
+    hh = 0.5 * (t1 - t0)
+    w = _ellipse_rate_many(bound, t0, t1)
+    with np.errstate(over='ignore', divide='ignore', invalid='ignore'):
+        base = _LOG_C + np.log(math.sqrt(3.0) * hh)[:, None]
+        out = np.full(w.shape, -np.inf)
+        if lever > 0.0 and bound.kind != 'linear':
+            # a linear rate makes the centripetal term a quadratic: exact for n >= 2
+            out = np.logaddexp(out, math.log(2.0 * lever) + 2.0 * np.log(w) + base)
+        if grav > 0.0:
+            out = np.logaddexp(out, math.log(grav) + math.sqrt(2.0) * w * hh[:, None] * _B_RHO
+                               + base)
+    return np.where(np.isnan(out), np.inf, out)
+
+
+def delta_velocity_many(solution, t0, t1, lever_arm, gravity, tol=DV_TOL, bound=None,
+                        deadline=None):
+    """Exact ``Δv = ∫ f_B dt`` over each ``[t0[i], t1[i]]`` (m/s, in B) and its bounds.
+
+    :func:`delta_velocity` for arrays of intervals, one row at a time in effect: each
+    row's rule (the fewest Gauss nodes whose proved truncation bound is at most
+    ``tol / 2``, on the whole interval), nodes, sums (over the nodes in a fixed order)
+    and bound depend on ``t0[i], t1[i]`` alone, never on the block. A row that no single
+    rule of up to 32 nodes serves is integrated alone by :func:`delta_velocity`
+    (subintervals). The bound of a row is the one :func:`delta_velocity` states for the
+    same rule: truncation (proved), the attitude's own error times ``|g| h``, float64
+    rounding of the rate (32 ulp per node through ``2 |w| |r|``), of the sums
+    (``sqrt 3 h (n + 24) eps`` of the largest integrand) and of the result (4 ulp).
+
+    Parameters
+    ----------
+    solution : rigidrot_ros.core.Solution
+    t0, t1 : ndarray (m,)
+        The intervals, s, ``t0 < t1``, finite.
+    lever_arm, gravity : 3 floats
+        ``r`` in B (m) and ``g_N`` in N (m/s^2).
+    tol : float
+        Target of each truncation bound, m/s.
+    bound : RateBound, optional
+        The solution's rate constants.
+    deadline : float, optional
+        A :func:`time.perf_counter` value past which a subdivided row gives up (ValueError).
+
+    Returns
+    -------
+    (ndarray (m, 3), ndarray (m,))
+        The Δv rows and bounds on the Euclidean norms of their errors.
+    """
+    t0 = np.asarray(t0, dtype=float).reshape(-1)
+    t1 = np.asarray(t1, dtype=float).reshape(-1)
+    r = check_lever_arm(lever_arm)
+    g = check_gravity(gravity)
+    m = len(t0)
+    lever, grav = float(norm3(r)), float(norm3(g))
+    ends = np.concatenate([t0, t1])
+    w_ends = np.asarray(solution.omega_at(ends), dtype=float).reshape(2 * m, 3)
+    w0, w1 = w_ends[:m], w_ends[m:]
+    tangential = _cross(w1 - w0, r)       # the angular-acceleration term, closed form
+    w_max = np.maximum(norm3(w0), norm3(w1))
+    err = (64.0 * _EPS * w_max + 2 * _EPS * norm3(w1 - w0)) * lever
+    if lever == 0.0 and grav == 0.0:
+        return tangential, err
+    bound = bound or RateBound(solution)
+    n, trunc = rules_from_log(_log_truncation_many(bound, t0, t1, lever, grav), tol)
+    total = tangential.copy()
+    err = err + trunc
+    hh, tm, h = 0.5 * (t1 - t0), 0.5 * (t0 + t1), t1 - t0
+    for rule in sorted(set(n.tolist()) - {0}):
+        idx = np.flatnonzero(n == rule)
+        x, wts = _RULES[rule]
+        h_i = hh[idx, None]
+        ts = (tm[idx, None] + h_i * x).ravel()
+        ws = h_i * wts                                    # (k, n): hh w_j, as _nodes
+        part, e = total[idx], err[idx]
+        scale = np.zeros(len(idx))
+        if lever > 0.0:
+            om = np.asarray(solution.omega_at(ts), dtype=float).reshape(len(idx), rule, 3)
+            cen = _cross(om, _cross(om, r))
+            acc = ws[:, 0, None] * cen[:, 0]
+            for j in range(1, rule):
+                acc = acc + ws[:, j, None] * cen[:, j]
+            part = part + acc
+            w = np.max(norm3(om), axis=1)
+            e = e + h[idx] * 64.0 * _EPS * w * w * lever
+            scale = np.maximum(scale, w * w * lever)
+        if grav > 0.0:
+            s = solution.at(ts)
+            g_b = _gravity_in_body(np.asarray(s.quaternion, dtype=float), g)
+            g_b = g_b.reshape(len(idx), rule, 3)
+            acc = ws[:, 0, None] * g_b[:, 0]
+            for j in range(1, rule):
+                acc = acc + ws[:, j, None] * g_b[:, j]
+            part = part - acc
+            eb = np.asarray(s.error_bound, dtype=float).reshape(len(idx), rule)
+            e = e + h[idx] * grav * np.max(eb, axis=1)
+            scale = np.maximum(scale, grav)
+        e = e + math.sqrt(3.0) * h[idx] * (rule + 24) * _EPS * scale \
+            + 4 * _EPS * norm3(part)
+        total[idx], err[idx] = part, e
+    for i in np.flatnonzero(n == 0):            # past 32 nodes: subintervals, alone
+        total[i], err[i] = delta_velocity(solution, float(t0[i]), float(t1[i]), r, g,
+                                          tol=tol, bound=bound, deadline=deadline)
+    return total, err
 
 
 @dataclass(frozen=True)
@@ -312,6 +474,30 @@ class AccelReading:
     delta_velocity_measured: np.ndarray
     bias: np.ndarray
     variance: float
+
+
+@dataclass(frozen=True)
+class AccelBlock:
+    """Accelerometer samples over m consecutive intervals ``[t[i] - dt[i], t[i]]`` (rows).
+
+    The fields of :class:`AccelReading`, one row per interval (vectors (m, 3) in B,
+    scalars (m,)).
+    """
+
+    t: np.ndarray
+    dt: np.ndarray
+    specific_force: np.ndarray
+    specific_force_avg: np.ndarray
+    specific_force_true: np.ndarray
+    delta_velocity: np.ndarray
+    delta_velocity_bound: np.ndarray
+    delta_velocity_measured: np.ndarray
+    bias: np.ndarray
+    variance: np.ndarray
+
+    def __len__(self):
+        """Return the number of intervals."""
+        return len(self.t)
 
 
 class Accelerometer:
@@ -356,19 +542,57 @@ class Accelerometer:
         """Sample ``[t0, t1]`` (s, ``t0 < t1``): an :class:`AccelReading`.
 
         ``budget`` (s, optional) bounds the quadrature's time; past it the read raises
-        ValueError and leaves the noise stream untouched.
+        ValueError and leaves the noise stream untouched. The one-interval case of
+        :meth:`read_many` (the same bits, sample by sample).
         """
         t0, t1 = float(t0), float(t1)
         if not t1 > t0:
             raise ValueError(f'an accelerometer interval needs t0 < t1, got [{t0!r}, '
                              f'{t1!r}]')
-        dt = t1 - t0
+        b = self.read_many(np.array([t0, t1]), budget=budget)
+        return AccelReading(t1, float(b.dt[0]), b.specific_force[0], b.specific_force_avg[0],
+                            b.specific_force_true[0], b.delta_velocity[0],
+                            float(b.delta_velocity_bound[0]), b.delta_velocity_measured[0],
+                            b.bias[0], float(b.variance[0]))
+
+    def read_many(self, times, budget=None):
+        """Sample the m intervals between consecutive ``times`` (m + 1 ends, s) at once.
+
+        Parameters
+        ----------
+        times : 1-D array of float
+            Interval ends, strictly increasing, finite (at least 2).
+        budget : float, optional
+            Seconds the quadrature may take; past it ValueError, the noise stream untouched.
+
+        Returns
+        -------
+        AccelBlock
+            Bit for bit the m readings :meth:`read` gives over the same intervals (the
+            error model's state carried either way): every row's Δv, bound and specific
+            force depend on its own interval alone (:func:`delta_velocity_many`).
+        """
+        ts = np.asarray(times, dtype=float)
+        if ts.ndim != 1 or len(ts) < 2:
+            raise ValueError(f'an accelerometer block needs a 1-D array of at least 2 '
+                             f'interval ends, got shape {ts.shape}')
+        if not np.all(np.isfinite(ts)):
+            raise ValueError('an accelerometer block needs finite interval ends')
+        t0, t1 = ts[:-1], ts[1:]
+        if not np.all(t1 > t0):
+            i = int(np.argmin(t1 > t0))
+            raise ValueError(f'an accelerometer interval needs t0 < t1, got [{t0[i]!r}, '
+                             f'{t1[i]!r}]')
         deadline = None if budget is None else time.perf_counter() + budget
-        dv, dv_bound = delta_velocity(self.solution, t0, t1, self.lever_arm, self.gravity,
-                                      tol=self.tol, bound=self._bound, deadline=deadline)
+        dt = t1 - t0
+        dv, dv_bound = delta_velocity_many(self.solution, t0, t1, self.lever_arm,
+                                           self.gravity, tol=self.tol, bound=self._bound,
+                                           deadline=deadline)
         f_true = specific_force(self.solution, t1, self.lever_arm, self.gravity)[0]
-        avg = dv / dt
-        sample = self.noise.apply(avg[None, :], dt)
-        var = self.noise.white_variance(dt) + (dv_bound / dt) ** 2
-        return AccelReading(t1, dt, sample.value[0], avg, f_true, dv, dv_bound,
-                            sample.increment[0], sample.bias[0], var)
+        avg = dv / dt[:, None]
+        sample = self.noise.apply(avg, dt)
+        values, inverse = np.unique(dt, return_inverse=True)
+        white = np.array([self.noise.white_variance(float(v)) for v in values])
+        var = white[np.reshape(inverse, -1)] + (dv_bound / dt) ** 2
+        return AccelBlock(t1.copy(), dt, sample.value, avg, f_true, dv, dv_bound,
+                          sample.increment, sample.bias, var)

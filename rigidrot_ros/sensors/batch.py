@@ -41,7 +41,7 @@ from .increments import _A_RHO, _B_RHO, _LOG_C, _LOG_RHO, _NODES, _RULES, delta_
 from .increments import rotvec_from_quaternion
 
 __all__ = ['GyroBlock', 'read_block', 'truncation_many', 'rounding_many',
-           'delta_angle_many', 'delta_rotation_many']
+           'delta_angle_many', 'delta_rotation_many', 'rules_from_log', 'norm3']
 
 _EPS = np.finfo(float).eps
 _LOG_2 = math.log(2.0)
@@ -93,7 +93,7 @@ class GyroBlock:
         return len(self.t)
 
 
-def _norm3(v):
+def norm3(v):
     """Euclidean norms of the rows of (..., 3), in one fixed order (no reduction)."""
     return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
 
@@ -148,7 +148,16 @@ def _rules(bound, hh, tm, tol):
     m = len(hh)
     if bound.kind == 'linear':                   # a linear rate: 2 nodes are exact
         return np.full(m, _NODES[0]), np.zeros(m)
-    log_l = _log_bound(bound, hh, tm)
+    return rules_from_log(_log_bound(bound, hh, tm), tol)
+
+
+def rules_from_log(log_l, tol):
+    """Fewest nodes (m,) with ``exp(min_rho(L - (2 n - 2) log rho)) <= tol / 2``, bounds.
+
+    ``log_l`` (m, rho): the log of a truncation bound without its ``rho^-(2n - 2)``
+    factor (:data:`increments._RHO`); 0 nodes where no rule of up to 32 nodes serves.
+    Each row's choice depends on its own row alone.
+    """
     target = math.log(0.5 * tol)
     with np.errstate(invalid='ignore'):
         need = np.min((log_l - target) / (2.0 * _LOG_RHO) + 1.0, axis=1)
@@ -231,8 +240,8 @@ def delta_angle_many(solution, t0, t1, tol, bound, deadline=None):
         for j in range(1, len(x)):
             total = total + wts[j] * om[:, j]
         da[idx] = h_i * total
-        w[idx] = np.max(_norm3(om), axis=1)
-    bnd = trunc + rounding_many(bound, t0, t1, n, w) + 3 * _EPS * _norm3(da)
+        w[idx] = np.max(norm3(om), axis=1)
+    bnd = trunc + rounding_many(bound, t0, t1, n, w) + 3 * _EPS * norm3(da)
     for i in np.flatnonzero(n == 0):            # past 32 nodes: subintervals, alone
         if deadline is not None and time.perf_counter() > deadline:
             raise ValueError(f'delta_angle over [{t0[i]}, {t1[i]}] s ran out of its time '
@@ -250,7 +259,7 @@ def delta_rotation_many(q0, q1, bound0, bound1):
     """
     d = quat.multiply(quat.conjugate(q0), q1)
     rv = rotvec_from_quaternion(d)
-    theta = _norm3(rv)
+    theta = norm3(rv)
     with np.errstate(invalid='ignore', divide='ignore'):
         gain = np.where(theta < 1e-8, 1.0, (0.5 * theta) / np.sin(0.5 * theta))
     err = 1.01 * gain * (bound0 + bound1) + 16 * _EPS * (1.0 + theta)
@@ -272,7 +281,7 @@ def _ends(gyro, times):
     return q, e
 
 
-def read_block(gyro, times, budget=None):
+def read_block(gyro, times, budget=None, attitudes=None):
     """Sample the m intervals between consecutive ``times`` (m + 1 ends, s): a GyroBlock.
 
     Parameters
@@ -284,6 +293,10 @@ def read_block(gyro, times, budget=None):
         Interval ends, strictly increasing, finite (at least 2).
     budget : float, optional
         Seconds the quadrature may take; past it ValueError, the noise stream untouched.
+    attitudes : (ndarray (m + 1, 4), ndarray (m + 1,)), optional
+        ``solution.at(times)``'s quaternions and error bounds, if the caller has them
+        (e.g. from another process: a sample's bits depend on its time alone, so they are
+        the ones this call would compute).
 
     Returns
     -------
@@ -310,7 +323,12 @@ def read_block(gyro, times, budget=None):
     dt = t1 - t0
     da, da_bound = delta_angle_many(gyro.solution, t0, t1, gyro.tol, gyro._bound,
                                     deadline=deadline)
-    q, e = _ends(gyro, ts)
+    if attitudes is None:
+        q, e = _ends(gyro, ts)
+    else:
+        q = np.asarray(attitudes[0], dtype=float).reshape(len(ts), 4)
+        e = np.asarray(attitudes[1], dtype=float).reshape(len(ts))
+        gyro._last = (float(ts[-1]), q[-1].copy(), float(e[-1]))
     dr, dr_bound = delta_rotation_many(q[:-1], q[1:], e[:-1], e[1:])
     avg = da / dt[:, None]
     noise = gyro.noise

@@ -331,7 +331,11 @@ class ImuNoise:
                              f'shaped (n, 3), got shape {u.shape}')
         n = len(u)
         dt = check_dt_rows(dt, n)
-        x = u + u @ self._error.T if self._has_error else u
+        if self._has_error:         # elementwise, not a BLAS product: a row's bits alone
+            e = self._error
+            x = u + (u[:, 0:1] * e[:, 0] + u[:, 1:2] * e[:, 1] + u[:, 2:3] * e[:, 2])
+        else:
+            x = u
         draws = self._rng.standard_normal((n, 6))
         steps = (self.random_walk * np.sqrt(dt)) * draws[:, :3]
         betas = np.cumsum(np.vstack([self.bias[None, :], steps]), axis=0)

@@ -31,6 +31,9 @@ def _parser():
     ap.add_argument('--start-ns', type=int, default=0,
                     help="clock stamp (ns) of scene time 0, the node's t_start (default 0)")
     ap.add_argument('--quiet', action='store_true', help='no progress on stderr')
+    ap.add_argument('--helper', action='store_true',
+                    help='evaluate the attitudes in a second process (a second core that is '
+                         'idle; the same bytes)')
     return ap
 
 
@@ -74,7 +77,7 @@ def main(argv=None):
     progress = None if opts.quiet else _Progress()
     try:
         path = generate_bag(values, opts.duration, opts.output, start_ns=opts.start_ns,
-                            progress=progress)
+                            progress=progress, helper=opts.helper)
     except GenerationError as exc:
         return fail(exc)
     except KeyboardInterrupt:
