@@ -185,6 +185,31 @@ def test_a_sensor_lookahead_reads_each_sample_once_in_order():
     assert reads == sorted(set(reads)) and reads[:199] == list(range(1, 200))
 
 
+@pytest.mark.parametrize('how', ['strikes', 'failing batch'])
+def test_a_sensor_lookahead_turned_off_keeps_what_it_read(how):
+    """Samples read before the look-ahead went off are published, none is read twice."""
+    reads, fail = [], [False]
+    clock = _Clock()
+
+    def read(ks):
+        if fail[0] and len(ks) > 1:
+            raise ValueError('a block too hard')
+        reads.extend(ks)
+        return [('s', k) for k in ks], None
+    la = SensorAhead(read, lambda k: read(range(k, k + 1))[0][0], 1e-3, first=1,
+                     budget_s=1.0 if how == 'failing batch' else 1e-9, clock=clock)
+    clock.t += 10 * WARMUP_S
+    got = []
+    for k in range(1, 120):
+        got.append(la.get(k)[0])
+        la.refill(k)
+        if k == 30:
+            fail[0] = True
+    assert la.size == 0 and la.off_reason
+    assert got == [('s', k) for k in range(1, 120)]
+    assert reads == list(range(1, max(reads) + 1))      # each once, in order
+
+
 def test_disabled_lookahead_evaluates_every_tick():
     la = Lookahead(solve(SCENE), _time_of, PERIOD, enabled=False)
     assert la.refill(0) == 0 and la.off_reason == 'disabled'

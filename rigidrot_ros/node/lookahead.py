@@ -24,8 +24,9 @@ a strike; :data:`STRIKES` strikes in a row turn the look-ahead off, except withi
 :data:`WARMUP_S` seconds (first calls, caches, the process starting: measured 3 slow
 batches in a row at start-up on a loaded machine), when they only keep the size small.
 A batch that raises (a far sample beyond the precision ceiling) turns it off at once.
-Once off, each sample is evaluated when it is due (the truth: one scalar call; a sensor:
-its per-sample reader).
+Once off, the samples already buffered are published first (a sensor's were read, its
+noise stream ran on: each sample is read exactly once), then each sample is evaluated
+when it is due (the truth: one scalar call; a sensor: its per-sample reader).
 
 Each buffered truth sample is the same exact solution, with its own error bound, as a
 scalar call at that time would give (both within the bound; the last bits may differ).
@@ -133,8 +134,7 @@ class Ahead:
             samples, data = self._batch(start, n)
             built = self.build(start, data) if self.build is not None else [None] * n
         except Exception as exc:    # noqa: B902 - whatever the model raises: per sample now
-            self.size = 0
-            self._buf = {}
+            self.size = 0               # the samples buffered so far are still good: kept
             self.off_reason = (f'a batch of {n} samples from index {start} failed '
                                f'({type(exc).__name__}: {exc}); evaluating per sample')
             return 0
@@ -181,8 +181,7 @@ class Ahead:
             return                        # starting up: slow batches keep it small
         self._strikes += 1
         if self._strikes >= STRIKES:
-            self.size = 0
-            self._buf = {}
+            self.size = 0               # the buffered samples are kept and published first
             self.off_reason = (f'{STRIKES} batches in a row beyond the budget of '
                                f'{budget * 1e3:.3g} ms after the warm-up (the last: {n} '
                                f'samples in {cost * 1e3:.3g} ms of CPU); evaluating per '
