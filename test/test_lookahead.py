@@ -7,8 +7,9 @@ import pytest
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, BATCH_BUDGET_S, Lookahead
-from rigidrot_ros.node.lookahead import LATE_SHARE, PERIOD_SHARE, SensorAhead, STRIKES, WARMUP_S
+from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, AMORTIZE, BATCH_BUDGET_S
+from rigidrot_ros.node.lookahead import LATE_SHARE, Lookahead, PERIOD_SHARE, SensorAhead
+from rigidrot_ros.node.lookahead import STRIKES, WARMUP_S
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
 PERIOD = 0.01
@@ -21,7 +22,8 @@ def _time_of(k):
 def test_buffered_samples_are_the_exact_solution_within_their_bounds():
     sol = solve(SCENE)
     ref = solve(SCENE, tol=2e-14)
-    la = Lookahead(sol, _time_of, PERIOD, budget_s=1.0,
+    # a long period for the budget's aim: the sizes here do not depend on this CPU's speed
+    la = Lookahead(sol, _time_of, 10.0, budget_s=1.0,
                    build=lambda start, data: ['buffered'] * len(data[0]))
     seen_buffered = 0
     for k in range(600):
@@ -183,6 +185,45 @@ def test_a_sensor_lookahead_reads_each_sample_once_in_order():
         la.refill(k)
     assert got == [('s', k) for k in range(1, 200)]
     assert reads == sorted(set(reads)) and reads[:199] == list(range(1, 200))
+
+
+@pytest.mark.parametrize('how', ['strikes', 'failing batch'])
+def test_a_sensor_lookahead_turned_off_keeps_what_it_read(how):
+    """Samples read before the look-ahead went off are published, none is read twice."""
+    reads, fail = [], [False]
+    clock = _Clock()
+
+    def read(ks):
+        if fail[0] and len(ks) > 1:
+            raise ValueError('a block too hard')
+        reads.extend(ks)
+        return [('s', k) for k in ks], None
+    la = SensorAhead(read, lambda k: read(range(k, k + 1))[0][0], 1e-3, first=1,
+                     budget_s=1.0 if how == 'failing batch' else 1e-9, clock=clock)
+    clock.t += 10 * WARMUP_S
+    got = []
+    for k in range(1, 120):
+        got.append(la.get(k)[0])
+        la.refill(k)
+        if k == 30:
+            fail[0] = True
+    assert la.size == 0 and la.off_reason
+    assert got == [('s', k) for k in range(1, 120)]
+    assert reads == list(range(1, max(reads) + 1))      # each once, in order
+
+
+def test_a_sensor_batch_beyond_the_budget_is_amortized_never_turned_off():
+    """An imu with an accelerometer: ~2 ms fixed a batch (under load) beyond the 2 ms budget."""
+    clock = _Clock()
+    la = SensorAhead(lambda ks: ([None] * len(ks), None), None, 1e-3, first=1, clock=clock)
+    clock.t += 10 * WARMUP_S
+    n = AHEAD_MIN
+    for _ in range(4 * STRIKES):
+        la._judge(n, 2.1e-3 + 1e-5 * n)
+        assert la.size >= AHEAD_MIN and la.off_reason == ''
+        n = la.size
+    aim = AMORTIZE * (2.1e-3 + 1e-5 * AHEAD_MIN)
+    assert n > 4 * AHEAD_MIN and 2.1e-3 + 1e-5 * n <= aim < 2.1e-3 + 1e-5 * (n + 1)
 
 
 def test_disabled_lookahead_evaluates_every_tick():

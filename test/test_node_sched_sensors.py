@@ -16,13 +16,13 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import Imu, MagneticField
 
-from rigidrot_ros import settings
+from rigidrot_ros import params, settings
 from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.node import grid
+from rigidrot_ros.node import grid, outputs
 from rigidrot_ros.node.lookahead import AHEAD_MIN
 from rigidrot_ros.node.scheduler import timing_of, Track
 from rigidrot_ros.node.streams import make_streams
-from ros_helpers import attitude_node, spin_until, stamp_ns
+from ros_helpers import attitude_node, NODE_SCENE, spin_until, stamp_ns
 
 IMU_RATE, MAG_RATE = 200.0, 50.0
 MAG_TIMING = {'mag.drop_probability': 0.3, 'mag.clock_offset': 0.0042,
@@ -37,10 +37,15 @@ TOPICS = {'imu': Imu, 'delta_angle': Vector3Stamped, 'delta_rotation': Vector3St
           'delta_velocity': Vector3Stamped, 'mag': MagneticField}
 
 
-def test_the_timing_parameters_of_the_magnetometer_are_in_the_table():
-    from rigidrot_ros import params
+def test_the_magnetometer_timing_parameters_are_in_the_table_and_the_run_description():
     for key in ('latency', 'stamp_jitter', 'drop_probability', 'clock_offset'):
         assert params.BY_NAME[f'mag.{key}'].default == 0.0
+    values = params.defaults()
+    values.update(NODE_SCENE, **PARAMS)
+    info = outputs.run_description(settings.prepare_run(values), 0, 1, '/n', {})
+    assert info['sensor_timing']['mag'] == {
+        'latency_s': 0.015, 'stamp_jitter_s': 2e-4, 'drop_probability': 0.3,
+        'clock_offset_s': 0.0042}
 
 
 @pytest.mark.ros

@@ -70,9 +70,10 @@ __all__ = ['AttitudeNode', 'main', 'SceneError']
 _EXTRA_TYPES = {'transform': TransformStamped, 'odom': Odometry, 'markers': MarkerArray}
 _LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
 #: A scheduler call this many timer periods after its due time is a catch-up (see _refill).
-_CATCH_UP = 0.5
-#: A catch-up call still runs a batch when fewer samples than this are buffered ahead.
-_KEEP_AHEAD = 3
+_CATCH_UP = 1.0
+#: A catch-up call still runs a batch when its stream has less than this buffered ahead:
+#: seconds of samples, and samples.
+_KEEP_AHEAD_S, _KEEP_AHEAD = 4e-3, 3
 #: Seconds between the recorder's chunk flushes: a flush's cost grows with the chunk, and
 #: a flush of 0.4 s of kHz streams took 1.5 ms (p99 3.7 ms, under load), past a period.
 RECORD_FLUSH_S = 0.1
@@ -278,7 +279,7 @@ class AttitudeNode(Node):
         """Run at most one look-ahead batch: of the stream whose buffer runs out first.
 
         ``behind``: this call came late; then the batch waits for a later call unless its
-        stream has fewer than :data:`_KEEP_AHEAD` samples buffered.
+        stream has less than :data:`_KEEP_AHEAD_S` (or :data:`_KEEP_AHEAD` samples) buffered.
         """
         best, when = None, None
         if self._ahead is not None and self._ahead.needs(self._tick_k):
@@ -291,7 +292,7 @@ class AttitudeNode(Node):
                     best, when = (s.ahead, s.track.last), t
         if best is None:
             return
-        if behind and best[0].ahead_of(best[1]) >= _KEEP_AHEAD:
+        if behind and when >= _KEEP_AHEAD_S and best[0].ahead_of(best[1]) >= _KEEP_AHEAD:
             self._counters.deferred += 1
             return
         best[0].refill(best[1])
@@ -583,8 +584,9 @@ class _Sensor:
     exception that kept it from being read (else None), and its values (a tuple, one
     entry per array of the batch). The imu is read a block at a time: the gyro by
     :meth:`Gyro.read_many` (bit for bit the per-sample reads) and, where there is one,
-    the accelerometer over the same intervals (:meth:`_read_accel`); the star tracker and
-    the magnetometer sample by sample. Each batch is serialized by
+    the accelerometer over the same intervals by :meth:`Accelerometer.read_many`
+    (:meth:`_read_accel`); the star tracker and the magnetometer sample by sample. Each
+    batch is serialized by
     :mod:`rigidrot_ros.io.cdr`, one call per topic, and every one of these streams
     carries its timing model (stamps jittered and offset, samples dropped, latency). A
     stream of another kind is read and built per sample by its own ``messages`` (and
@@ -661,18 +663,26 @@ class _Sensor:
     def _read_accel(self, ends, rows, errors):
         """Append the accelerometer's ``(specific force, variance, delta_velocity)`` to rows.
 
-        Over each interval ``[ends[i], ends[i + 1]]`` whose gyro read succeeded, in order,
-        as :meth:`ImuStream.messages` reads it after the gyro (a failed gyro interval
-        leaves the accelerometer's noise stream untouched, as there); a failed read makes
-        that sample an error.
+        Over the intervals ``[ends[i], ends[i + 1]]`` whose gyro read succeeded, in order,
+        as :meth:`ImuStream.messages` reads it after the gyro: one
+        :meth:`Accelerometer.read_many` block (bit for bit the per-sample reads), else
+        interval by interval (a failed gyro interval leaves the accelerometer's noise
+        stream untouched, as there; a failed accelerometer read makes the sample an error).
         """
         acc = self.stream.accel
+        if all(e is None for e in errors):
+            try:
+                b = acc.read_many(ends, budget=SAMPLE_BUDGET_S)
+                return [r + a for r, a in zip(rows, zip(b.specific_force, b.variance,
+                                                        b.delta_velocity))], errors
+            except ValueError:          # one interval too hard: each on its own
+                pass
         out_rows, out_errors = [], []
         for i, (row, err) in enumerate(zip(rows, errors)):
             if err is None:
                 try:
-                    a = acc.read(ends[i], ends[i + 1], budget=SAMPLE_BUDGET_S)
-                    row = row + (a.specific_force, a.variance, a.delta_velocity)
+                    b = acc.read_many(ends[i:i + 2], budget=SAMPLE_BUDGET_S)
+                    row = row + (b.specific_force[0], b.variance[0], b.delta_velocity[0])
                 except Exception as exc:    # noqa: B902 - reported when the sample is due
                     row, err = None, exc
             out_rows.append(row)

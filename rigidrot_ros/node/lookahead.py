@@ -24,8 +24,9 @@ a strike; :data:`STRIKES` strikes in a row turn the look-ahead off, except withi
 :data:`WARMUP_S` seconds (first calls, caches, the process starting: measured 3 slow
 batches in a row at start-up on a loaded machine), when they only keep the size small.
 A batch that raises (a far sample beyond the precision ceiling) turns it off at once.
-Once off, each sample is evaluated when it is due (the truth: one scalar call; a sensor:
-its per-sample reader).
+Once off, the samples already buffered are published first (a sensor's were read, its
+noise stream ran on: each sample is read exactly once), then each sample is evaluated
+when it is due (the truth: one scalar call; a sensor: its per-sample reader).
 
 Each buffered truth sample is the same exact solution, with its own error bound, as a
 scalar call at that time would give (both within the bound; the last bits may differ).
@@ -36,7 +37,7 @@ import time
 import numpy as np
 
 __all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'AHEAD_MIN', 'AHEAD_MAX', 'BATCH_BUDGET_S',
-           'PERIOD_SHARE', 'LATE_SHARE', 'STRIKES', 'WARMUP_S']
+           'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S']
 
 #: The first batch's size, and the smallest.
 AHEAD_MIN = 8
@@ -52,6 +53,9 @@ PERIOD_SHARE = 0.6
 #: about 1.7 periods a batch makes the next sample late (published over a period after
 #: its stamp).
 LATE_SHARE = 1.2
+#: Where not even the smallest batch fits the budget, a sensor's batch aims at this many
+#: times the smallest batch's cost (the imu with an accelerometer: ~2 ms of fixed part under load).
+AMORTIZE = 1.5
 #: Batches in a row beyond the budget at the smallest size before the look-ahead stops.
 STRIKES = 3
 #: Seconds after a look-ahead starts during which slow batches are no strikes.
@@ -63,11 +67,18 @@ _HISTORY = 8
 class Ahead:
     """Samples at grid indices k >= ``first``, evaluated ahead in batches (a base class).
 
+    ``amortize`` (a class attribute): when not even the smallest batch fits the budget,
+    aim at :data:`AMORTIZE` times the smallest batch's cost instead, and never turn off for cost (a
+    stream whose per-sample path is the batch path on one sample); else such batches are
+    strikes.
+
     Subclasses define ``_batch(start, n) -> (samples, data)`` (``samples`` a list of n
     per-index values, ``data`` what ``build`` needs) and ``_one(k) -> sample``. ``build(start,
     data) -> list of n built entries`` (e.g. each sample's serialized messages), if given,
     is called once per batch.
     """
+
+    amortize = False
 
     def __init__(self, period_s, budget_s=BATCH_BUDGET_S, enabled=True, build=None,
                  first=0, clock=time.monotonic):
@@ -133,8 +144,7 @@ class Ahead:
             samples, data = self._batch(start, n)
             built = self.build(start, data) if self.build is not None else [None] * n
         except Exception as exc:    # noqa: B902 - whatever the model raises: per sample now
-            self.size = 0
-            self._buf = {}
+            self.size = 0               # the samples buffered so far are still good: kept
             self.off_reason = (f'a batch of {n} samples from index {start} failed '
                                f'({type(exc).__name__}: {exc}); evaluating per sample')
             return 0
@@ -162,27 +172,29 @@ class Ahead:
         """Choose the next batch size from the cost model; count a strike, or turn off."""
         self._costs = (self._costs + [(n, cost)])[-_HISTORY:]
         fixed, per = self._fit()
-        # a batch aims at PERIOD_SHARE of a period (it then fits between two samples);
-        # where its fixed cost does not allow that, at the smallest batch, never at more
-        # than the budget: a longer batch makes the samples after it late
+        # a batch aims at PERIOD_SHARE of a period (it then fits between two samples),
+        # else at LATE_SHARE, else at the budget: a longer batch makes samples late
         budget = self.budget_s
         for share in (PERIOD_SHARE, LATE_SHARE):
             aim = share * self.period_s
             if fixed + per * AHEAD_MIN <= aim < budget:
                 budget = aim
                 break
+        if self.amortize and fixed + per * AHEAD_MIN > budget:
+            # not even the smallest batch fits, and evaluating per sample would pay the
+            # fixed part for every sample: amortize it over larger batches instead
+            budget = AMORTIZE * (fixed + per * AHEAD_MIN)
         fits = int((budget - fixed) / per + 1e-9) if budget > fixed else 0
         if fits >= AHEAD_MIN and cost <= max(budget, 2.0 * (fixed + per * n)):
             self.size = min(AHEAD_MAX, 2 * n, fits)
             self._strikes = 0
             return
         self.size = AHEAD_MIN
-        if self._clock() - self._born < WARMUP_S:
+        if self._clock() - self._born < WARMUP_S or self.amortize:
             return                        # starting up: slow batches keep it small
         self._strikes += 1
         if self._strikes >= STRIKES:
-            self.size = 0
-            self._buf = {}
+            self.size = 0               # the buffered samples are kept and published first
             self.off_reason = (f'{STRIKES} batches in a row beyond the budget of '
                                f'{budget * 1e3:.3g} ms after the warm-up (the last: {n} '
                                f'samples in {cost * 1e3:.3g} ms of CPU); evaluating per '
@@ -230,8 +242,12 @@ class SensorAhead(Ahead):
     ``read(ks) -> (samples, data)`` evaluates the samples ``ks`` (a range, in order; the
     sensor's state runs on); ``read_one(k) -> sample`` evaluates one. A sensor sample is
     never evaluated twice: ``get(k)`` of a buffered k pops it, and an index that was
-    skipped (a clock jump) drops the buffered samples before it.
+    skipped (a clock jump) drops the buffered samples before it. Its per-sample path is
+    ``read`` on one sample, so the fixed part of a batch is paid per sample there: a
+    batch beyond the budget is amortized (:attr:`Ahead.amortize`), never a strike.
     """
+
+    amortize = True
 
     def __init__(self, read, read_one, period_s, first, budget_s=BATCH_BUDGET_S,
                  enabled=True, build=None, clock=time.monotonic):
