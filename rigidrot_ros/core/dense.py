@@ -230,6 +230,94 @@ class DenseSpinor:
         win.ok = win.bound <= self.tol and n <= 200
         return win
 
+    def _series_many(self, a_l, hs_l, c1_l, c2_l, err_l):
+        """:meth:`_series` of many windows at once, with the same bits for each.
+
+        Python's complex arithmetic is written out on separate real and imaginary rows
+        (numpy's elementwise float64 products, sums and quotients round as Python's do):
+        ``x * z`` for a real x is ``(x, 0) * z``, ``z * 0.5j`` and ``z / (n + 1)`` are
+        Python's complex product and quotient, zero terms and signs of zeros included.
+        No complex product runs in numpy (its loops may fuse a multiply and an add). A
+        window stops at its own term count, as in :meth:`_series`.
+        """
+        nw = len(a_l)
+        a = np.array(a_l, dtype=float)
+        hs = np.array(hs_l, dtype=float)
+        err_a = np.array(err_l, dtype=float)
+        r0, u, p, q = self.r0, self.u, self.p, self.q
+        xa = r0 + u * a
+        ra = np.array([math.hypot(x, self.dabs) for x in xa.tolist()]) * (1 + 4 * _EPS)
+        tau = np.abs(hs)
+        c1a, c2a = np.array(c1_l, dtype=complex), np.array(c2_l, dtype=complex)
+        cur = np.array([c1a.real, c1a.imag, c2a.real, c2a.imag])      # (4, nw)
+        prv = np.zeros((4, nw))
+        hist = [cur]
+        swap = [1, 0, 3, 2]
+        zsg = np.array([[-0.0], [0.0], [-0.0], [0.0]])     # (x, 0) * z: -0 zi, +0 zr
+        kq = np.array([[-q], [q], [q], [-q]])               # d * c1 and dbar * c2
+        half_j = np.array([[-0.5], [0.5], [-0.5], [0.5]])   # z * 0.5j
+        quo = np.array([[0.0], [-0.0], [0.0], [-0.0]])      # z / (n + 1)
+        m_prev, m_n = np.zeros(nw), 1.0 + err_a
+        mpow = m_n
+        s0 = mpow
+        s1 = np.zeros(nw)
+        tpow = np.ones(nw)
+        half_r, half_u = 0.5 * ra, 0.5 * u
+        qnum = half_r * tau + half_u * tau * tau
+        nfin = np.zeros(nw, dtype=np.int64)
+        f_mpow, f_prev, f_s0, f_s1 = np.empty(nw), np.empty(nw), np.empty(nw), np.empty(nw)
+        live = np.ones(nw, dtype=bool)
+        n = 0
+        while True:
+            t15 = xa * cur + zsg * cur[swap]                # xa * c1, xa * c2
+            t36 = u * prv + zsg * prv[swap]                 # u * p1, u * p2
+            t42 = p * cur + kq * cur[swap]                  # d * c1, dbar * c2
+            sm = np.empty((4, nw))
+            sm[:2] = (t15[:2] + t42[2:]) + t36[:2]
+            sm[2:] = (t42[:2] - t15[2:]) - t36[2:]
+            mj = sm * 0.0 + sm[swap] * half_j
+            nxt = (mj + mj[swap] * quo) / (n + 1)
+            prv, cur = cur, nxt
+            hist.append(cur)
+            m_prev, m_n = m_n, (half_r * m_n + half_u * m_prev) / (n + 1)
+            n += 1
+            tpow = tpow * tau
+            prev_term = mpow
+            mpow = m_n * tpow
+            s0 = s0 + mpow
+            s1 = s1 + n * mpow
+            stop = live & (qnum / (n + 1) <= 0.25) & (np.maximum(mpow, prev_term) <= 1e-19)
+            if n > 200:
+                stop = live
+            if stop.any():
+                nfin[stop], f_mpow[stop], f_prev[stop] = n, mpow[stop], prev_term[stop]
+                f_s0[stop], f_s1[stop] = s0[stop], s1[stop]
+                live &= ~stop
+                if not live.any():
+                    break
+        tail = 4.0 * np.maximum(f_mpow, f_prev)
+        d_x = self.d_r0 + self.d_u * np.abs(a) + 2.0 * _EPS * (abs(r0) + 2.0 * np.abs(u * a))
+        pert = (d_x + self.d_d) * tau / 2 + self.d_u * tau * tau / 4
+        common = tail + 8.1 * _EPS * f_s1 + pert
+        own = (common + 2.02 * _EPS * (f_s0 + f_s1)) * (1 + 1e-9)
+        bound = err_a + own
+        hs_ = np.stack(hist)                                # (terms, 4, nw)
+        co = np.empty((nw, 2, len(hist)), dtype=complex)
+        co.real = hs_[:, 0::2].transpose(2, 1, 0)
+        co.imag = hs_[:, 1::2].transpose(2, 1, 0)
+        wins = []
+        for i, (nf, ow, bd) in enumerate(zip(nfin.tolist(), own.tolist(), bound.tolist())):
+            win = _Win()
+            win.a, win.h = a_l[i], hs_l[i]
+            win.sign = 1 if win.h > 0 else -1
+            win.c1 = co[i, 0, :nf + 1].tolist()
+            win.c2 = co[i, 1, :nf + 1].tolist()
+            win.own = ow
+            win.bound = bd
+            win.ok = bd <= self.tol and nf <= 200
+            wins.append(win)
+        return wins
+
     @staticmethod
     def _horner(l1, l2, dt):
         s1, s2 = l1[-1], l2[-1]
