@@ -248,63 +248,76 @@ class DenseSpinor:
         xa = r0 + u * a
         ra = np.array([math.hypot(x, self.dabs) for x in xa.tolist()]) * (1 + 4 * _EPS)
         tau = np.abs(hs)
+        top = 202                                   # coefficients 0..201 at most
+        # hc[k + 1] = coefficient k as (spinor component, re/im, window); hc[0] = 0
+        hc = np.empty((top + 1, 2, 2, nw))
+        hc[0] = 0.0
         c1a, c2a = np.array(c1_l, dtype=complex), np.array(c2_l, dtype=complex)
-        cur = np.array([c1a.real, c1a.imag, c2a.real, c2a.imag])      # (4, nw)
-        prv = np.zeros((4, nw))
-        hist = [cur]
-        swap = [1, 0, 3, 2]
-        zsg = np.array([[-0.0], [0.0], [-0.0], [0.0]])     # (x, 0) * z: -0 zi, +0 zr
-        kq = np.array([[-q], [q], [q], [-q]])               # d * c1 and dbar * c2
-        half_j = np.array([[-0.5], [0.5], [-0.5], [0.5]])   # z * 0.5j
-        quo = np.array([[0.0], [-0.0], [0.0], [-0.0]])      # z / (n + 1)
+        hc[1, 0, 0], hc[1, 0, 1], hc[1, 1, 0], hc[1, 1, 1] = (c1a.real, c1a.imag, c2a.real,
+                                                              c2a.imag)
+        # rows: u * (p1, p2), xa * (c1, c2), (d * c1, dbar * c2); (x, 0) * z has -0 zi, +0 zr
+        mul = np.empty((3, 2, 2, nw))
+        mul[0], mul[1], mul[2] = u, xa, p
+        zer = np.array([[-0.0, 0.0], [-0.0, 0.0]])
+        cross = np.array([zer, zer, [[-q, q], [q, -q]]])[..., None]
+        half_j = np.array([-0.5, 0.5])[:, None]             # z * 0.5j
+        quo = np.array([0.0, -0.0])[:, None]                # z / (n + 1)
+        sm = np.empty((2, 2, nw))
+        # majorant: mp[n] = m_n tau^n, s0s[n] = sum m_k tau^k, s1s[n] = sum k m_k tau^k
+        mp, s0s, s1s = np.empty((top, nw)), np.empty((top, nw)), np.empty((top, nw))
         m_prev, m_n = np.zeros(nw), 1.0 + err_a
-        mpow = m_n
-        s0 = mpow
-        s1 = np.zeros(nw)
+        mp[0] = m_n
+        s0s[0] = m_n
+        s1s[0] = 0.0
         tpow = np.ones(nw)
         half_r, half_u = 0.5 * ra, 0.5 * u
         qnum = half_r * tau + half_u * tau * tau
-        nfin = np.zeros(nw, dtype=np.int64)
-        f_mpow, f_prev, f_s0, f_s1 = np.empty(nw), np.empty(nw), np.empty(nw), np.empty(nw)
-        live = np.ones(nw, dtype=bool)
+        met = np.zeros(nw, dtype=bool)
+        checked = 1
         n = 0
         while True:
-            t15 = xa * cur + zsg * cur[swap]                # xa * c1, xa * c2
-            t36 = u * prv + zsg * prv[swap]                 # u * p1, u * p2
-            t42 = p * cur + kq * cur[swap]                  # d * c1, dbar * c2
-            sm = np.empty((4, nw))
-            sm[:2] = (t15[:2] + t42[2:]) + t36[:2]
-            sm[2:] = (t42[:2] - t15[2:]) - t36[2:]
-            mj = sm * 0.0 + sm[swap] * half_j
-            nxt = (mj + mj[swap] * quo) / (n + 1)
-            prv, cur = cur, nxt
-            hist.append(cur)
+            x = hc[[n, n + 1, n + 1]]
+            t = mul * x
+            t += cross * x[:, :, ::-1]
+            np.add(t[1, 0], t[2, 1], out=sm[0])
+            sm[0] += t[0, 0]
+            np.subtract(t[2, 0], t[1, 1], out=sm[1])
+            sm[1] -= t[0, 1]
+            mj = sm * 0.0
+            mj += sm[:, ::-1] * half_j
+            nxt = mj[:, ::-1] * quo
+            nxt += mj
+            np.divide(nxt, n + 1, out=hc[n + 2])
             m_prev, m_n = m_n, (half_r * m_n + half_u * m_prev) / (n + 1)
             n += 1
-            tpow = tpow * tau
-            prev_term = mpow
-            mpow = m_n * tpow
-            s0 = s0 + mpow
-            s1 = s1 + n * mpow
-            stop = live & (qnum / (n + 1) <= 0.25) & (np.maximum(mpow, prev_term) <= 1e-19)
-            if n > 200:
-                stop = live
-            if stop.any():
-                nfin[stop], f_mpow[stop], f_prev[stop] = n, mpow[stop], prev_term[stop]
-                f_s0[stop], f_s1[stop] = s0[stop], s1[stop]
-                live &= ~stop
-                if not live.any():
+            tpow *= tau
+            np.multiply(m_n, tpow, out=mp[n])
+            np.add(s0s[n - 1], mp[n], out=s0s[n])
+            np.add(s1s[n - 1], n * mp[n], out=s1s[n])
+            if n % 4 == 0 or n > 200:
+                ns = np.arange(checked, n + 1)
+                cond = (qnum / (ns + 1)[:, None] <= 0.25) & (
+                    np.maximum(mp[checked:n + 1], mp[checked - 1:n]) <= 1e-19)
+                met |= cond.any(axis=0)
+                checked = n + 1
+                if n > 200 or met.all():
                     break
+        ns = np.arange(1, n + 1)
+        cond = (qnum / (ns + 1)[:, None] <= 0.25) & (np.maximum(mp[1:n + 1], mp[:n]) <= 1e-19)
+        cond[-1] |= n > 200
+        nfin = cond.argmax(axis=0) + 1
+        cols = np.arange(nw)
+        f_mpow, f_prev = mp[nfin, cols], mp[nfin - 1, cols]
+        f_s0, f_s1 = s0s[nfin, cols], s1s[nfin, cols]
         tail = 4.0 * np.maximum(f_mpow, f_prev)
         d_x = self.d_r0 + self.d_u * np.abs(a) + 2.0 * _EPS * (abs(r0) + 2.0 * np.abs(u * a))
         pert = (d_x + self.d_d) * tau / 2 + self.d_u * tau * tau / 4
         common = tail + 8.1 * _EPS * f_s1 + pert
         own = (common + 2.02 * _EPS * (f_s0 + f_s1)) * (1 + 1e-9)
         bound = err_a + own
-        hs_ = np.stack(hist)                                # (terms, 4, nw)
-        co = np.empty((nw, 2, len(hist)), dtype=complex)
-        co.real = hs_[:, 0::2].transpose(2, 1, 0)
-        co.imag = hs_[:, 1::2].transpose(2, 1, 0)
+        co = np.empty((nw, 2, n + 1), dtype=complex)
+        co.real = hc[1:n + 2, :, 0].transpose(2, 1, 0)
+        co.imag = hc[1:n + 2, :, 1].transpose(2, 1, 0)
         wins = []
         for i, (nf, ow, bd) in enumerate(zip(nfin.tolist(), own.tolist(), bound.tolist())):
             win = _Win()
