@@ -73,7 +73,13 @@ CHECKPOINT_BYTES = 40 * SWEEP_MAX
 
 
 class _Win:
-    __slots__ = ('a', 'h', 'sign', 'c1', 'c2', 'bound', 'own', 'ok')
+    __slots__ = ('a', 'h', 'sign', 'c1', 'c2', 'bound', 'own', 'ok', 'arr')
+
+    def coefficients(self):
+        """Return the coefficients as one (terms, 2) complex array (made once)."""
+        if self.arr is None:
+            self.arr = np.array((self.c1, self.c2)).T
+        return self.arr
 
 
 class DenseSpinor:
@@ -225,6 +231,7 @@ class DenseSpinor:
         win = _Win()
         win.a, win.h, win.sign = a, hs, (1 if hs > 0 else -1)
         win.c1, win.c2 = l1, l2
+        win.arr = None
         win.own = own
         win.bound = err_a + own
         win.ok = win.bound <= self.tol and n <= 200
@@ -325,6 +332,7 @@ class DenseSpinor:
             win.sign = 1 if win.h > 0 else -1
             win.c1 = co[i, 0, :nf + 1].tolist()
             win.c2 = co[i, 1, :nf + 1].tolist()
+            win.arr = co[i, :, :nf + 1].T
             win.own = ow
             win.bound = bd
             win.ok = bd <= self.tol and nf <= 200
@@ -551,28 +559,54 @@ class DenseSpinor:
             self._segments(t[:neg], -1, 0, segs, slow)
         if neg < n:
             self._segments(t[neg:], 1, neg, segs, slow)
-        groups = {}
-        for a0, b0, win in segs:
-            groups.setdefault(len(win.c1), []).append((a0, b0, win))
-        for nt, grp in groups.items():
-            idx = np.concatenate([np.arange(a0, b0) for a0, b0, _ in grp])
-            wid = np.repeat(np.arange(len(grp)), [b0 - a0 for a0, b0, _ in grp])
-            anchors = np.array([w.a for _, _, w in grp])
-            dt = t[idx] - anchors[wid]
-            co1 = np.array([w.c1 for _, _, w in grp]).T                # (nt, windows)
-            co2 = np.array([w.c2 for _, _, w in grp]).T
-            s1, s2 = co1[nt - 1][wid], co2[nt - 1][wid]
-            for k in range(nt - 2, -1, -1):
-                s1 = s1 * dt + co1[k][wid]
-                s2 = s2 * dt + co2[k][wid]
-            out_q[idx, 0], out_q[idx, 1] = s2.imag, -s2.real
-            out_q[idx, 2], out_q[idx, 3] = s1.imag, s1.real
-            out_err[idx] = np.array([w.bound for _, _, w in grp])[wid]
+        if segs:
+            self._horner_many(t, segs, out_q, out_err)
         for s, e_ in slow:
             for i in range(s, e_):
                 q, err = self.kernel.evaluate(float(t[i]))
                 out_q[i] = q
                 out_err[i] = err
+
+    @staticmethod
+    def _horner_many(t, segs, out_q, out_err):
+        """Horner's rule over the samples of all windows at once, as :meth:`_horner` each.
+
+        Windows are taken by term count, most first, so the samples still in Horner's
+        rule at term k are a prefix; a window's samples join at its top coefficient
+        (set, not added, as in :meth:`_horner`). Complex times real: numpy multiplies by
+        ``(dt, 0)``, as Python does.
+        """
+        segs = sorted(segs, key=lambda s: -len(s[2].c1))
+        nts = [len(w.c1) for _, _, w in segs]
+        cnt = [b0 - a0 for a0, b0, _ in segs]
+        idx = np.concatenate([np.arange(a0, b0) for a0, b0, _ in segs])
+        dt = t[idx] - np.array([w.a for _, _, w in segs]).repeat(cnt)
+        dtc = dt.astype(complex)[:, None]
+        nmax = nts[0]
+        co = np.zeros((len(segs), nmax, 2), dtype=complex)
+        for i, (_, _, w) in enumerate(segs):
+            co[i, :nts[i]] = w.coefficients()
+        ends = np.cumsum(cnt).tolist()
+        s = np.empty((len(idx), 2), dtype=complex)
+        nwin = nsamp = 0                          # windows and samples in Horner's rule
+        for k in range(nmax - 1, -1, -1):
+            if nsamp:
+                s[:nsamp] *= dtc[:nsamp]
+            new = nwin
+            while new < len(segs) and nts[new] > k:
+                new += 1
+            if new > nwin:                        # windows whose top coefficient is k
+                top = ends[new - 1]
+                if nsamp:
+                    s[:nsamp] += co[:nwin, k].repeat(cnt[:nwin], axis=0)
+                s[nsamp:top] = co[nwin:new, k].repeat(cnt[nwin:new], axis=0)
+                nwin, nsamp = new, top
+            else:
+                s[:nsamp] += co[:nwin, k].repeat(cnt[:nwin], axis=0)
+        s1, s2 = s[:, 0], s[:, 1]
+        out_q[idx, 0], out_q[idx, 1] = s2.imag, -s2.real
+        out_q[idx, 2], out_q[idx, 3] = s1.imag, s1.real
+        out_err[idx] = np.array([w.bound for _, _, w in segs]).repeat(cnt)
 
     def _segments(self, t, sign, off, segs, slow):
         """Split the sorted times t of one sign into (start, end, window) runs and slow runs."""
