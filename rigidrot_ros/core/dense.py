@@ -54,6 +54,9 @@ RT = 2.0
 #: at most about 0.5 MB: a long-running node's stream must not grow without bound). A
 #: window is a function of its key alone, so the cache changes the cost, never the bits.
 CACHE = 256
+#: A batch builds the series of this many windows or more at once (numpy, the same
+#: bits; below this, one at a time is cheaper).
+SERIES_BATCH = 32
 #: Checkpoints for random access: the spinor at the anchor of every window, in blocks of
 #: this many consecutive windows per direction. A block chains from an exact evaluation
 #: at its first anchor (the identity at t = 0), re-anchored exactly where the chained
@@ -190,6 +193,43 @@ class DenseSpinor:
             self._scache.popitem(last=False)
         self.windows_built += 1
         return win
+
+    def windows(self, keys):
+        """Return the windows of many keys (as :meth:`window_at` each); None past the grid.
+
+        Windows not kept are built together by :meth:`_series_many` when there are at
+        least :data:`SERIES_BATCH` of them (the same bits as :meth:`_series`).
+        """
+        cache = self._scache
+        out = [None] * len(keys)
+        todo = []
+        for i, key in enumerate(keys):
+            win = cache.get(key)
+            if win is not None:
+                cache.move_to_end(key)
+                out[i] = win
+            else:
+                todo.append(i)
+        if len(todo) < SERIES_BATCH:
+            for i in todo:
+                out[i] = self.window_at(keys[i])
+            return out
+        build, args = [], []
+        for i in todo:
+            anchor = self.anchor(keys[i])
+            if anchor is not None:
+                sign, e, j = keys[i]
+                lo, hi, h = self._octave(sign, e)
+                build.append(i)
+                args.append((sign * (lo + j * h), sign * h) + anchor)
+        if build:
+            for i, win in zip(build, self._series_many(*zip(*args))):
+                out[i] = win
+                cache[keys[i]] = win
+            while len(cache) > CACHE:
+                cache.popitem(last=False)
+            self.windows_built += len(build)
+        return out
 
     def _series(self, a, hs, c1, c2, err_a):
         r0, u, d, dbar = self.r0, self.u, self.d, self.dbar
@@ -626,8 +666,8 @@ class DenseSpinor:
             js = np.concatenate([[0], change]).tolist()
             je = np.concatenate([change, [e_ - s]]).tolist()
             jl = j.tolist()
-            for a0, b0 in zip(js, je):
-                win = self.window_at((sign, e, jl[a0]))
+            wins = self.windows([(sign, e, jl[a0]) for a0 in js])
+            for a0, b0, win in zip(js, je, wins):
                 if win is not None and win.ok:
                     segs.append((off + s + a0, off + s + b0, win))
                 else:
