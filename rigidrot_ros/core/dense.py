@@ -655,6 +655,7 @@ class DenseSpinor:
         bounds = np.flatnonzero(np.diff(e_arr)) + 1
         starts = np.concatenate([[0], bounds])
         ends = np.concatenate([bounds, [len(t)]])
+        runs, keys = [], []
         for s, e_ in zip(starts.tolist(), ends.tolist()):
             e = int(e_arr[s])
             lo, hi, h = self._octave(sign, e)
@@ -666,12 +667,14 @@ class DenseSpinor:
             js = np.concatenate([[0], change]).tolist()
             je = np.concatenate([change, [e_ - s]]).tolist()
             jl = j.tolist()
-            wins = self.windows([(sign, e, jl[a0]) for a0 in js])
-            for a0, b0, win in zip(js, je, wins):
-                if win is not None and win.ok:
-                    segs.append((off + s + a0, off + s + b0, win))
-                else:
-                    slow.append((off + s + a0, off + s + b0))
+            for a0, b0 in zip(js, je):
+                runs.append((off + s + a0, off + s + b0))
+                keys.append((sign, e, jl[a0]))
+        for (a0, b0), win in zip(runs, self.windows(keys)):
+            if win is not None and win.ok:
+                segs.append((a0, b0, win))
+            else:
+                slow.append((a0, b0))
 
 
 def dense_spinor(kernel, ts):
