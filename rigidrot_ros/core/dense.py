@@ -449,22 +449,25 @@ class DenseSpinor:
             if h is None:
                 break
             offs.append(offs[-1] + int((hi - lo) / h))
-        keys = []
-        for i in range(b0, min(b0 + g, offs[-1])):
-            k = self._key_of(sign, i)
-            if self._octave(sign, k[1])[2] is None:
-                break
-            keys.append(k)
-        g = len(keys)
+        # the windows b0 .. end - 1: octave e and index j in it, anchor a, signed width
+        idx = np.arange(b0, max(b0, min(b0 + g, offs[-1])))
+        g = len(idx)
+        es = np.searchsorted(offs, idx, side='right') - 2
+        los, hsz, first = np.empty(g), np.empty(g), np.empty(g, dtype=np.int64)
+        for e in np.unique(es).tolist():
+            lo, hi, h = self._octave(sign, e)
+            at = es == e
+            los[at], hsz[at], first[at] = lo, h, offs[e + 1]
+        a = sign * (los + (idx - first) * hsz)
         c1s, c2s, errs = np.empty(g, complex), np.empty(g, complex), np.empty(g)
         if g == 1:
-            a = self._anchor_time(keys[0])
+            a = float(a[0])
             if a == 0.0:
                 c1s[0], c2s[0], errs[0] = 1.0, 0.0, 0.0
             else:
                 c1s[0], c2s[0], errs[0] = self._exact(a)
         elif g:
-            self._sweep_block(keys, None, c1s, c2s, errs, 0)
+            self._sweep_block(a, sign * hsz, c1s, c2s, errs)
         self.blocks_filled += 1
         return c1s, c2s, errs
 
@@ -486,20 +489,10 @@ class DenseSpinor:
         self.exact_anchors += 1
         return complex(w, z), complex(-y, x), max(float(err_a), cap)
 
-    def _anchor_time(self, key):
-        sign, e, j = key
-        lo, hi, h = self._octave(sign, e)
-        return sign * (lo + j * h)
-
-    def _sweep_block(self, keys, state, c1s, c2s, errs, n0):
-        """Chain the anchors of consecutive windows (as :meth:`_build_run`), store them."""
-        nw = len(keys)
-        a = np.empty(nw)
-        hs = np.empty(nw)
-        for i, (sign, e, j) in enumerate(keys):
-            lo, hi, h = self._octave(sign, e)
-            a[i] = sign * (lo + j * h)
-            hs[i] = sign * h
+    def _sweep_block(self, a, hs, c1s, c2s, errs):
+        """Chain the anchors of consecutive windows (anchors a, signed widths hs), store them."""
+        nw = len(a)
+        state = None
         r0, u, d, dbar = self.r0, self.u, self.d, self.dbar
         xa = r0 + u * a
         ra = np.hypot(xa, self.dabs) * (1 + 4 * _EPS)
@@ -557,7 +550,7 @@ class DenseSpinor:
                 else:
                     state = self._exact(a_l[i])
             c1, c2, e_a = state
-            c1s[n0 + i], c2s[n0 + i], errs[n0 + i] = c1, c2, e_a
+            c1s[i], c2s[i], errs[i] = c1, c2, e_a
             f11, f12, f21, f22 = phis[i]
             state = (f11 * c1 + f12 * c2, f21 * c1 + f22 * c2,
                      e_a + (1 + e_a) * end_l[i] + pert_l[i])
