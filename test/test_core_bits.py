@@ -107,7 +107,7 @@ def test_any_split_gives_the_bits_of_one_array(name):
 def test_evicted_checkpoints_come_back_with_the_same_bits(monkeypatch):
     """A block dropped from the bounded store and rebuilt gives the same bits."""
     from rigidrot_ros.core import dense
-    monkeypatch.setattr(dense, 'CHECKPOINT_BYTES', 40 * dense.BLOCK)     # one block kept
+    monkeypatch.setattr(dense, 'CHECKPOINT_BYTES', 1)         # only the block in use kept
     monkeypatch.setattr(dense, 'CACHE', 2)
     scene = SCENES['default']
     t = np.random.default_rng(5).uniform(0.0, 200.0, 300)
@@ -118,5 +118,5 @@ def test_evicted_checkpoints_come_back_with_the_same_bits(monkeypatch):
         assert s.quaternion.tobytes() == ref.quaternion[i].tobytes()
     for i, s in enumerate(got[300:]):
         assert s.quaternion.tobytes() == ref.quaternion[299 - i].tobytes()
-    assert sol._dense.checkpoint_bytes() <= 40 * dense.BLOCK
+    assert sol._dense.checkpoint_bytes() <= dense.BLOCK_BYTES
     assert len(sol._dense._scache) <= 2

@@ -10,8 +10,10 @@ float64) gives every sample by Horner's rule. The anchors are checkpoints kept i
 of ``BLOCK`` consecutive windows (one window each past ``SWEEP_MAX``): a block starts from
 an exact evaluation (1F1, certified Taylor continuation or the adiabatic series; the
 identity at t = 0) and chains window to window, re-anchored exactly where the chained
-bound would pass 0.9 of the kernel's tol. A block is computed whole, lazily, the first
-time a query needs it, and kept in a bounded store (``CHECKPOINT_BYTES``). So a sample is
+bound would pass 0.9 of the kernel's tol. A block's propagators are computed whole, the
+first time a query needs it, its chain only as far as queries reach (each anchor follows
+from the one before alone, so the values do not depend on where the chain stopped); blocks
+are kept in a bounded store (``CHECKPOINT_BYTES``). So a sample is
 a function of t alone: the same bits from a scalar call, from a batch of any size or
 order, and whatever was evaluated before (issue 18: the node and the offline generator
 agree byte for byte).
@@ -60,8 +62,10 @@ SERIES_BATCH = 32
 #: Checkpoints for random access: the spinor at the anchor of every window, in blocks of
 #: this many consecutive windows per direction. A block chains from an exact evaluation
 #: at its first anchor (the identity at t = 0), re-anchored exactly where the chained
-#: bound would pass 0.9 tol; 40 bytes a window (two complex, one bound). One block costs
-#: one exact evaluation and one numpy sweep (measured under load: about 0.3-1 ms).
+#: bound would pass 0.9 tol; 40 bytes a window (two complex, one bound), 128 while the
+#: block's chain is partial (its propagators and bound terms kept). One block costs one
+#: numpy sweep and the exact evaluations its chain reaches (measured under load: about
+#: 0.3-1 ms).
 BLOCK = 128
 #: Window indices (per direction) from this one on are blocks of one window each: their
 #: anchors are exact evaluations (the grid there is too fine to sweep).
@@ -73,6 +77,9 @@ ANCHOR_TOL = 1.0 / 64
 ANCHOR_FLOOR = 4e-15
 #: Checkpoint blocks kept, least recently used dropped beyond this many bytes (2.6 MB).
 CHECKPOINT_BYTES = 40 * SWEEP_MAX
+#: The most bytes one block holds (its chain partial): the store can pass
+#: CHECKPOINT_BYTES by at most this (the block in use is never dropped).
+BLOCK_BYTES = 128 * BLOCK
 
 
 class _Win:
@@ -83,6 +90,24 @@ class _Win:
         if self.arr is None:
             self.arr = np.array((self.c1, self.c2)).T
         return self.arr
+
+
+class _Block:
+    """Checkpoints of one block: anchors chained so far, and what the chain needs next.
+
+    ``c1s``, ``c2s``, ``errs`` hold the anchors of windows ``0 .. done - 1``; ``state`` is
+    the chained value at window ``done``; ``sweep`` the block's propagators and bound
+    terms (dropped once the chain has reached the block's end).
+    """
+
+    __slots__ = ('c1s', 'c2s', 'errs', 'done', 'state', 'sweep')
+
+    def nbytes(self):
+        """Bytes held by the block's arrays."""
+        out = self.c1s.nbytes + self.c2s.nbytes + self.errs.nbytes
+        if self.sweep is not None:
+            out += sum(v.nbytes for v in self.sweep)
+        return out
 
 
 class DenseSpinor:
@@ -399,11 +424,6 @@ class DenseSpinor:
             offs.append(offs[-1] + int((hi - lo) / h))
         return offs[e + 1] + j
 
-    def _key_of(self, sign, n):
-        offs = self._offsets[sign]
-        e = int(np.searchsorted(offs, n, side='right')) - 2
-        return sign, e, n - offs[e + 1]
-
     def block_of(self, n):
         """Return (first index, length) of the checkpoint block holding window index n."""
         if n >= SWEEP_MAX:
@@ -417,8 +437,10 @@ class DenseSpinor:
         Deterministic: the anchors of a block (:data:`BLOCK` windows, one window each
         past :data:`SWEEP_MAX`) chain from an exact evaluation at the block's first anchor
         (the identity at t = 0), re-anchored exactly where the chained bound would pass
-        0.9 tol; a block is always computed whole, so its values never depend on which
-        query built it or on what was evaluated before.
+        0.9 tol. A block's propagators are computed whole at its first query, its chain
+        only as far as the queries so far reached (each anchor follows from the one
+        before it alone), so its values never depend on which query built it or on what
+        was evaluated before.
         """
         n = self._index(key)
         if n is None:
@@ -430,16 +452,20 @@ class DenseSpinor:
         if blk is None:
             blk = self._fill(sign, b0, g)
             self._blocks[bk] = blk
-            self._block_bytes += blk[0].nbytes + blk[1].nbytes + blk[2].nbytes
-            while len(self._blocks) > 1 and self._block_bytes > CHECKPOINT_BYTES:
-                old = self._blocks.popitem(last=False)[1]
-                self._block_bytes -= old[0].nbytes + old[1].nbytes + old[2].nbytes
+            self._block_bytes += blk.nbytes()
         else:
             self._blocks.move_to_end(bk)
         i = n - b0
-        if i >= len(blk[2]):
+        if i >= len(blk.errs):
             return None
-        return complex(blk[0][i]), complex(blk[1][i]), float(blk[2][i])
+        if i >= blk.done:
+            before = blk.nbytes()
+            self._chain(blk, i + 1)
+            self._block_bytes += blk.nbytes() - before
+        while len(self._blocks) > 1 and self._block_bytes > CHECKPOINT_BYTES:
+            old = self._blocks.popitem(last=False)[1]
+            self._block_bytes -= old.nbytes()
+        return complex(blk.c1s[i]), complex(blk.c2s[i]), float(blk.errs[i])
 
     def _fill(self, sign, b0, g):
         """Checkpoints of the block of g windows from index b0 (cut where windows end)."""
@@ -459,17 +485,20 @@ class DenseSpinor:
             at = es == e
             los[at], hsz[at], first[at] = lo, h, offs[e + 1]
         a = sign * (los + (idx - first) * hsz)
-        c1s, c2s, errs = np.empty(g, complex), np.empty(g, complex), np.empty(g)
+        blk = _Block()
+        blk.c1s, blk.c2s, blk.errs = np.empty(g, complex), np.empty(g, complex), np.empty(g)
+        blk.done, blk.state, blk.sweep = g, None, None
         if g == 1:
             a = float(a[0])
             if a == 0.0:
-                c1s[0], c2s[0], errs[0] = 1.0, 0.0, 0.0
+                blk.c1s[0], blk.c2s[0], blk.errs[0] = 1.0, 0.0, 0.0
             else:
-                c1s[0], c2s[0], errs[0] = self._exact(a)
+                blk.c1s[0], blk.c2s[0], blk.errs[0] = self._exact(a)
         elif g:
-            self._sweep_block(a, sign * hsz, c1s, c2s, errs)
+            blk.sweep = self._sweep_block(a, sign * hsz)
+            blk.done = 0
         self.blocks_filled += 1
-        return c1s, c2s, errs
+        return blk
 
     def _exact(self, a):
         """Return the spinor (c1, c2) at an anchor by the exact kernel, and a fixed bound.
@@ -489,10 +518,13 @@ class DenseSpinor:
         self.exact_anchors += 1
         return complex(w, z), complex(-y, x), max(float(err_a), cap)
 
-    def _sweep_block(self, a, hs, c1s, c2s, errs):
-        """Chain the anchors of consecutive windows (anchors a, signed widths hs), store them."""
+    def _sweep_block(self, a, hs):
+        """Propagators of consecutive windows (anchors a, signed widths hs), bound terms.
+
+        Returns ``(phi, end, pert, a)``: phi (4, n) the window propagators (a11, a12, a21,
+        a22), end and pert the chained bound's terms per window (see :meth:`_chain`).
+        """
         nw = len(a)
-        state = None
         r0, u, d, dbar = self.r0, self.u, self.d, self.dbar
         xa = r0 + u * a
         ra = np.hypot(xa, self.dabs) * (1 + 4 * _EPS)
@@ -527,34 +559,51 @@ class DenseSpinor:
                     or n > 200:
                 break
         # propagators Phi = sum A_n hs^n by Horner's rule, as _build_run
-        phi = [m.copy() for m in mats[-1]]
-        for mt in reversed(mats[:-1]):
-            for c in range(4):
-                phi[c] *= hs
-                phi[c] += mt[c]
+        # (complex times real: the product by (hs, 0) rounds as Python's does)
+        mats = np.array(mats)                         # (terms, 4, windows)
+        phi = mats[-1].copy()
+        for mt in mats[-2::-1]:
+            phi *= hs
+            phi += mt
         tail = 4.0 * np.maximum(mpow, prev_term)
         d_x = self.d_r0 + self.d_u * np.abs(a) + 2.0 * _EPS * (abs(r0) + 2.0 * np.abs(u * a))
         pert = ((d_x + self.d_d) * tau / 2 + self.d_u * tau * tau / 4) * (1 + 1e-9)
         # the chained end value, bounded exactly as in _build_run
         end_unit = (_EPS * (12.1 * s1 + 4.7 * s0 + 2.0 * (s0 + s1)) + tail) * (1 + 1e-9)
-        end_l, pert_l, a_l = end_unit.tolist(), pert.tolist(), a.tolist()
-        phis = list(zip(*(p.tolist() for p in phi)))
+        return phi, end_unit, pert, np.asarray(a, dtype=float)
+
+    def _chain(self, blk, upto):
+        """Chain a block's anchors on to its window ``upto - 1``.
+
+        Re-anchored exactly where the chained bound would pass 0.9 tol. Each anchor
+        follows from the one before it alone, so the values are the same whether the
+        chain runs in one go or in steps (a query needs only the anchors up to its own).
+        """
+        phi, end_unit, pert, a = blk.sweep
+        lo = blk.done
+        end_l, pert_l = end_unit[lo:upto].tolist(), pert[lo:upto].tolist()
+        a_l = a[lo:upto].tolist()
+        phis = list(zip(*phi[:, lo:upto].tolist()))
+        c1s, c2s, errs = blk.c1s, blk.c2s, blk.errs
         limit = self.chain_limit
-        for i in range(nw):
-            if state is not None and state[2] + 2.0 * ((1 + state[2]) * end_l[i] + pert_l[i]) \
+        state = blk.state
+        for k in range(upto - lo):
+            if state is not None and state[2] + 2.0 * ((1 + state[2]) * end_l[k] + pert_l[k]) \
                     > limit:
                 state = None
             if state is None:
-                if a_l[i] == 0.0:
+                if a_l[k] == 0.0:
                     state = (1.0 + 0j, 0j, 0.0)
                 else:
-                    state = self._exact(a_l[i])
+                    state = self._exact(a_l[k])
             c1, c2, e_a = state
-            c1s[i], c2s[i], errs[i] = c1, c2, e_a
-            f11, f12, f21, f22 = phis[i]
+            c1s[lo + k], c2s[lo + k], errs[lo + k] = c1, c2, e_a
+            f11, f12, f21, f22 = phis[k]
             state = (f11 * c1 + f12 * c2, f21 * c1 + f22 * c2,
-                     e_a + (1 + e_a) * end_l[i] + pert_l[i])
-        return state
+                     e_a + (1 + e_a) * end_l[k] + pert_l[k])
+        blk.state, blk.done = state, upto
+        if upto == len(errs):
+            blk.sweep = blk.state = None
 
     def checkpoint_bytes(self):
         """Bytes held by the checkpoint blocks now (at most :data:`CHECKPOINT_BYTES`)."""
