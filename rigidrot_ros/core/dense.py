@@ -573,25 +573,26 @@ class DenseSpinor:
         return phi, end_unit, pert, np.asarray(a, dtype=float)
 
     def _chain(self, blk, upto):
-        """Chain a block's anchors on to its window ``upto - 1``.
+        """Chain a block's anchors on to its window ``upto - 1`` at least.
 
         Re-anchored exactly where the chained bound would pass 0.9 tol. Each anchor
         follows from the one before it alone, so the values are the same whether the
-        chain runs in one go or in steps (a query needs only the anchors up to its own).
+        chain runs in one go or in steps. Past ``upto`` the chain goes on while it is
+        cheap: up to the block's end or the next window that needs an exact evaluation.
         """
         phi, end_unit, pert, a = blk.sweep
         lo = blk.done
-        end_l, pert_l = end_unit[lo:upto].tolist(), pert[lo:upto].tolist()
-        a_l = a[lo:upto].tolist()
-        phis = list(zip(*phi[:, lo:upto].tolist()))
+        end_l, pert_l, a_l = end_unit[lo:].tolist(), pert[lo:].tolist(), a[lo:].tolist()
+        phis = list(zip(*phi[:, lo:].tolist()))
         c1s, c2s, errs = blk.c1s, blk.c2s, blk.errs
         limit = self.chain_limit
         state = blk.state
-        for k in range(upto - lo):
-            if state is not None and state[2] + 2.0 * ((1 + state[2]) * end_l[k] + pert_l[k]) \
+        k, stop = 0, len(a_l)
+        while k < stop:
+            if state is None or state[2] + 2.0 * ((1 + state[2]) * end_l[k] + pert_l[k]) \
                     > limit:
-                state = None
-            if state is None:
+                if lo + k >= upto:
+                    break                             # an exact anchor nobody asked for yet
                 if a_l[k] == 0.0:
                     state = (1.0 + 0j, 0j, 0.0)
                 else:
@@ -601,8 +602,9 @@ class DenseSpinor:
             f11, f12, f21, f22 = phis[k]
             state = (f11 * c1 + f12 * c2, f21 * c1 + f22 * c2,
                      e_a + (1 + e_a) * end_l[k] + pert_l[k])
-        blk.state, blk.done = state, upto
-        if upto == len(errs):
+            k += 1
+        blk.state, blk.done = state, lo + k
+        if blk.done == len(errs):
             blk.sweep = blk.state = None
 
     def checkpoint_bytes(self):
