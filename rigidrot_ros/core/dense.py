@@ -529,38 +529,39 @@ class DenseSpinor:
         xa = r0 + u * a
         ra = np.hypot(xa, self.dabs) * (1 + 4 * _EPS)
         tau = np.abs(hs)
-        one = np.ones(nw, dtype=complex)
-        zero = np.zeros(nw, dtype=complex)
-        cur = [one, zero, zero, one]                 # A_0 = I (a11, a12, a21, a22)
-        prv = [zero, zero, zero, zero]
+        # A_n as rows (a11, a12) and (a21, a22): elementwise, the same products as one
+        # array an entry
+        cur = (np.array([np.ones(nw), np.zeros(nw)], dtype=complex),
+               np.array([np.zeros(nw), np.ones(nw)], dtype=complex))       # A_0 = I
+        prv = (np.zeros((2, nw), dtype=complex), np.zeros((2, nw), dtype=complex))
         mats = [cur]
         m_prev, m_n = np.zeros(nw), np.ones(nw)
         tpow = np.ones(nw)
         s0, s1 = np.ones(nw), np.zeros(nw)
         mpow = np.ones(nw)
+        half_r, half_u = 0.5 * ra, 0.5 * u
+        qnum = half_r * tau + half_u * tau * tau
         n = 0
         while True:
             k = 0.5j / (n + 1)
-            a11, a12, a21, a22 = cur
-            p11, p12, p21, p22 = prv
-            nxt = [(xa * a11 + dbar * a21 + u * p11) * k, (xa * a12 + dbar * a22 + u * p12) * k,
-                   (d * a11 - xa * a21 - u * p21) * k, (d * a12 - xa * a22 - u * p22) * k]
+            top, bot = cur
+            ptop, pbot = prv
+            nxt = ((xa * top + dbar * bot + u * ptop) * k, (d * top - xa * bot - u * pbot) * k)
             prv, cur = cur, nxt
             mats.append(cur)
-            m_prev, m_n = m_n, (0.5 * ra * m_n + 0.5 * u * m_prev) / (n + 1)
+            m_prev, m_n = m_n, (half_r * m_n + half_u * m_prev) / (n + 1)
             n += 1
             tpow = tpow * tau
             prev_term = mpow
             mpow = m_n * tpow
             s0 += mpow
             s1 += n * mpow
-            q_n = (0.5 * ra * tau + 0.5 * u * tau * tau) / (n + 1)
-            if (np.all(q_n <= 0.25) and np.all(np.maximum(mpow, prev_term) <= 1e-19)) \
+            if (np.all(qnum / (n + 1) <= 0.25) and np.all(np.maximum(mpow, prev_term) <= 1e-19)) \
                     or n > 200:
                 break
         # propagators Phi = sum A_n hs^n by Horner's rule, as _build_run
         # (complex times real: the product by (hs, 0) rounds as Python's does)
-        mats = np.array(mats)                         # (terms, 4, windows)
+        mats = np.array(mats).reshape(len(mats), 4, nw)      # (terms, 4, windows)
         phi = mats[-1].copy()
         for mt in mats[-2::-1]:
             phi *= hs
