@@ -270,21 +270,26 @@ class DenseSpinor:
         tpow = 1.0
         n = 0
         half_r, half_u = 0.5 * ra, 0.5 * u
+        qnum = half_r * tau + half_u * tau * tau
+        # Python multiplies a float by a complex as (x, 0) times it, divides by an int as
+        # by (float(n), 0): the same operations, written so
+        xc, uc = complex(xa), complex(u)
+        app1, app2 = l1.append, l2.append
         while True:
-            a1 = (xa * c1 + dbar * c2 + u * p1) * 0.5j / (n + 1)
-            a2 = (d * c1 - xa * c2 - u * p2) * 0.5j / (n + 1)
+            k = n + 1.0
+            a1 = (xc * c1 + dbar * c2 + uc * p1) * 0.5j / k
+            a2 = (d * c1 - xc * c2 - uc * p2) * 0.5j / k
             p1, p2, c1, c2 = c1, c2, a1, a2
-            l1.append(a1)
-            l2.append(a2)
-            m_prev, m_n = m_n, (half_r * m_n + half_u * m_prev) / (n + 1)
+            app1(a1)
+            app2(a2)
+            m_prev, m_n = m_n, (half_r * m_n + half_u * m_prev) / k
             n += 1
             tpow *= tau
             prev_term = mpow
             mpow = m_n * tpow
             s0 += mpow
             s1 += n * mpow
-            q_n = (half_r * tau + half_u * tau * tau) / (n + 1)
-            if q_n <= 0.25 and max(mpow, prev_term) <= 1e-19:
+            if qnum / (n + 1) <= 0.25 and max(mpow, prev_term) <= 1e-19:
                 break
             if n > 200:
                 break
