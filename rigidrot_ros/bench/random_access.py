@@ -20,7 +20,7 @@ import numpy as np
 
 from rigidrot_ros.core import MIN_TOL, PrecisionError, Scene, solve
 from rigidrot_ros.core import quaternion as quat
-from rigidrot_ros.core.dense import CACHE, CHECKPOINT_BYTES
+from rigidrot_ros.core.dense import BLOCK_BYTES, CACHE, CHECKPOINT_BYTES
 
 NAME = 'random_access'
 NEEDS = ('numpy', 'yaml')
@@ -31,9 +31,9 @@ SPACECRAFT = Scene(inertia=(2.0, 2.0, 3.0), torque=(0.0, 0.0, 2e-4), omega0=(0.3
 CALLS = 200
 TOL = 1e-12
 #: Bytes a solution's random-access state can hold at most: checkpoint blocks (40 B a
-#: window, CHECKPOINT_BYTES in all, plus the one block being added) and the cache of CACHE
-#: windows (about 2 kB each).
-MEMORY_BOUND = CHECKPOINT_BYTES + 40 * 128 + CACHE * 2048
+#: window, 128 while a block's chain is partial; CHECKPOINT_BYTES in all, plus the one
+#: block in use, BLOCK_BYTES at most) and the cache of CACHE windows (about 2 kB each).
+MEMORY_BOUND = CHECKPOINT_BYTES + BLOCK_BYTES + CACHE * 2048
 
 
 def scenes():
