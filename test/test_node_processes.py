@@ -8,7 +8,7 @@ import textwrap
 import pytest
 import yaml
 
-from ros_helpers import next_domain_id, ros_env, script, start, stop
+from ros_helpers import next_domain_id, ros_env, script, start, start_up_error, stop
 
 pytestmark = pytest.mark.ros
 
@@ -151,10 +151,8 @@ def test_echo_prints_ticks_from_another_process(tmp_path):
     ('inertia:=[1.0,2.0]', 'inertia must have 3'),
 ])
 def test_bad_override_at_start_up_exits_2_without_traceback(override, words):
-    env = ros_env(next_domain_id())
-    proc = start([script('attitude_node'), '--ros-args', '-p', override], env)
-    out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 2, err
+    code, err = start_up_error(override)
+    assert code == 2, err
     assert words in err and 'Traceback' not in err
 
 

@@ -419,29 +419,6 @@ class AttitudeNode(Node):
         self._sensors = [Sensor(s, t0, rank, self._setup, self._counters, lambda: self._frames)
                          for rank, s in enumerate(self._streams, start=1)]
 
-    def _sensor_due(self, sensor, now_ns, groups):
-        """Append the samples of ``sensor`` due at ``now_ns`` to ``groups``."""
-        ks, skipped = sensor.track.due(now_ns)
-        self._counters.skipped += skipped
-        for k in ks:
-            try:
-                sample, built = sensor.ahead.get(k)
-            except Exception as exc:    # noqa: B902 - a sample that cannot be read: report
-                self._failed(self._scene_time(sensor.track.stamp_ns(k)), exc)
-                continue
-            true_ns, _, keep, err, _ = sample
-            if err is not None:
-                self._failed(self._scene_time(true_ns), err)
-                continue
-            if not keep:
-                sensor.dropped += 1
-                continue
-            if built is None:
-                built = sensor.build_one(sample)
-            groups.append((true_ns, sensor.rank,
-                           [(self._pubs[topic], cls, raw) for topic, cls, raw in built]))
-            sensor.pending.append(true_ns)
-
     # -- diagnostics -------------------------------------------------------------------------
     def _publish_diagnostics(self):
         ahead = self._ahead
