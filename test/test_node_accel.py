@@ -23,9 +23,7 @@ from rigidrot_ros.node import grid
 from rigidrot_ros.node.attitude_node import SceneError
 from rigidrot_ros.node.streams import ImuStream, MagStream, make_streams, scene_time
 from rigidrot_ros.sensors import Gyro, GyroNoise
-from ros_helpers import (
-    attitude_node, node_and_listener, NODE_SCENE, spin_until, stamp_ns,
-)
+from ros_helpers import attitude_node, node_and_listener, NODE_SCENE, spin_until, stamp_ns
 
 FRAMES = ('inertial', 'body')
 G = [0.0, 0.0, -9.80665]
