@@ -360,21 +360,20 @@ class AttitudeNode(Node):
 
         Every grid tick from the last published one to now goes out (a call that comes
         late publishes the ticks it owes: counted ``ticks_late``, not lost); only a backlog
-        beyond a second (a clock jump) is skipped and counted ``ticks_missed``.
+        beyond a second (a clock jump) is skipped and counted ``ticks_missed``
+        (:func:`grid.truth_due`).
         """
         st = self._counters
         if self._grid0 is None or now_ns < self._grid0:     # new grid, or the clock went back
             self._anchor(now_ns)
-        k = grid.index(self._grid0, self._period_hz, now_ns)
-        if k <= self._tick_k:
-            if k >= self._tick_k - 1:
-                return False            # this grid time is published already
-            self._anchor(now_ns)        # the clock went back: a new grid
-            k = 0
-        first = self._tick_k + 1
-        if k - first >= max(grid.BACKLOG_MIN, self._period_hz):
-            st.missed += k - first
-            first = k
+        owed = grid.truth_due(self._grid0, self._period_hz, self._tick_k, now_ns)
+        if owed is None:
+            return False                # this grid time is published already
+        if owed is grid.NEW_GRID:
+            self._anchor(now_ns)        # the clock went back: a new grid, from its tick 0
+            owed = (0, 0, 0)
+        first, k, missed = owed
+        st.missed += missed
         if k > first:
             st.late += 1
         for j in range(first, k + 1):
