@@ -3,6 +3,7 @@
 import itertools
 import os
 from pathlib import Path
+import signal
 import subprocess
 import sys
 import textwrap
@@ -136,6 +137,38 @@ def attitude_node(**params):
     values = dict(NODE_SCENE, publish_rate=100.0)
     values.update(params)
     return AttitudeNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+
+
+def node_and_listener(listener='lis', **params):
+    """Return ``(node, executor, listener)`` for an in-process test of the live node.
+
+    ``node``: :func:`attitude_node` with ``params``, on a single-threaded ``executor``;
+    ``listener``: a bare node of that name (add it to the executor once its subscriptions
+    are made).
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    node = attitude_node(**params)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    return node, ex, rclpy.create_node(listener)
+
+
+def start_up_error(*overrides, timeout=60):
+    """Run attitude_node with ``-p`` ``overrides`` on a fresh domain until it exits.
+
+    Return ``(returncode, stderr)``; a node still running after ``timeout`` s is stopped
+    (SIGINT) and the test fails on the timeout.
+    """
+    cmd = [script('attitude_node'), '--ros-args']
+    for override in overrides:
+        cmd += ['-p', override]
+    proc = start(cmd, ros_env(next_domain_id()))
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    finally:
+        stop(proc, signal.SIGINT)
+    return proc.returncode, err
 
 
 def spin_until(executor, cond, timeout=20.0):

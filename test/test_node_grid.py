@@ -55,6 +55,19 @@ def test_due_sensor_samples_and_a_clock_jump():
     assert grid.due(t0, 1.0, -1, t0 + 12_000_000_000) == (12, 12, 12)
 
 
+def test_due_truth_ticks_a_late_call_a_clock_jump_and_a_clock_that_went_back():
+    g = 1_000_000_000
+    assert grid.truth_due(g, 100.0, -1, g) == (0, 0, 0)                   # the first tick
+    assert grid.truth_due(g, 100.0, 0, g + 35_000_000) == (1, 3, 0)      # late: 3 owed
+    assert grid.truth_due(g, 100.0, 3, g + 35_000_000) is None            # published
+    assert grid.truth_due(g, 100.0, 4, g + 35_000_000) is None            # one ahead: too
+    assert grid.truth_due(g, 100.0, 5, g + 35_000_000) is grid.NEW_GRID   # went back
+    assert grid.truth_due(g, 100.0, 0, g + 1_000_000_000) == (1, 100, 0)     # 99 owed: kept
+    assert grid.truth_due(g, 100.0, 0, g + 1_010_000_000) == (101, 101, 100)  # 100: skipped
+    assert grid.truth_due(g, 2.0, 0, g + 5_000_000_000) == (1, 10, 0)     # below 10 Hz the
+    assert grid.truth_due(g, 2.0, 0, g + 5_500_000_000) == (11, 11, 10)   # cap is 10 ticks
+
+
 def test_a_run_is_set_up_and_sampled_without_a_node():
     """prepare_run -> sensor streams -> messages and the run description, no rclpy node."""
     import pytest

@@ -117,12 +117,14 @@ def test_node_params_and_settings_are_in_no_circle():
 
 def test_the_table_settings_and_the_node_parts_import_without_rclpy():
     """What the offline generator calls needs no rclpy: the table, the run set-up, the
-    grid, the sensor streams, the run description and the diagnostics."""
+    grid, the sensor streams, the run description and the diagnostics; and the node's
+    parts that are not ROS wiring: the look-ahead, the scheduler, the sensor on its schedule."""
     code = ('import sys\n'
             'import rigidrot_ros.params, rigidrot_ros.settings\n'
             'import rigidrot_ros.node.grid, rigidrot_ros.node.streams\n'
             'import rigidrot_ros.node.outputs, rigidrot_ros.node.diagnostics\n'
-            'import rigidrot_ros.node.lookahead\n'
+            'import rigidrot_ros.node.lookahead, rigidrot_ros.node.scheduler\n'
+            'import rigidrot_ros.node.sensor_ahead\n'
             "bad = sorted(m for m in sys.modules if m.split('.')[0] == 'rclpy')\n"
             'assert not bad, bad\n')
     res = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,

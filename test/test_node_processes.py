@@ -8,7 +8,7 @@ import textwrap
 import pytest
 import yaml
 
-from ros_helpers import next_domain_id, ros_env, script, start, stop
+from ros_helpers import next_domain_id, ros_env, script, start, start_up_error, stop
 
 pytestmark = pytest.mark.ros
 
@@ -144,18 +144,25 @@ def test_echo_prints_ticks_from_another_process(tmp_path):
     assert 'omega_B' in lines[0] and 'rad/s' in lines[0]
 
 
-@pytest.mark.parametrize('override, words', [
-    ('tol:=nan', 'parameter tol'),
-    ('qos_depth:=0', 'parameter qos_depth'),
-    ('publish_rate:=-1.0', 'parameter publish_rate'),
-    ('inertia:=[1.0,2.0]', 'inertia must have 3'),
+#: The sensors whose parameters the start-up checks below also cover.
+_SENSORS_ON = ('imu.enable:=true', 'accel.enable:=true', 'mag.enable:=true')
+
+
+@pytest.mark.parametrize('overrides, words', [
+    (('tol:=nan',), 'parameter tol'),
+    (('qos_depth:=0',), 'parameter qos_depth'),
+    (('publish_rate:=-1.0',), 'parameter publish_rate'),
+    (('inertia:=[1.0,2.0]',), 'inertia must have 3'),
+    (_SENSORS_ON + ('accel.noise_density:=-1.0',), 'parameter accel.noise_density'),
+    (_SENSORS_ON + ('accel.lever_arm:=[1.0e300,0.0,0.0]',), 'accel.lever_arm[0]'),
+    (_SENSORS_ON + ('mag.soft_iron:=[1.0,0.0,0.0,0.0,1.0,0.0,0.0,0.0,0.0]',), 'mag.soft_iron'),
+    (_SENSORS_ON + ('accel.bias_correlation_time:=0.0',), 'accel.bias_correlation_time'),
 ])
-def test_bad_override_at_start_up_exits_2_without_traceback(override, words):
-    env = ros_env(next_domain_id())
-    proc = start([script('attitude_node'), '--ros-args', '-p', override], env)
-    out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 2, err
-    assert words in err and 'Traceback' not in err
+def test_bad_override_at_start_up_exits_2_with_one_line(overrides, words):
+    code, err = start_up_error(*overrides)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2, err
+    assert len(lines) == 1 and words in lines[0] and 'Traceback' not in err, err
 
 
 QUIET_SIGINT = textwrap.dedent('''

@@ -20,7 +20,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from rigidrot_ros import params
-from rigidrot_ros.node import grid
+from rigidrot_ros.node import diagnostics, grid, scheduler
 from rigidrot_ros.node.scheduler import timer_period_ns, Timing, Track
 from ros_helpers import attitude_node, spin_until, stamp_ns
 
@@ -77,6 +77,44 @@ def test_jitter_statistics_and_the_clock_offset_in_the_stamps():
     stamps, _ = t.marks(range(10))
     assert np.array_equal(stamps - [t.stamp_ns(k) for k in range(10)],
                           np.full(10, round(offset * 1e9)))
+
+
+class _Buffer:
+    """A look-ahead stand-in: ``held`` samples buffered after any index, refill wanted."""
+
+    def __init__(self, held, wants=True):
+        self.held, self.wants = held, wants
+
+    def needs(self, last):
+        return self.wants
+
+    def ahead_of(self, last):
+        return self.held
+
+
+def test_the_next_batch_is_the_buffer_that_runs_out_first_unless_a_late_call_can_wait():
+    truth, imu, star = _Buffer(4), _Buffer(3), _Buffer(0, wants=False)
+    # seconds ahead: truth 4 / 100 Hz = 40 ms, imu 3 / 1 kHz = 3 ms; star needs nothing
+    streams = [(truth, 7, 100.0), (imu, 30, 1000.0), (star, 2, 10.0)]
+    assert scheduler.next_batch(streams) == (imu, 30)
+    assert scheduler.next_batch(streams, behind=True) == (imu, 30)     # under 4 ms ahead
+    imu.held = 5                        # 5 ms ahead, 5 samples: a late call leaves it
+    assert scheduler.next_batch(streams, behind=True) is scheduler.DEFERRED
+    assert scheduler.next_batch(streams) == (imu, 30)
+    tie = [(truth, 7, 100.0), (_Buffer(40), 1, 1000.0)]              # 40 ms each: the first
+    assert scheduler.next_batch(tie) == (truth, 7)
+    assert scheduler.next_batch([(star, 2, 10.0)]) is None
+
+
+def test_the_delivered_rate_waits_for_a_long_enough_window_and_restarts_on_a_rate_change():
+    rate, w = diagnostics.delivered(None, 10.0, 0, 100.0)
+    assert rate is None and w == (10.0, 0, 100.0)
+    rate, w2 = diagnostics.delivered(w, 10.2, 20, 100.0)          # 0.2 s: keep accumulating
+    assert rate is None and w2 == w
+    rate, w3 = diagnostics.delivered(w2, 11.0, 98, 100.0)
+    assert rate == pytest.approx(98.0) and w3 == (11.0, 98, 100.0)
+    rate, w4 = diagnostics.delivered(w3, 12.0, 150, 50.0)         # a new rate: a new window
+    assert rate is None and w4 == (12.0, 150, 50.0)
 
 
 def test_the_timing_parameters_are_in_the_table_off_by_default():

@@ -12,8 +12,6 @@ timing model (drops, clock offset, jitter, latency) must act as the scheduler's 
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import Imu, MagneticField
 
 from rigidrot_ros import params, settings
@@ -22,7 +20,7 @@ from rigidrot_ros.node import grid, outputs
 from rigidrot_ros.node.lookahead import AHEAD_MIN
 from rigidrot_ros.node.scheduler import timing_of, Track
 from rigidrot_ros.node.streams import make_streams
-from ros_helpers import attitude_node, NODE_SCENE, spin_until, stamp_ns
+from ros_helpers import node_and_listener, NODE_SCENE, spin_until, stamp_ns
 
 IMU_RATE, MAG_RATE = 200.0, 50.0
 MAG_TIMING = {'mag.drop_probability': 0.3, 'mag.clock_offset': 0.0042,
@@ -51,10 +49,7 @@ def test_the_magnetometer_timing_parameters_are_in_the_table_and_the_run_descrip
 @pytest.mark.ros
 @pytest.mark.usefixtures('ros_context')
 def test_accel_and_mag_batched_equal_the_per_sample_messages_with_the_mag_timing_model():
-    node = attitude_node(**PARAMS)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    lis = rclpy.create_node('sensors_listener')
+    node, ex, lis = node_and_listener('sensors_listener', **PARAMS)
     got = {t: [] for t in TOPICS}
     arrived = {t: [] for t in TOPICS}
 

@@ -21,10 +21,13 @@ Service ``~/reset`` (std_srvs/Trigger): restart at t = 0 from the current parame
 
 This module is the wiring; the parts are elsewhere: the parameters in
 :mod:`rigidrot_ros.params`, the run set-up in :func:`rigidrot_ros.settings.prepare_run`,
-the tick grids in :mod:`~rigidrot_ros.node.grid` (stamps: see there), the sensors in
-:mod:`~rigidrot_ros.node.streams`, the truth ahead of time in
+the tick grids in :mod:`~rigidrot_ros.node.grid` (stamps: see there), the sensor streams
+in :mod:`~rigidrot_ros.node.streams` and each one's schedule, look-ahead and messages in
+:mod:`~rigidrot_ros.node.sensor_ahead`, the schedule's grid, timing and choice of the next
+batch in :mod:`~rigidrot_ros.node.scheduler`, the truth ahead of time in
 :mod:`~rigidrot_ros.node.lookahead`, the messages in :mod:`~rigidrot_ros.node.outputs`,
-the diagnostics in :mod:`~rigidrot_ros.node.diagnostics`, ``--help`` and ``main`` in
+the diagnostics in :mod:`~rigidrot_ros.node.diagnostics`, ``~/run`` and the recorder in
+:mod:`~rigidrot_ros.node.recording`, ``--help`` and ``main`` in
 :mod:`~rigidrot_ros.node.cli`. Because the coming ticks' times are known, their samples are
 evaluated, and the attitude and rate messages built and serialized, ahead in batches; a
 tick reads the clock and publishes the bytes.
@@ -36,7 +39,6 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import QuaternionStamped, TransformStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
-import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -52,17 +54,14 @@ from rigidrot_ros import settings
 from rigidrot_ros.core import PrecisionError
 from rigidrot_ros.io import cdr
 from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.io.bag import BagWriter
-from rigidrot_ros.io.recorder import Recorder, type_name_of
-from rigidrot_ros.node import cli, diagnostics, grid, outputs, scheduler
+from rigidrot_ros.node import cli, diagnostics, grid, outputs, recording, scheduler
 from rigidrot_ros.node.cli import SceneError
-from rigidrot_ros.node.lookahead import Lookahead, SensorAhead
+from rigidrot_ros.node.lookahead import Lookahead
 from rigidrot_ros.node.ros_params import descriptor, UnknownParameterError
 from rigidrot_ros.node.ros_params import warn_unknown_overrides
-from rigidrot_ros.node.streams import ImuStream, MagStream, StarTrackerStream
+from rigidrot_ros.node.sensor_ahead import Sensor
 from rigidrot_ros.node.streams import make_streams, scene_time, STREAMS
 from rigidrot_ros.params import BY_NAME, PARAMS
-from rigidrot_ros.settings import SAMPLE_BUDGET_S
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
 
@@ -71,12 +70,6 @@ _EXTRA_TYPES = {'transform': TransformStamped, 'odom': Odometry, 'markers': Mark
 _LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
 #: A scheduler call this many timer periods after its due time is a catch-up (see _refill).
 _CATCH_UP = 1.0
-#: A catch-up call still runs a batch when its stream has less than this buffered ahead:
-#: seconds of samples, and samples.
-_KEEP_AHEAD_S, _KEEP_AHEAD = 4e-3, 3
-#: Seconds between the recorder's chunk flushes: a flush's cost grows with the chunk, and
-#: a flush of 0.4 s of kHz streams took 1.5 ms (p99 3.7 ms, under load), past a period.
-RECORD_FLUSH_S = 0.1
 
 
 class AttitudeNode(Node):
@@ -109,11 +102,8 @@ class AttitudeNode(Node):
         self.add_post_set_parameters_callback(self._on_post_set)
         self._make_publishers()
         self._srv = self.create_service(Trigger, '~/reset', self._on_reset)
-        self._run_index = 0
-        self._run_pending = True
-        self._recorder = None
-        if self._values['record']:
-            self._start_recording()
+        self._runs = recording.RunLog(self._pub_run, recording.open_recorder(
+            self, self._values) if self._values['record'] else None)
         self._timer = None
         self._period_hz = float(self._values['publish_rate'])
         self._streams, self._sensors = [], []
@@ -140,7 +130,7 @@ class AttitudeNode(Node):
             for topic, cls in stream.topics:
                 self._pubs[topic] = self.create_publisher(cls, topic, qos)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        # the run description: JSON on ~/run, kept for late joiners (see _record_tick)
+        # the run description: JSON on ~/run, kept for late joiners (recording.RunLog)
         self._pub_run = self.create_publisher(
             String, '~/run', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                         durability=DurabilityPolicy.TRANSIENT_LOCAL))
@@ -250,7 +240,7 @@ class AttitudeNode(Node):
         truth = self._truth_due(now_ns, groups)
         if self._t_start is not None:
             for sensor in self._sensors:
-                self._sensor_due(sensor, now_ns, groups)
+                sensor.due(now_ns, groups, self._pubs, self._failed)
         if groups:
             groups.sort(key=lambda g: (g[0], g[1]))
             items = [it for g in groups for it in g[2]]
@@ -261,7 +251,8 @@ class AttitudeNode(Node):
                 sensor.published(pub_ns, self._counters)
             if truth:
                 self._counters.tick_times.append(time.perf_counter_ns() - c_tick)
-            self._record_tick(now_ns, items)
+            start = self._t_start.nanoseconds if self._t_start is not None else now_ns
+            self._runs.tick(self, self._setup, start, now_ns, items)
         # a call that came late (a catch-up) leaves its batch to the next call while the
         # buffers hold enough: a batch now would make the next samples late too
         self._refill(behind=now_ns - self._grid_due_ns(now_ns) > _CATCH_UP * self._timer_ns)
@@ -276,26 +267,15 @@ class AttitudeNode(Node):
         return now_ns - (now_ns - self._grid0) % self._timer_ns
 
     def _refill(self, behind=False):
-        """Run at most one look-ahead batch: of the stream whose buffer runs out first.
-
-        ``behind``: this call came late; then the batch waits for a later call unless its
-        stream has less than :data:`_KEEP_AHEAD_S` (or :data:`_KEEP_AHEAD` samples) buffered.
-        """
-        best, when = None, None
-        if self._ahead is not None and self._ahead.needs(self._tick_k):
-            best = (self._ahead, self._tick_k)
-            when = self._ahead.ahead_of(self._tick_k) / self._period_hz
-        for s in self._sensors:
-            if s.ahead.needs(s.track.last):
-                t = s.ahead.ahead_of(s.track.last) / s.track.rate
-                if when is None or t < when:
-                    best, when = (s.ahead, s.track.last), t
-        if best is None:
-            return
-        if behind and when >= _KEEP_AHEAD_S and best[0].ahead_of(best[1]) >= _KEEP_AHEAD:
+        """Run at most one look-ahead batch (:func:`scheduler.next_batch` chooses it)."""
+        streams = [(s.ahead, s.track.last, s.track.rate) for s in self._sensors]
+        if self._ahead is not None:
+            streams.insert(0, (self._ahead, self._tick_k, self._period_hz))
+        best = scheduler.next_batch(streams, behind)
+        if best is scheduler.DEFERRED:
             self._counters.deferred += 1
-            return
-        best[0].refill(best[1])
+        elif best is not None:
+            best[0].refill(best[1])
 
     # -- the truth ---------------------------------------------------------------------------
     def _anchor(self, now_ns):
@@ -307,7 +287,7 @@ class AttitudeNode(Node):
         g0 = grid.anchor_ns(now_ns, until, self._timer_ns)
         if self._t_start is None:
             self._t_start = Time(nanoseconds=g0, clock_type=self.get_clock().clock_type)
-            self._run_pending = True        # _record_tick announces the run on ~/run
+            self._runs.pending = True       # the first publication announces it on ~/run
             self._start_sensor_tracks()
         self._grid0, self._tick_k = g0, -1
         self._ahead = Lookahead(self.solution,
@@ -380,21 +360,20 @@ class AttitudeNode(Node):
 
         Every grid tick from the last published one to now goes out (a call that comes
         late publishes the ticks it owes: counted ``ticks_late``, not lost); only a backlog
-        beyond a second (a clock jump) is skipped and counted ``ticks_missed``.
+        beyond a second (a clock jump) is skipped and counted ``ticks_missed``
+        (:func:`grid.truth_due`).
         """
         st = self._counters
         if self._grid0 is None or now_ns < self._grid0:     # new grid, or the clock went back
             self._anchor(now_ns)
-        k = grid.index(self._grid0, self._period_hz, now_ns)
-        if k <= self._tick_k:
-            if k >= self._tick_k - 1:
-                return False            # this grid time is published already
-            self._anchor(now_ns)        # the clock went back: a new grid
-            k = 0
-        first = self._tick_k + 1
-        if k - first >= max(grid.BACKLOG_MIN, self._period_hz):
-            st.missed += k - first
-            first = k
+        owed = grid.truth_due(self._grid0, self._period_hz, self._tick_k, now_ns)
+        if owed is None:
+            return False                # this grid time is published already
+        if owed is grid.NEW_GRID:
+            self._anchor(now_ns)        # the clock went back: a new grid, from its tick 0
+            owed = (0, 0, 0)
+        first, k, missed = owed
+        st.missed += missed
         if k > first:
             st.late += 1
         for j in range(first, k + 1):
@@ -436,31 +415,8 @@ class AttitudeNode(Node):
     def _start_sensor_tracks(self):
         """At a run's t_start: each sensor's grid, timing model and look-ahead."""
         t0 = self._t_start.nanoseconds
-        self._sensors = [_Sensor(self, s, t0, rank)
+        self._sensors = [Sensor(s, t0, rank, self._setup, self._counters, lambda: self._frames)
                          for rank, s in enumerate(self._streams, start=1)]
-
-    def _sensor_due(self, sensor, now_ns, groups):
-        """Append the samples of ``sensor`` due at ``now_ns`` to ``groups``."""
-        ks, skipped = sensor.track.due(now_ns)
-        self._counters.skipped += skipped
-        for k in ks:
-            try:
-                sample, built = sensor.ahead.get(k)
-            except Exception as exc:    # noqa: B902 - a sample that cannot be read: report
-                self._failed(self._scene_time(sensor.track.stamp_ns(k)), exc)
-                continue
-            true_ns, _, keep, err, _ = sample
-            if err is not None:
-                self._failed(self._scene_time(true_ns), err)
-                continue
-            if not keep:
-                sensor.dropped += 1
-                continue
-            if built is None:
-                built = sensor.build_one(sample)
-            groups.append((true_ns, sensor.rank,
-                           [(self._pubs[topic], cls, raw) for topic, cls, raw in built]))
-            sensor.pending.append(true_ns)
 
     # -- diagnostics -------------------------------------------------------------------------
     def _publish_diagnostics(self):
@@ -485,73 +441,15 @@ class AttitudeNode(Node):
         self._pub_diag.publish(arr)
 
     def _delivered_rate(self):
-        """Ticks published per second since the last call (steady clock), or None.
-
-        None while the window is shorter than 0.5 s or holds fewer than 5 periods at the
-        asked rate (too few ticks to judge), and for the first window after a rate change.
-        """
-        now, count = time.monotonic(), self._counters.published
-        last = getattr(self, '_rate_window', None)
-        self._rate_window = (now, count, self._period_hz)
-        if last is None or last[2] != self._period_hz:
-            return None
-        span = now - last[0]
-        if span < 0.5 or span * self._period_hz < 5:
-            self._rate_window = last            # keep accumulating
-            return None
-        return (count - last[1]) / span
-
-    # -- recording and the run description -------------------------------------------------
-    def _start_recording(self):
-        path = self._values['record_path'] or 'runs'
-        topics = [t for t in (self._values['record_topics'] or []) if t]
-        try:
-            writer = BagWriter(path, self.get_name(), flush_period=RECORD_FLUSH_S)
-        except OSError as exc:
-            raise SceneError(f'cannot record to {path!r}: {exc}') from None
-        try:
-            self._recorder = Recorder(self, writer, topics=topics, exclude_own=True)
-        except Exception as exc:  # noqa: B902 - ValueError, or rclpy's invalid-name errors
-            writer.close()
-            raise SceneError(f'parameter record_topics: {exc}') from None
-        self.get_logger().info(f'recording to {writer.path}')
-
-    def _record_tick(self, now_ns, published):
-        """After each publication: announce a new run on ``~/run``, record what was published.
-
-        ``published`` lists ``(publisher, msg, raw)`` for every message of this call, as
-        :meth:`_publish` took them (``raw``: the serialized bytes if made already, else None);
-        their topic names are looked up only when there is a recorder.
-        The first call after start-up or a ``~/reset`` publishes the run description (JSON
-        in std_msgs/String, transient-local, depth 1), so any recorder keeps it.
-        """
-        if self._run_pending:
-            self._run_pending = False
-            self._run_index += 1
-            start = self._t_start.nanoseconds if self._t_start is not None else now_ns
-            info = outputs.run_description(
-                self._setup, start, self._run_index, self.get_fully_qualified_name(),
-                {p.topic_name: type_name_of(p.msg_type) for p in self.publishers})
-            msg = outputs.run_message(info)
-            self._pub_run.publish(msg)
-            published = list(published) + [(self._pub_run, msg, None)]
-            if self._recorder is not None:
-                self._recorder.add_run(info)
-        if self._recorder is not None:
-            self._recorder.record_published(
-                now_ns, [(pub.topic_name, m, raw) for pub, m, raw in published])
+        """Ticks published per second since the last call, or None (diagnostics.delivered)."""
+        rate, self._rate_window = diagnostics.delivered(
+            getattr(self, '_rate_window', None), time.monotonic(), self._counters.published,
+            self._period_hz)
+        return rate
 
     def destroy_node(self):
         """Finish the bag (summary, index, metadata.yaml), then destroy the node."""
-        if self._recorder is not None:
-            try:
-                path, counts = self._recorder.close()
-                # the context may be shut down already: no rosout logging here
-                print(f'attitude_node: bag finished: {path} {counts}, '
-                      f'published {self._counters.published} ticks', file=sys.stderr)
-            except (OSError, ValueError) as exc:
-                print(f'attitude_node: could not finish the bag: {exc}', file=sys.stderr)
-            self._recorder = None
+        self._runs.close(self._counters.published)
         return super().destroy_node()
 
     # -- reset -------------------------------------------------------------------------------
@@ -567,228 +465,13 @@ class AttitudeNode(Node):
         self._grid0 = None                  # the next tick anchors the new run's grid
         self._ahead = None
         self._last_sample = None
-        self._run_pending = True            # the next tick announces the new run on ~/run
+        self._runs.pending = True           # the next tick announces the new run on ~/run
         self._start_streams()               # fresh noise; a new run's increment bound
         self._make_timer(self._values['publish_rate'])     # the new run's sensor rates
         response.success = True
         response.message = f'running model {setup.solution.model} ({setup.solution.method})'
         self.get_logger().info(f'reset: {response.message}')
         return response
-
-
-class _Sensor:
-    """One sensor stream of a run on the node's schedule: grid, timing, look-ahead.
-
-    A sample is ``(true_ns, stamp_ns, keep, error, row)``: its grid time, the stamp its
-    messages carry (:meth:`Track.marks`), whether it is published (not dropped), the
-    exception that kept it from being read (else None), and its values (a tuple, one
-    entry per array of the batch). The imu is read a block at a time: the gyro by
-    :meth:`Gyro.read_many` (bit for bit the per-sample reads) and, where there is one,
-    the accelerometer over the same intervals by :meth:`Accelerometer.read_many`
-    (:meth:`_read_accel`); the star tracker and the magnetometer sample by sample. Each
-    batch is serialized by
-    :mod:`rigidrot_ros.io.cdr`, one call per topic, and every one of these streams
-    carries its timing model (stamps jittered and offset, samples dropped, latency). A
-    stream of another kind is read and built per sample by its own ``messages`` (and
-    stamped by it: its stamp is not jittered nor offset).
-    """
-
-    def __init__(self, node, stream, t_start_ns, rank):
-        self.node, self.stream, self.rank = node, stream, rank
-        self.t_start_ns = t_start_ns
-        self.track = scheduler.Track(stream.name, t_start_ns, stream.rate, stream.first,
-                                     scheduler.timing_of(node._setup.values, stream.name))
-        self.dropped = 0
-        self.pending = []               # grid times (ns) published by this call
-        self.latencies = []             # publication - grid time, ns, this window
-        kind = type(stream)
-        if kind is ImuStream and hasattr(stream.model, 'read_many'):
-            self._read, self._build = self._read_imu, self._build_imu
-        elif kind is StarTrackerStream:
-            self._read, self._build = self._read_star, self._build_star
-        elif kind is MagStream:
-            self._read, self._build = self._read_mag, self._build_mag
-        else:
-            self._read, self._build = self._read_generic, None
-        self.types = dict(stream.topics)
-        self.ahead = SensorAhead(self._read, lambda k: self._read(range(k, k + 1))[0][0],
-                                 1.0 / stream.rate, stream.first,
-                                 build=self._build_batch if self._build else None)
-
-    # -- reading -----------------------------------------------------------------------------
-    def _scene(self, ns):
-        return scene_time(ns, self.t_start_ns, self.node._setup.time_scale)
-
-    def _samples(self, ks, rows, errors):
-        stamps, keep = self.track.marks(ks)
-        true = [self.track.stamp_ns(k) for k in ks]
-        return [(t, int(s), bool(kp), e, r)
-                for t, s, kp, e, r in zip(true, stamps.tolist(), keep.tolist(), errors, rows)]
-
-    def _read_imu(self, ks):
-        """Read the imu over the intervals of ``ks``: gyro, then accelerometer (if any).
-
-        The gyro as one block (per sample if the block fails), the accelerometer over the
-        same intervals (:meth:`_read_accel`).
-        """
-        c0 = time.perf_counter()
-        ends = np.array([self._scene(self.track.stamp_ns(k))
-                         for k in range(ks.start - 1, ks.stop)])
-        model, n = self.stream.model, len(ks)
-        try:
-            b = model.read_many(ends, budget=SAMPLE_BUDGET_S)
-            blocks, errors = [b], [None] * n
-        except ValueError:              # one interval too hard: each on its own
-            blocks, errors = [], []
-            for i in range(n):
-                try:
-                    blocks.append(model.read_many(ends[i:i + 2], budget=SAMPLE_BUDGET_S))
-                    errors.append(None)
-                except ValueError as exc:
-                    errors.append(exc)
-        rows = []
-        for block in blocks:
-            self.stream.bound = max(self.stream.bound, float(block.delta_angle_bound.max()),
-                                    float(block.delta_rotation_bound.max()))
-            rows += list(zip(block.omega, block.variance, block.delta_angle,
-                             block.delta_rotation))
-        rows = iter(rows)
-        rows = [None if e is not None else next(rows) for e in errors]
-        if self.stream.accel is not None:
-            rows, errors = self._read_accel(ends, rows, errors)
-        self._count(n, c0)
-        out = self._samples(ks, rows, errors)
-        return out, out
-
-    def _read_accel(self, ends, rows, errors):
-        """Append the accelerometer's ``(specific force, variance, delta_velocity)`` to rows.
-
-        Over the intervals ``[ends[i], ends[i + 1]]`` whose gyro read succeeded, in order,
-        as :meth:`ImuStream.messages` reads it after the gyro: one
-        :meth:`Accelerometer.read_many` block (bit for bit the per-sample reads), else
-        interval by interval (a failed gyro interval leaves the accelerometer's noise
-        stream untouched, as there; a failed accelerometer read makes the sample an error).
-        """
-        acc = self.stream.accel
-        if all(e is None for e in errors):
-            try:
-                b = acc.read_many(ends, budget=SAMPLE_BUDGET_S)
-                return [r + a for r, a in zip(rows, zip(b.specific_force, b.variance,
-                                                        b.delta_velocity))], errors
-            except ValueError:          # one interval too hard: each on its own
-                pass
-        out_rows, out_errors = [], []
-        for i, (row, err) in enumerate(zip(rows, errors)):
-            if err is None:
-                try:
-                    b = acc.read_many(ends[i:i + 2], budget=SAMPLE_BUDGET_S)
-                    row = row + (b.specific_force[0], b.variance[0], b.delta_velocity[0])
-                except Exception as exc:    # noqa: B902 - reported when the sample is due
-                    row, err = None, exc
-            out_rows.append(row)
-            out_errors.append(err)
-        return out_rows, out_errors
-
-    def _read_each(self, ks, read):
-        """Read the samples ``ks`` one by one with ``read(k) -> row``, errors kept per sample."""
-        c0 = time.perf_counter()
-        rows, errors = [], []
-        for k in ks:
-            try:
-                rows.append(read(k))
-                errors.append(None)
-            except Exception as exc:    # noqa: B902 - reported when the sample is due
-                rows.append(None)
-                errors.append(exc)
-        self._count(len(ks), c0)
-        out = self._samples(ks, rows, errors)
-        return out, out
-
-    def _read_star(self, ks):
-        def read(k):
-            r = self.stream.model.read(self._scene(self.track.stamp_ns(k)))
-            return r.quaternion, r.covariance
-        return self._read_each(ks, read)
-
-    def _read_mag(self, ks):
-        dt = self.node._setup.time_scale / self.stream.rate     # as MagStream.messages
-
-        def read(k):
-            r = self.stream.model.read(self._scene(self.track.stamp_ns(k)), dt)
-            return r.field, r.covariance
-        return self._read_each(ks, read)
-
-    def _read_generic(self, ks):
-        node = self.node
-        return self._read_each(ks, lambda k: self.stream.messages(
-            k, self.t_start_ns, node._setup.time_scale, node._frames))
-
-    def _count(self, n, c0):
-        per = (time.perf_counter() - c0) / max(n, 1)
-        for _ in range(n):
-            self.node._counters.sampled(self.stream.name, per)
-
-    # -- building ----------------------------------------------------------------------------
-    def _build_batch(self, start, data):
-        """Build a batch's messages (cdr), for the samples that were read and are kept."""
-        samples = data
-        ok = [i for i, s in enumerate(samples) if s[3] is None and s[2]]
-        out = [None] * len(samples)
-        if ok:
-            built = self._build([samples[i][1] for i in ok], [samples[i][4] for i in ok])
-            for i, b in zip(ok, built):
-                out[i] = b
-        return out
-
-    def build_one(self, sample):
-        """Return the ``(topic, class, raw)`` items of one sample read now."""
-        if self._build is None:
-            return [(topic, msg, None) for topic, msg in sample[4]]
-        return self._build([sample[1]], [sample[4]])[0]
-
-    def _build_imu(self, stamps, rows):
-        body = self.node._frames[1]
-        cols = [np.array(c) for c in zip(*rows)]
-        w, var, da, dr = cols[:4]
-        accel = len(cols) > 4           # with the accelerometer's three columns
-        if accel:
-            f, avar, dv = cols[4:]
-            imu = cdr.imu(stamps, w, var, body, f, avar).tolist()
-        else:
-            imu = cdr.imu(stamps, w, var, body).tolist()
-        cols = [imu, cdr.vector(stamps, da, body).tolist(),
-                cdr.vector(stamps, dr, body).tolist()]
-        topics = ['imu', 'delta_angle', 'delta_rotation']
-        if accel:
-            cols.append(cdr.vector(stamps, dv, body).tolist())
-            topics.append('delta_velocity')
-        classes = [self.types[name] for name in topics]
-        return [list(zip(topics, classes, raws)) for raws in zip(*cols)]
-
-    def _build_star(self, stamps, rows):
-        q, cov = (np.array(c) for c in zip(*rows))
-        raw = cdr.star_tracker(stamps, q, cov, self.node._frames[0]).tolist()
-        cls = self.types['star_tracker']
-        return [[('star_tracker', cls, x)] for x in raw]
-
-    def _build_mag(self, stamps, rows):
-        f, cov = (np.array(c) for c in zip(*rows))
-        raw = cdr.magnetic_field(stamps, f, cov, self.node._frames[1]).tolist()
-        cls = self.types['mag']
-        return [[('mag', cls, x)] for x in raw]
-
-    # -- accounting --------------------------------------------------------------------------
-    def published(self, pub_ns, counters):
-        """Note the publication time of the samples this call published."""
-        if self.pending:
-            self.latencies += [pub_ns - t for t in self.pending]
-            self.pending = []
-
-    def report(self):
-        """Return ``(latency mean, p99, max s, dropped)`` of this window, and start the next."""
-        out = diagnostics.summary(self.latencies, 1e-9) + (self.dropped,)
-        self.latencies = []
-        return out
 
 
 def main(args=None):

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['Counters', 'Window', 'report', 'summary', 'OK', 'WARN', 'ERROR']
+__all__ = ['Counters', 'Window', 'report', 'summary', 'delivered', 'OK', 'WARN', 'ERROR']
 
 #: Levels, as diagnostic_msgs/DiagnosticStatus numbers them.
 OK, WARN, ERROR = 0, 1, 2
@@ -196,3 +196,20 @@ def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_b
         'delivered_rate_hz': '' if delivered is None else f'{delivered:.4g}',
     })
     return level, msg, values
+
+
+def delivered(last, now, count, period_hz):
+    """Return ``(rate, window)``: ticks published per second since ``last``, or None.
+
+    ``last`` and the returned window are ``(steady clock s, ticks published, asked rate
+    Hz)`` (None at first). The rate is None while the window is shorter than 0.5 s or
+    holds fewer than 5 periods at the asked rate (too few ticks to judge: the window keeps
+    accumulating), and for the first window after a rate change.
+    """
+    window = (now, count, period_hz)
+    if last is None or last[2] != period_hz:
+        return None, window
+    span = now - last[0]
+    if span < 0.5 or span * period_hz < 5:
+        return None, last                   # keep accumulating
+    return (count - last[1]) / span, window

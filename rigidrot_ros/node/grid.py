@@ -13,16 +13,19 @@ generator).
   is taken at scene time ``t = (stamp - t_start) * time_scale``.
 - A sensor: sample k is stamped ``t_start + k / rate`` for the whole run (its own rate,
   unaffected by ``publish_rate``), so a seed reproduces its stream bit for bit;
-  :func:`due` says which samples a callback at ``now_ns`` owes.
+  :func:`due` says which samples a callback at ``now_ns`` owes (:func:`truth_due`: which
+  truth ticks).
 """
 
 import math
 
-__all__ = ['stamp_ns', 'index', 'anchor_ns', 'due', 'BACKLOG_MIN']
+__all__ = ['stamp_ns', 'index', 'anchor_ns', 'due', 'truth_due', 'BACKLOG_MIN', 'NEW_GRID']
 
 #: A sensor backlog of more than ``max(BACKLOG_MIN, rate)`` samples (over a second: a clock
 #: jump) restarts the sensor's chain at the newest sample.
 BACKLOG_MIN = 10
+#: :func:`truth_due`'s answer when the clock went back before the last tick published.
+NEW_GRID = 'new grid'
 
 
 def stamp_ns(origin_ns, rate, k):
@@ -67,3 +70,22 @@ def due(origin_ns, rate, last, now_ns):
     if k - last > max(BACKLOG_MIN, int(rate)):
         skipped, first = k - last - 1, k
     return first, k, skipped
+
+
+def truth_due(origin_ns, rate, last, now_ns):
+    """Return ``(first, newest, missed)``: the truth ticks a scheduler call at ``now_ns`` owes.
+
+    ``last`` is the last tick published (-1: none yet). Every tick from ``last + 1`` to
+    the newest at or before ``now_ns`` is owed (a call that comes late publishes the ticks
+    it owes); a backlog of ``max(BACKLOG_MIN, rate)`` ticks or more (a clock jump) is
+    skipped but for the newest, and counted in ``missed``. None if the newest tick is
+    ``last`` or ``last - 1`` (published already); :data:`NEW_GRID` if the clock went
+    back further (the caller anchors a new grid and publishes its tick 0).
+    """
+    k = index(origin_ns, rate, now_ns)
+    if k <= last:
+        return None if k >= last - 1 else NEW_GRID
+    first, missed = last + 1, 0
+    if k - first >= max(BACKLOG_MIN, rate):
+        missed, first = k - first, k
+    return first, k, missed

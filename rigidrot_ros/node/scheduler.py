@@ -31,7 +31,8 @@ import numpy as np
 
 from rigidrot_ros.node import grid
 
-__all__ = ['Timing', 'timing_of', 'Track', 'timer_period_ns', 'TIMING_KEYS', 'MAX_PERIOD_S']
+__all__ = ['Timing', 'timing_of', 'Track', 'timer_period_ns', 'next_batch', 'TIMING_KEYS',
+           'MAX_PERIOD_S', 'KEEP_AHEAD_S', 'KEEP_AHEAD', 'DEFERRED']
 
 #: The longest scheduler period, s (the diagnostics are due once a second).
 MAX_PERIOD_S = 1.0
@@ -162,3 +163,39 @@ class Track:
         if t.drop_probability > 0:
             keep = self._drop.random(n) >= t.drop_probability
         return stamps, keep
+
+
+#: A catch-up call still runs a batch when its stream has less than this buffered ahead:
+#: seconds of samples, and samples (:func:`next_batch`).
+KEEP_AHEAD_S, KEEP_AHEAD = 4e-3, 3
+#: :func:`next_batch`'s answer when the batch waits for a later call.
+DEFERRED = 'deferred'
+
+
+def next_batch(streams, behind=False):
+    """Choose the one look-ahead batch of a scheduler call: the buffer that runs out first.
+
+    Parameters
+    ----------
+    streams : list of (ahead, last, rate)
+        Each stream's look-ahead (:class:`~rigidrot_ros.node.lookahead.Ahead`), the index
+        of its last published sample, and its rate (Hz); ties go to the first.
+    behind : bool
+        This call came late (a catch-up); then the batch waits for a later call unless its
+        stream has less than :data:`KEEP_AHEAD_S` (or :data:`KEEP_AHEAD` samples) buffered.
+
+    Returns
+    -------
+    (ahead, last) to refill, None if no buffer needs a batch, or :data:`DEFERRED`.
+    """
+    best, when = None, None
+    for ahead, last, rate in streams:
+        if ahead.needs(last):
+            t = ahead.ahead_of(last) / rate
+            if when is None or t < when:
+                best, when = (ahead, last), t
+    if best is None:
+        return None
+    if behind and when >= KEEP_AHEAD_S and best[0].ahead_of(best[1]) >= KEEP_AHEAD:
+        return DEFERRED
+    return best
