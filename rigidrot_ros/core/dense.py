@@ -438,11 +438,12 @@ class DenseSpinor:
     def anchor(self, key):
         """Return the spinor (c1, c2) and its bound at the anchor of a window; None: no grid.
 
-        Deterministic: the anchors of a block (:data:`BLOCK` windows) chain from an exact evaluation at the block's first anchor
-        (the identity at t = 0), re-anchored exactly where the chained bound would pass
-        0.9 tol. A block's propagators are computed whole at its first query, its chain
-        only as far as the queries so far reached (each anchor follows from the one
-        before it alone), so its values never depend on which query built it or on what
+        Deterministic: the anchors of a block (:data:`BLOCK` windows) chain from an
+        exact evaluation at the block's first anchor (the identity at t = 0),
+        re-anchored exactly where the chained bound would pass 0.9 tol. A block's
+        propagators are computed whole at its first query, its chain only as far as the
+        queries so far reached (each anchor follows from the one before it alone), so its
+        values never depend on which query built it or on what
         was evaluated before.
         """
         n = self._index(key)
