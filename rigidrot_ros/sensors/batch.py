@@ -112,14 +112,7 @@ def _log_bound(bound, hh, tm):
             om = np.asarray(bound.solution.omega_at(tm), dtype=float)
             w = np.max(np.abs(om), axis=-1)[:, None] * (1 + 1e-12) + 1e-300
             r = hh * _A_RHO
-            if bound.c == 0.0:
-                y = w + bound.mu * r
-            elif bound.mu == 0.0:
-                y = np.where(bound.c * w * r < 1.0, w / (1.0 - bound.c * w * r), np.inf)
-            else:
-                s = math.sqrt(bound.mu / bound.c)
-                phase = math.sqrt(bound.mu * bound.c) * r + np.arctan(w / s)
-                y = np.where(phase < 0.5 * math.pi, s * np.tan(phase), np.inf)
+            y = bound.majorant(w, r)
             out = np.log(math.sqrt(3.0) * hh) + np.log(y) + _LOG_C
     return np.where(np.isnan(out), np.inf, out)
 
