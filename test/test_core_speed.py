@@ -12,7 +12,6 @@
 
 import ast
 import os
-import tracemalloc
 
 import mpmath
 from mpmath import mp
@@ -169,15 +168,7 @@ def test_kernels_are_leaves_and_one_module_chooses():
 
 def test_batch_memory_is_a_small_multiple_of_its_output():
     t = np.arange(1, 200001) * 0.01
-    sol = solve(SPACECRAFT)
-    sol.at(t[:10])
-    tracemalloc.start()
-    try:
-        s = sol.at(t)
-        _, peak = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
-    size = s.quaternion.nbytes + s.omega.nbytes + s.error_bound.nbytes + s.t.nbytes
+    peak, size = common.batch_memory(solve(SPACECRAFT), t)
     assert peak <= 3 * size
 
 
