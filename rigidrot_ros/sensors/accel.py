@@ -46,7 +46,7 @@ import time
 import numpy as np
 
 from rigidrot_ros.core import quaternion as quat
-from .batch import norm3, rules_from_log
+from .batch import check_ends, norm3, rules_from_log
 from .imu_noise import ImuNoise
 from .increments import _A_RHO, _B_RHO, _LOG_C, _LOG_RHO, _MAX_PIECES, _NODES, _RHO, _RULES
 from .increments import RateBound
@@ -554,17 +554,7 @@ class Accelerometer:
             error model's state carried either way): every row's Δv, bound and specific
             force depend on its own interval alone (:func:`delta_velocity_many`).
         """
-        ts = np.asarray(times, dtype=float)
-        if ts.ndim != 1 or len(ts) < 2:
-            raise ValueError(f'an accelerometer block needs a 1-D array of at least 2 '
-                             f'interval ends, got shape {ts.shape}')
-        if not np.all(np.isfinite(ts)):
-            raise ValueError('an accelerometer block needs finite interval ends')
-        t0, t1 = ts[:-1], ts[1:]
-        if not np.all(t1 > t0):
-            i = int(np.argmin(t1 > t0))
-            raise ValueError(f'an accelerometer interval needs t0 < t1, got [{t0[i]!r}, '
-                             f'{t1[i]!r}]')
+        ts, t0, t1 = check_ends(times, 'an accelerometer')
         deadline = None if budget is None else time.perf_counter() + budget
         dt = t1 - t0
         dv, dv_bound = delta_velocity_many(self.solution, t0, t1, self.lever_arm,
