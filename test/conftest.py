@@ -16,6 +16,29 @@ def _sym_axis(inertia):
     return None
 
 
+def read_in_blocks(sensor, times, sizes, fields, cell=lambda v: v):
+    """Read the intervals of ``times`` in blocks of the given sizes (0: one ``read``).
+
+    Returns one row a interval, ``{field: cell(value)}`` (a block's ``None`` field stays
+    None), from ``sensor.read`` or row k of ``sensor.read_many``; the sizes repeat.
+    """
+    rows, i, j = [], 0, 0
+    while i < len(times) - 1:
+        size = sizes[j % len(sizes)]
+        j += 1
+        if size == 0:
+            r = sensor.read(times[i], times[i + 1])
+            rows.append({f: cell(getattr(r, f)) for f in fields})
+            i += 1
+            continue
+        b = sensor.read_many(times[i:i + size + 1])
+        for k in range(len(b)):
+            rows.append({f: None if getattr(b, f) is None else cell(getattr(b, f)[k])
+                         for f in fields})
+        i += len(b)
+    return rows
+
+
 def integrate(scene, t_eval, rtol=1e-13, atol=1e-13):
     """Euler's equations (Eq. 3) + quaternion kinematics, DOP853; returns (omega, q).
 

@@ -9,32 +9,18 @@ angle f(t), Jacobi functions) is used. The angular acceleration is the central f
 difference of that integrated rate (step 1e-10 s: truncation ~1e-21, rounding ~1e-25).
 """
 
-import glob
-import os
-
 import mpmath
 from mpmath import mp
 import numpy as np
 from numpy.testing import assert_allclose
 import pytest
-import yaml
 
+from rigidrot_ros.bench import common
 from rigidrot_ros.core import Scene, solve
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SPACECRAFT = Scene(inertia=(2.0, 2.0, 3.0), torque=(0.0, 0.0, 2e-4), omega0=(0.3, -0.2, 0.5))
 
 
 def _scenes():
-    out = {}
-    for path in sorted(glob.glob(os.path.join(ROOT, 'config', '*.yaml'))):
-        with open(path, encoding='utf-8') as fh:
-            p = yaml.safe_load(fh)['/**']['ros__parameters']
-        out[os.path.basename(path)[:-5]] = Scene(
-            inertia=tuple(p['inertia']), torque=tuple(p['torque']),
-            torque_frame=p['torque_frame'], omega0=tuple(p['omega0']),
-            attitude0=tuple(p['attitude0']))
-    out['spacecraft'] = SPACECRAFT
+    out = common.ratio_scenes()
     # both torque frames on the oblique and transverse cases, symmetry axis not z
     out['oblique_virtual_x'] = Scene(inertia=(1.0, 2.0, 2.0), torque=(0.05, 0.03, -0.02),
                                      torque_frame='virtual', omega0=(0.6, -0.2, 0.3))

@@ -11,17 +11,15 @@
 """
 
 import ast
-import glob
 import os
-import tracemalloc
 
 import mpmath
 from mpmath import mp
 import numpy as np
 from numpy.testing import assert_allclose
 import pytest
-import yaml
 
+from rigidrot_ros.bench import common
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.core.ddphase import DDPoly, IN_FLOOR, MAX_TURNS
@@ -29,23 +27,8 @@ from rigidrot_ros.core.kernel import PolyAngle
 import rigidrot_ros.core.models as models
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SPACECRAFT = Scene(inertia=(2.0, 2.0, 3.0), torque=(0.0, 0.0, 2e-4), omega0=(0.3, -0.2, 0.5))
-
-
-def _presets():
-    out = {}
-    for path in sorted(glob.glob(os.path.join(ROOT, 'config', '*.yaml'))):
-        with open(path, encoding='utf-8') as fh:
-            p = yaml.safe_load(fh)['/**']['ros__parameters']
-        out[os.path.basename(path)[:-5]] = Scene(
-            inertia=tuple(p['inertia']), torque=tuple(p['torque']),
-            torque_frame=p['torque_frame'], omega0=tuple(p['omega0']),
-            attitude0=tuple(p['attitude0']))
-    out['spacecraft'] = SPACECRAFT
-    return out
-
-
-PRESETS = _presets()
+SPACECRAFT = common.SPACECRAFT
+PRESETS = common.ratio_scenes()
 
 
 def _mod4pi_distance(a, ref):
@@ -185,15 +168,7 @@ def test_kernels_are_leaves_and_one_module_chooses():
 
 def test_batch_memory_is_a_small_multiple_of_its_output():
     t = np.arange(1, 200001) * 0.01
-    sol = solve(SPACECRAFT)
-    sol.at(t[:10])
-    tracemalloc.start()
-    try:
-        s = sol.at(t)
-        _, peak = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
-    size = s.quaternion.nbytes + s.omega.nbytes + s.error_bound.nbytes + s.t.nbytes
+    peak, size = common.batch_memory(solve(SPACECRAFT), t)
     assert peak <= 3 * size
 
 

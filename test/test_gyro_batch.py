@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from test_sensors import _mp_rate
 
-from conftest import random_scene
+from conftest import random_scene, read_in_blocks
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.sensors import Gyro, GyroNoise, ImuNoise, RateBound
 from rigidrot_ros.sensors.batch import delta_angle_many, rounding_many, truncation_many
@@ -49,22 +49,7 @@ SCENES = {
 
 def _readings(sol, noise, times, sizes):
     """Read the intervals of ``times`` in blocks of the given sizes (0: one ``read``)."""
-    gyro = Gyro(sol, noise())
-    rows, i, j = [], 0, 0
-    while i < len(times) - 1:
-        size = sizes[j % len(sizes)]
-        j += 1
-        if size == 0:
-            r = gyro.read(times[i], times[i + 1])
-            rows.append({f: getattr(r, f) for f in FIELDS})
-            i += 1
-            continue
-        b = gyro.read_many(times[i:i + size + 1])
-        for k in range(len(b)):
-            rows.append({f: None if getattr(b, f) is None else getattr(b, f)[k]
-                         for f in FIELDS})
-        i += len(b)
-    return rows
+    return read_in_blocks(Gyro(sol, noise()), times, sizes, FIELDS)
 
 
 def _bits(rows, field):

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.testing import assert_allclose, assert_array_equal
 import pytest
 
-from conftest import random_scene
+from conftest import random_scene, read_in_blocks
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.sensors import (
     Accelerometer, delta_velocity, DV_TOL, ImuNoise, specific_force, STANDARD_GRAVITY,
@@ -240,22 +240,8 @@ ACCEL_SCENES = {
 def _accel_rows(sol, noise, times, sizes, lever=(0.1, -0.2, 0.05), gravity=G_UP):
     """Read the intervals of ``times`` in blocks of the given sizes (0: one ``read``)."""
     acc = Accelerometer(sol, noise(), lever_arm=lever, gravity=gravity)
-    rows, i, j = [], 0, 0
-    while i < len(times) - 1:
-        size = sizes[j % len(sizes)]
-        j += 1
-        if size == 0:
-            r = acc.read(times[i], times[i + 1])
-            rows.append({f: np.asarray(getattr(r, f), dtype=float).tobytes()
-                         for f in BLOCK_FIELDS})
-            i += 1
-            continue
-        b = acc.read_many(times[i:i + size + 1])
-        for k in range(len(b)):
-            rows.append({f: np.asarray(getattr(b, f)[k], dtype=float).tobytes()
-                         for f in BLOCK_FIELDS})
-        i += len(b)
-    return rows
+    return read_in_blocks(acc, times, sizes, BLOCK_FIELDS,
+                          lambda v: np.asarray(v, dtype=float).tobytes())
 
 
 @pytest.mark.parametrize('scene', sorted(ACCEL_SCENES))

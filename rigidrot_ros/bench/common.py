@@ -18,6 +18,7 @@ import signal
 import subprocess
 import sys
 import time
+import tracemalloc
 
 import mpmath
 import numpy as np
@@ -236,6 +237,21 @@ def reference_solution(scene):
             if tol >= 1e-12:
                 raise
             tol *= 2
+
+
+def batch_memory(sol, t):
+    """Return the tracemalloc peak (bytes) of ``sol.at(t)`` and the size of its output.
+
+    One small call first, so that what the first call sets up once is not counted.
+    """
+    sol.at(t[:10])
+    tracemalloc.start()
+    try:
+        s = sol.at(t)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    return peak, s.t.nbytes + s.quaternion.nbytes + s.omega.nbytes + s.error_bound.nbytes
 
 
 def ratio_scenes():

@@ -10,46 +10,26 @@ batch (a different path): the angle between them within the sum of the two bound
 """
 
 import argparse
-import glob
 import json
-import os
 import time
 import tracemalloc
 
 import numpy as np
 
-from rigidrot_ros.core import MIN_TOL, PrecisionError, Scene, solve
+from rigidrot_ros.bench import common
+from rigidrot_ros.core import MIN_TOL, PrecisionError, solve
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core.dense import BLOCK_BYTES, CACHE, CHECKPOINT_BYTES
 
 NAME = 'random_access'
 NEEDS = ('numpy', 'yaml')
 
-#: The issue's spacecraft scene: axial torque 2e-4 N m on I = (2, 2, 3) (delta = 325,
-#: the certified Taylor path).
-SPACECRAFT = Scene(inertia=(2.0, 2.0, 3.0), torque=(0.0, 0.0, 2e-4), omega0=(0.3, -0.2, 0.5))
 CALLS = 200
 TOL = 1e-12
 #: Bytes a solution's random-access state can hold at most: checkpoint blocks (40 B a
 #: window, 128 while a block's chain is partial; CHECKPOINT_BYTES in all, plus the one
 #: block in use, BLOCK_BYTES at most) and the cache of CACHE windows (about 2 kB each).
 MEMORY_BOUND = CHECKPOINT_BYTES + BLOCK_BYTES + CACHE * 2048
-
-
-def scenes():
-    """Return the presets (config/*.yaml) and the spacecraft scene, by name."""
-    import yaml
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    out = {}
-    for path in sorted(glob.glob(os.path.join(root, 'config', '*.yaml'))):
-        with open(path, encoding='utf-8') as fh:
-            p = yaml.safe_load(fh)['/**']['ros__parameters']
-        out[os.path.basename(path)[:-5]] = Scene(
-            inertia=tuple(p['inertia']), torque=tuple(p['torque']),
-            torque_frame=p['torque_frame'], omega0=tuple(p['omega0']),
-            attitude0=tuple(p['attitude0']))
-    out['spacecraft'] = SPACECRAFT
-    return out
 
 
 def _reference(scene):
@@ -109,7 +89,7 @@ def _one(name, scene, horizon, seed, log):
 def run(quick=False, log=print):
     """Time scalar random access on every preset and the spacecraft scene; check bounds."""
     horizons = (1e3,) if quick else (1e3, 1e5)
-    picked = scenes()
+    picked = common.ratio_scenes()
     if quick:
         picked = {k: picked[k] for k in ('default', 'spacecraft', 'torque_free_triaxial')}
     log(f'random access: {CALLS} scalar at(t) after solve (first pass), t uniform in [0, T]; '

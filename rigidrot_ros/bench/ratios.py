@@ -9,7 +9,6 @@ checked against single evaluations at the reference tol, and its bound against i
 import math
 import os
 import sys
-import tracemalloc
 
 import numpy as np
 
@@ -98,15 +97,7 @@ def ratios(quick, log, budget=600.0):
     rows.append(_versus_dop853(f'{n_big:.0e} samples', 'spacecraft', common.SPACECRAFT, t, 1,
                                budget,
                                log, every=max(1, n_big // 200)))
-    sol = solve(common.SPACECRAFT, tol=1e-12)
-    sol.at(t[:10])
-    tracemalloc.start()
-    try:
-        s = sol.at(t)
-        _, peak = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
-    size = s.t.nbytes + s.quaternion.nbytes + s.omega.nbytes + s.error_bound.nbytes
+    peak, size = common.batch_memory(solve(common.SPACECRAFT, tol=1e-12), t)
     rows.append(_row(part='batch memory', scene='spacecraft', samples=n_big,
                      horizon_s=t_big, memory_ratio=peak / size))
     log(f'batch memory           spacecraft         peak {peak / 1e6:.1f} MB for '

@@ -16,15 +16,9 @@ import sys
 import time
 
 from rigidrot_ros.estimators.mekf import MekfParams, PARAMS
-from rigidrot_ros.tools.cli import OneLineParser
+from rigidrot_ros.tools.cli import fail, OneLineParser
 
 __all__ = ['main']
-
-
-def fail(prog, message, status=2):
-    """Print ``<prog>: <message>`` on one line to stderr and return ``status``."""
-    print(f'{prog}: {" ".join(str(message).split())}', file=sys.stderr)
-    return status
 
 
 def _parser():

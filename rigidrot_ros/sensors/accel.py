@@ -46,7 +46,7 @@ import time
 import numpy as np
 
 from rigidrot_ros.core import quaternion as quat
-from .batch import norm3, rules_from_log
+from .batch import check_ends, norm3, rules_from_log
 from .imu_noise import ImuNoise
 from .increments import _A_RHO, _B_RHO, _LOG_C, _LOG_RHO, _MAX_PIECES, _NODES, _RHO, _RULES
 from .increments import RateBound
@@ -97,29 +97,28 @@ def rate_bound_on_ellipse(bound, t0, t1):
     """
     hh, tm = 0.5 * (t1 - t0), 0.5 * (t0 + t1)
     reach = abs(tm) + hh * _RHO_FULL
-    scene = bound.solution.scene
     with np.errstate(over='ignore', invalid='ignore'):
-        if bound.kind == 'linear':
-            w0 = float(np.linalg.norm(scene.omega0))
-            wd = float(np.linalg.norm(np.asarray(scene.torque) / np.asarray(scene.inertia)))
-            return w0 + wd * reach
-        if bound.kind == 'closed-form':
-            y = hh * _B_RHO * (bound.c1 + bound.c2 * reach)           # max |Im f|
-            trans = (bound.w_t + bound.m_t * reach) * np.cosh(y)
-            axial = bound.r0 + bound.rdot * reach
-            return np.sqrt(2.0 * trans * trans + axial * axial)
+        if bound.kind in ('linear', 'closed-form'):
+            return _closed_rate(bound, hh, reach)
         w = float(np.max(np.abs(bound.solution.omega_at(tm))))
         w = w * (1 + 1e-12) + 1e-300
-        r = hh * _RHO_FULL
-        if bound.c == 0.0:
-            y = w + bound.mu * r
-        elif bound.mu == 0.0:
-            y = np.where(bound.c * w * r < 1.0, w / (1.0 - bound.c * w * r), np.inf)
-        else:
-            s = math.sqrt(bound.mu / bound.c)
-            phase = math.sqrt(bound.mu * bound.c) * r + math.atan(w / s)
-            y = np.where(phase < 0.5 * math.pi, s * np.tan(phase), np.inf)
-        return math.sqrt(3.0) * y
+        return math.sqrt(3.0) * bound.majorant(w, hh * _RHO_FULL)
+
+
+def _closed_rate(bound, hh, reach):
+    """``W`` of a linear or closed-form rate, given ``hh`` and ``reach`` shaped alike, rad/s.
+
+    ``reach`` is the largest ``|t|`` on each ellipse; the caller sets ``np.errstate``.
+    """
+    if bound.kind == 'linear':
+        scene = bound.solution.scene
+        w0 = float(np.linalg.norm(scene.omega0))
+        wd = float(np.linalg.norm(np.asarray(scene.torque) / np.asarray(scene.inertia)))
+        return w0 + wd * reach
+    y = hh * _B_RHO * (bound.c1 + bound.c2 * reach)           # max |Im f|
+    trans = (bound.w_t + bound.m_t * reach) * np.cosh(y)
+    axial = bound.r0 + bound.rdot * reach
+    return np.sqrt(2.0 * trans * trans + axial * axial)
 
 
 def _truncation(bound, t0, t1, n, lever, grav):
@@ -303,29 +302,12 @@ def _ellipse_rate_many(bound, t0, t1):
     """:func:`rate_bound_on_ellipse` for arrays of intervals: ``W`` (m, rho), rad/s."""
     hh, tm = 0.5 * (t1 - t0), 0.5 * (t0 + t1)
     reach = np.abs(tm)[:, None] + hh[:, None] * _RHO_FULL
-    scene = bound.solution.scene
     with np.errstate(over='ignore', invalid='ignore'):
-        if bound.kind == 'linear':
-            w0 = float(np.linalg.norm(scene.omega0))
-            wd = float(np.linalg.norm(np.asarray(scene.torque) / np.asarray(scene.inertia)))
-            return w0 + wd * reach
-        if bound.kind == 'closed-form':
-            y = hh[:, None] * _B_RHO * (bound.c1 + bound.c2 * reach)
-            trans = (bound.w_t + bound.m_t * reach) * np.cosh(y)
-            axial = bound.r0 + bound.rdot * reach
-            return np.sqrt(2.0 * trans * trans + axial * axial)
+        if bound.kind in ('linear', 'closed-form'):
+            return _closed_rate(bound, hh[:, None], reach)
         om = np.asarray(bound.solution.omega_at(tm), dtype=float).reshape(len(tm), 3)
         w = np.max(np.abs(om), axis=-1)[:, None] * (1 + 1e-12) + 1e-300
-        r = hh[:, None] * _RHO_FULL
-        if bound.c == 0.0:
-            y = w + bound.mu * r
-        elif bound.mu == 0.0:
-            y = np.where(bound.c * w * r < 1.0, w / (1.0 - bound.c * w * r), np.inf)
-        else:
-            sq = math.sqrt(bound.mu / bound.c)
-            phase = math.sqrt(bound.mu * bound.c) * r + np.arctan(w / sq)
-            y = np.where(phase < 0.5 * math.pi, sq * np.tan(phase), np.inf)
-        return math.sqrt(3.0) * y
+        return math.sqrt(3.0) * bound.majorant(w, hh[:, None] * _RHO_FULL)
 
 
 def _log_truncation_many(bound, t0, t1, lever, grav):
@@ -572,17 +554,7 @@ class Accelerometer:
             error model's state carried either way): every row's Δv, bound and specific
             force depend on its own interval alone (:func:`delta_velocity_many`).
         """
-        ts = np.asarray(times, dtype=float)
-        if ts.ndim != 1 or len(ts) < 2:
-            raise ValueError(f'an accelerometer block needs a 1-D array of at least 2 '
-                             f'interval ends, got shape {ts.shape}')
-        if not np.all(np.isfinite(ts)):
-            raise ValueError('an accelerometer block needs finite interval ends')
-        t0, t1 = ts[:-1], ts[1:]
-        if not np.all(t1 > t0):
-            i = int(np.argmin(t1 > t0))
-            raise ValueError(f'an accelerometer interval needs t0 < t1, got [{t0[i]!r}, '
-                             f'{t1[i]!r}]')
+        ts, t0, t1 = check_ends(times, 'an accelerometer')
         deadline = None if budget is None else time.perf_counter() + budget
         dt = t1 - t0
         dv, dv_bound = delta_velocity_many(self.solution, t0, t1, self.lever_arm,

@@ -93,6 +93,25 @@ class GyroBlock:
         return len(self.t)
 
 
+def check_ends(times, sensor):
+    """Return ``times`` as floats and its interval starts and ends, or refuse them.
+
+    ``times`` must be a 1-D array of at least 2 finite, strictly increasing ends (s);
+    ``sensor`` ('a gyro', 'an accelerometer') names the sensor in the error.
+    """
+    ts = np.asarray(times, dtype=float)
+    if ts.ndim != 1 or len(ts) < 2:
+        raise ValueError(f'{sensor} block needs a 1-D array of at least 2 interval ends, '
+                         f'got shape {ts.shape}')
+    if not np.all(np.isfinite(ts)):
+        raise ValueError(f'{sensor} block needs finite interval ends')
+    t0, t1 = ts[:-1], ts[1:]
+    if not np.all(t1 > t0):
+        i = int(np.argmin(t1 > t0))
+        raise ValueError(f'{sensor} interval needs t0 < t1, got [{t0[i]!r}, {t1[i]!r}]')
+    return ts, t0, t1
+
+
 def norm3(v):
     """Euclidean norms of the rows of (..., 3), in one fixed order (no reduction)."""
     return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
@@ -112,14 +131,7 @@ def _log_bound(bound, hh, tm):
             om = np.asarray(bound.solution.omega_at(tm), dtype=float)
             w = np.max(np.abs(om), axis=-1)[:, None] * (1 + 1e-12) + 1e-300
             r = hh * _A_RHO
-            if bound.c == 0.0:
-                y = w + bound.mu * r
-            elif bound.mu == 0.0:
-                y = np.where(bound.c * w * r < 1.0, w / (1.0 - bound.c * w * r), np.inf)
-            else:
-                s = math.sqrt(bound.mu / bound.c)
-                phase = math.sqrt(bound.mu * bound.c) * r + np.arctan(w / s)
-                y = np.where(phase < 0.5 * math.pi, s * np.tan(phase), np.inf)
+            y = bound.majorant(w, r)
             out = np.log(math.sqrt(3.0) * hh) + np.log(y) + _LOG_C
     return np.where(np.isnan(out), np.inf, out)
 
@@ -309,16 +321,7 @@ def read_block(gyro, times, budget=None, attitudes=None):
         budget passed (checked in the quadrature of an interval that needs subintervals,
         as :func:`increments.delta_angle` checks it).
     """
-    ts = np.asarray(times, dtype=float)
-    if ts.ndim != 1 or len(ts) < 2:
-        raise ValueError(f'a gyro block needs a 1-D array of at least 2 interval ends, '
-                         f'got shape {ts.shape}')
-    if not np.all(np.isfinite(ts)):
-        raise ValueError('a gyro block needs finite interval ends')
-    t0, t1 = ts[:-1], ts[1:]
-    if not np.all(t1 > t0):
-        i = int(np.argmin(t1 > t0))
-        raise ValueError(f'a gyro interval needs t0 < t1, got [{t0[i]!r}, {t1[i]!r}]')
+    ts, t0, t1 = check_ends(times, 'a gyro')
     deadline = None if budget is None else time.perf_counter() + budget
     dt = t1 - t0
     da, da_bound = delta_angle_many(gyro.solution, t0, t1, gyro.tol, gyro._bound,

@@ -49,7 +49,8 @@ import numbers
 
 import numpy as np
 
-from .noise import _check_dt, check_dt_rows, check_nonnegative, check_seed, check_vector
+from .noise import _check_dt, check_components, check_dt_rows, check_nonnegative, check_seed
+from .noise import check_vector
 
 __all__ = ['ImuNoise', 'ImuSample', 'gauss_markov_coefficients', 'check_positive',
            'check_matrix', 'KINDS']
@@ -93,15 +94,7 @@ def check_matrix(name, value, limit):
             flat.append(row)
     if len(flat) != 9 or len(value) not in (3, 9):
         raise ValueError(f'{name} must be 9 numbers (a 3x3 matrix, row-major), got {value!r}')
-    out = []
-    for i, v in enumerate(flat):
-        if isinstance(v, bool) or not isinstance(v, numbers.Real):
-            raise ValueError(f'{name}[{i}] must be a number, got {v!r}')
-        if not math.isfinite(float(v)) or abs(float(v)) > limit:
-            raise ValueError(f'{name}[{i}] must be finite with magnitude <= {limit:g}, '
-                             f'got {v!r}')
-        out.append(float(v))
-    return np.array(out).reshape(3, 3)
+    return check_components(name, flat, limit).reshape(3, 3)
 
 
 def _gm_g(x):

@@ -81,6 +81,23 @@ class RateBound:
         self.c1, self.c2, self.w_t, self.m_t = env.c1, env.c2, env.w_t, env.m_t
         self.r0, self.rdot, self.c, self.mu = env.r0, env.rdot, env.c, env.mu
 
+    def majorant(self, w, r):
+        """Return Cauchy's majorant ``y(r)`` of Euler's equations, inf past its pole.
+
+        ``y' = mu + c y^2``, ``y(0) = w``: bounds every ``|w_i|`` at distance ``r`` (s, real
+        or complex) from a time where ``max |w_i| = w`` (rad/s). ``w`` is a float (its
+        arctangent then taken by :func:`math.atan`) or an array that broadcasts with ``r``.
+        Callers choose the ``np.errstate`` (``r`` near the pole overflows).
+        """
+        if self.c == 0.0:
+            return w + self.mu * r
+        if self.mu == 0.0:
+            return np.where(self.c * w * r < 1.0, w / (1.0 - self.c * w * r), np.inf)
+        s = math.sqrt(self.mu / self.c)
+        atan = math.atan if isinstance(w, float) else np.arctan
+        phase = math.sqrt(self.mu * self.c) * r + atan(w / s)
+        return np.where(phase < 0.5 * math.pi, s * np.tan(phase), np.inf)
+
     def truncation(self, t0, t1, n):
         """Return the best bound (over rho) of the n-point Gauss error on [t0, t1], rad.
 
@@ -104,14 +121,7 @@ class RateBound:
             w = w * (1 + 1e-12) + 1e-300
             r = hh * _A_RHO
             with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
-                if self.c == 0.0:
-                    y = w + self.mu * r
-                elif self.mu == 0.0:
-                    y = np.where(self.c * w * r < 1.0, w / (1.0 - self.c * w * r), np.inf)
-                else:
-                    s = math.sqrt(self.mu / self.c)
-                    phase = math.sqrt(self.mu * self.c) * r + math.atan(w / s)
-                    y = np.where(phase < 0.5 * math.pi, s * np.tan(phase), np.inf)
+                y = self.majorant(w, r)
                 log_err = math.log(math.sqrt(3.0) * hh) + np.log(y) + log_scale
         with np.errstate(over='ignore'):          # a bound beyond float64 is inf, no warning
             err = np.exp(np.min(log_err[~np.isnan(log_err)], initial=np.inf))

@@ -37,8 +37,16 @@ def check_vector(name, value, limit):
     """Return a float 3-vector with finite components of magnitude <= limit."""
     if isinstance(value, (str, bytes)) or not hasattr(value, '__len__') or len(value) != 3:
         raise ValueError(f'{name} must be a list of 3 numbers, got {value!r}')
+    return check_components(name, value, limit)
+
+
+def check_components(name, values, limit):
+    """Return a float array of ``values``, each a finite real number with ``|.| <= limit``.
+
+    An error names the first bad one as ``name[i]`` (its index in ``values``).
+    """
     out = []
-    for i, v in enumerate(value):
+    for i, v in enumerate(values):
         if isinstance(v, bool) or not isinstance(v, numbers.Real):
             raise ValueError(f'{name}[{i}] must be a number, got {v!r}')
         if not math.isfinite(float(v)) or abs(float(v)) > limit:

@@ -5,8 +5,18 @@ Every script exits 0 after ``--help``, and 2 with one line on stderr for a bad a
 """
 
 import argparse
+import sys
 
-__all__ = ['OneLineParser']
+__all__ = ['OneLineParser', 'fail']
+
+
+def fail(prog, message, status=2):
+    """Print ``<prog>: <message>`` on one line to stderr and return ``status``.
+
+    Any run of whitespace in ``message`` (newlines too) becomes one space.
+    """
+    print(f'{prog}: {" ".join(str(message).split())}', file=sys.stderr)
+    return status
 
 
 class OneLineParser(argparse.ArgumentParser):

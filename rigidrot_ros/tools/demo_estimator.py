@@ -317,23 +317,9 @@ def _run(opts, ros_args):
         """Publish the estimate at ``t_ns`` from the state and the sample covering it."""
         f = st['f']
         q_xyzw, p = f.predicted(st['omega'], st['cov'], (t_ns - st['t']) * 1e-9)
-        x, y, z, w = (float(v) for v in q_xyzw)
-        odom = Odometry()
-        odom.header.stamp = header_stamp
-        odom.header.frame_id = st['frame']
-        odom.child_frame_id = st['body']
-        o = odom.pose.pose.orientation
-        o.x, o.y, o.z, o.w = x, y, z, w
-        odom.pose.covariance = _cov6(p[:3, :3])
-        odom.twist.twist.angular.x, odom.twist.twist.angular.y, odom.twist.twist.angular.z = (
-            float(v) for v in st['omega'])
-        odom.twist.covariance = _cov6(np.asarray(st['cov']).reshape(3, 3) + p[3:, 3:])
-        pose = PoseWithCovarianceStamped()
-        pose.header = odom.header
-        pose.pose = odom.pose
-        att = QuaternionStamped()
-        att.header = odom.header
-        att.quaternion = odom.pose.pose.orientation
+        odom, pose, att = _estimate_messages(
+            header_stamp, st['frame'], st['body'], q_xyzw, p[:3, :3], st['omega'],
+            np.asarray(st['cov']).reshape(3, 3) + p[3:, 3:])
         try:
             pub_odom.publish(odom)
             pub_pose.publish(pose)
@@ -386,12 +372,15 @@ def _run(opts, ros_args):
     return 0
 
 
-def _estimate_messages(header, frame, body, q_xyzw, rot_cov, omega):
-    """Odometry, PoseWithCovarianceStamped, QuaternionStamped of one estimate."""
+def _estimate_messages(stamp, frame, body, q_xyzw, rot_cov, omega, rate_cov=None):
+    """Odometry, PoseWithCovarianceStamped, QuaternionStamped of one estimate.
+
+    ``rate_cov`` (3x3, (rad/s)^2) is the twist's covariance; None gives zeros.
+    """
     from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped
     from nav_msgs.msg import Odometry
     odom = Odometry()
-    odom.header.stamp = header.stamp
+    odom.header.stamp = stamp
     odom.header.frame_id = frame
     odom.child_frame_id = body
     o = odom.pose.pose.orientation
@@ -399,7 +388,7 @@ def _estimate_messages(header, frame, body, q_xyzw, rot_cov, omega):
     odom.pose.covariance = _cov6(rot_cov)
     a = odom.twist.twist.angular
     a.x, a.y, a.z = (float(v) for v in omega)
-    odom.twist.covariance = _cov6(np.zeros((3, 3)))
+    odom.twist.covariance = _cov6(np.zeros((3, 3)) if rate_cov is None else rate_cov)
     pose = PoseWithCovarianceStamped()
     pose.header = odom.header
     pose.pose = odom.pose
@@ -458,7 +447,7 @@ def _wire_ahrs(node, opts, pubs):
                  float(msg.linear_acceleration_covariance[0]), var_mag)
         st['t'] = t_k
         cov = f.P if f.P is not None else np.zeros((3, 3))
-        out = _estimate_messages(msg.header, st['frame'], msg.header.frame_id or 'body',
+        out = _estimate_messages(msg.header.stamp, st['frame'], msg.header.frame_id or 'body',
                                  f.q_xyzw, cov, (v.x, v.y, v.z))
         try:
             for pub, m in zip(pubs, out):

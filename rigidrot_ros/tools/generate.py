@@ -9,7 +9,7 @@ finishes a readable bag with what was generated so far (exit status 130).
 import sys
 import time
 
-from rigidrot_ros.tools.cli import OneLineParser
+from rigidrot_ros.tools.cli import fail, OneLineParser
 
 __all__ = ['main']
 
@@ -35,12 +35,6 @@ def _parser():
                     help='evaluate the attitudes in a second process (a second core that is '
                          'idle; the same bytes)')
     return ap
-
-
-def fail(message):
-    """Print ``rigidrot_generate: <message>`` on one line to stderr; return status 2."""
-    print(f'{PROG}: {" ".join(str(message).split())}', file=sys.stderr)
-    return 2
 
 
 class _Progress:
@@ -73,13 +67,13 @@ def main(argv=None):
         overrides = [parse_override(o) for o in opts.overrides]
         values = load_values(opts.params_file, overrides)
     except GenerationError as exc:
-        return fail(exc)
+        return fail(PROG, exc)
     progress = None if opts.quiet else _Progress()
     try:
         path = generate_bag(values, opts.duration, opts.output, start_ns=opts.start_ns,
                             progress=progress, helper=opts.helper)
     except GenerationError as exc:
-        return fail(exc)
+        return fail(PROG, exc)
     except KeyboardInterrupt:
         print(f'{PROG}: interrupted: the bag {opts.output} is finished with what was '
               'generated so far', file=sys.stderr)
