@@ -693,7 +693,8 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None, helper=
     run = _Run(values, duration_s, start_ns)
     qos, run_qos = _qos_yamls(run.p)
     try:
-        writer = BagWriter(None, 'attitude_node', flush_period=0.5, path=out_dir,
+        # chunks cut by blocks, never by the wall clock: the same run gives the same file
+        writer = BagWriter(None, 'attitude_node', flush_period=math.inf, path=out_dir,
                            split_seconds=0.0)
     except OSError as exc:
         raise GenerationError(f'cannot write the bag to {out_dir}: '
@@ -716,6 +717,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None, helper=
             if cut < len(topics):               # as the node's recorder: a metadata record
                 writer.add_run(run.description())
                 writer.write_many(topics[cut:], datas[cut:], stamps[cut:])
+            writer.flush()
             if progress is not None:
                 progress(min(hi, run.span_ns) * 1e-9 * run.time_scale, total)
             if stop:
