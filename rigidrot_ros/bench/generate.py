@@ -48,8 +48,8 @@ def _generate(duration, log):
            'peak_rss_mb': rss_mb, 'bag_mb': size / 1e6}
     log(f'generate: {duration:g} scene s (100 Hz truth, 1 kHz gyro + increments, 10 Hz star '
         f'tracker) in {wall:.3g} s wall ({cpu:.3g} s CPU): {res["speedup"]:.3g}x real time, '
-        f'peak RSS {rss_mb:.0f} MB, bag {size / 1e6:.3g} MB (under load: other agents share '
-        'the 2 cores)')
+        f'peak RSS {rss_mb:.0f} MB, bag {size / 1e6:.3g} MB (load average '
+        f'{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores)')
     return res
 
 
@@ -112,7 +112,7 @@ def _stages(duration, log):
     total = sum(spent.values())
     ms = {k: v / duration * 1e3 for k, v in spent.items()}
     log(f'stages over {duration:g} scene s ({total:.3g} s wall, {duration / total:.3g}x; '
-        'ms per scene second, under load): '
+        'ms per scene second): '
         + ', '.join(f'{k} {v:.3g}' for k, v in ms.items()))
     return {'scene_s': duration, 'wall_s': total, 'ms_per_scene_s': ms}
 
@@ -148,7 +148,7 @@ def _serialize_costs(n, log):
                      'ratio': times['rclpy'] / times['cdr']}
         log(f'serialize {kind}: io.cdr {times["cdr"]:.3g} us/message, build + '
             f'serialize_message {times["rclpy"]:.3g} us/message ({out[kind]["ratio"]:.3g}x; '
-            f'batches of {n}, best of 3, under load)')
+            f'batches of {n}, best of 3)')
     return out
 
 

@@ -11,6 +11,7 @@ batch (a different path): the angle between them within the sum of the two bound
 
 import argparse
 import json
+import os
 import time
 import tracemalloc
 
@@ -93,7 +94,7 @@ def run(quick=False, log=print):
     if quick:
         picked = {k: picked[k] for k in ('default', 'spacecraft', 'torque_free_triaxial')}
     log(f'random access: {CALLS} scalar at(t) after solve (first pass), t uniform in [0, T]; '
-        f'timings are wall-clock on a shared machine (under load); memory bound per '
+        f'timings are wall-clock (load average {os.getloadavg()[0]:.2f}); memory bound per '
         f'solution {MEMORY_BOUND / 1e6:.1f} MB')
     rows = []
     for horizon in horizons:
