@@ -14,6 +14,7 @@ model, so the models import it and not each other (scipy's ``integrate/_ivp`` ke
 ``OdeSolver`` base apart from the methods the same way).
 """
 
+import abc
 from dataclasses import dataclass
 import reprlib
 
@@ -135,7 +136,7 @@ def majorant_envelope(scene, model):
     return RateEnvelope('majorant', c=float(c), mu=float(np.max(np.abs(m) / inertia)))
 
 
-class BaseSolution:
+class BaseSolution(abc.ABC):
     """The exact motion of a scene, whichever model evaluates it.
 
     Attributes
@@ -252,14 +253,17 @@ class BaseSolution:
         _finite(tt)
         return tt
 
+    @abc.abstractmethod
     def _at_scalar(self, t):
-        raise NotImplementedError
+        """Return one sample at a float time t: a :class:`Samples` of scalars."""
 
+    @abc.abstractmethod
     def _at_array(self, tt):
-        raise NotImplementedError
+        """Return the samples at a finite 1-D float array of times."""
 
+    @abc.abstractmethod
     def _omega(self, tt):
-        raise NotImplementedError
+        """Return the body rate at a finite 1-D float array of times, (n, 3)."""
 
     def _torque_body(self, tt):
         return np.zeros(np.shape(tt) + (3,))

@@ -32,6 +32,7 @@ Each buffered truth sample is the same exact solution, with its own error bound,
 scalar call at that time would give (both within the bound; the last bits may differ).
 """
 
+import abc
 import time
 
 import numpy as np
@@ -64,7 +65,7 @@ WARMUP_S = 2.0
 _HISTORY = 8
 
 
-class Ahead:
+class Ahead(abc.ABC):
     """Samples at grid indices k >= ``first``, evaluated ahead in batches (a base class).
 
     ``amortize`` (a class attribute): when not even the smallest batch fits the budget,
@@ -101,11 +102,13 @@ class Ahead:
     def __len__(self):
         return len(self._buf)
 
+    @abc.abstractmethod
     def _one(self, k):
-        raise NotImplementedError
+        """Evaluate index k alone: ``(sample, built)``."""
 
+    @abc.abstractmethod
     def _batch(self, start, n):
-        raise NotImplementedError
+        """Evaluate ``n`` indices from ``start`` at once: ``(samples, built)``."""
 
     def get(self, k):
         """Return ``(sample, built)`` for index k (evaluated now if not buffered).

@@ -12,6 +12,7 @@ A new sensor is one more subclass with ``name``,
 ``topics`` and ``messages``, and one more line in :func:`make_streams`.
 """
 
+import abc
 import time
 
 from geometry_msgs.msg import PoseWithCovarianceStamped, Vector3Stamped
@@ -31,7 +32,7 @@ def scene_time(stamp_ns, t_start_ns, time_scale):
     return (stamp_ns - t_start_ns) * 1e-9 * time_scale
 
 
-class SensorStream:
+class SensorStream(abc.ABC):
     """One sensor's samples k = :attr:`first`, ... on the grid ``t_start + k / rate``.
 
     Attributes
@@ -66,12 +67,12 @@ class SensorStream:
         """Return the stamp (ns) of sample k."""
         return grid.stamp_ns(t_start_ns, self.rate, k)
 
+    @abc.abstractmethod
     def messages(self, k, t_start_ns, time_scale, frames):
         """Return ``[(topic, msg), ...]`` of sample k (raises if it cannot be evaluated).
 
         ``frames`` is ``(frame_id, body_frame_id)``.
         """
-        raise NotImplementedError
 
     def take(self, t_start_ns, now_ns, time_scale, frames, counters, on_error):
         """Return the messages of every sample due at ``now_ns``, oldest first.
