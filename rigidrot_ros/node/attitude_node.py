@@ -11,7 +11,10 @@ Topics (relative names, so namespaces and remapping apply):
   consumers and Foxglove/RViz. All off by default: the default output stays two topics.
 - ``imu`` (sensor_msgs/Imu), ``delta_angle`` and ``delta_rotation``
   (geometry_msgs/Vector3Stamped, rad, in B) with ``imu.enable``: a rate-integrating gyro
-  with seeded noise and bias, and the exact increments over each gyro interval.
+  with seeded noise and bias, and the exact increments over each gyro interval; with
+  ``accel.enable`` the same ``imu`` carries the accelerometer's specific force, and
+  ``delta_velocity`` (Vector3Stamped, m/s, in B) its exact increment.
+- ``mag`` (sensor_msgs/MagneticField, tesla, in B) with ``mag.enable``.
 - ``star_tracker`` (geometry_msgs/PoseWithCovarianceStamped) with ``star_tracker.enable``.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
 - ``~/run`` (std_msgs/String, transient-local, depth 1): the run description as JSON

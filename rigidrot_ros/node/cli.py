@@ -41,6 +41,8 @@ def usage():
         '(transient-local)',
         '  with imu.enable: imu (sensor_msgs/Imu), delta_angle, delta_rotation '
         '(Vector3Stamped);',
+        '  with accel.enable: linear_acceleration in imu, delta_velocity (Vector3Stamped);',
+        '  with mag.enable: mag (sensor_msgs/MagneticField);',
         '  with star_tracker.enable: star_tracker (PoseWithCovarianceStamped); with '
         'odom.enable,',
         '  transform.enable, markers.enable: odom, transform, markers (the truth)',
