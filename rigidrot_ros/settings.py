@@ -25,6 +25,7 @@ from rigidrot_ros.sensors import (
     Accelerometer, AttitudeNoise, Gyro, ImuNoise, load_kalibr_imu, Magnetometer, StarTracker,
 )
 from rigidrot_ros.sensors.accel import check_gravity, check_lever_arm
+from rigidrot_ros.sensors.kalibr import KALIBR_KEYS
 
 __all__ = ['PACKAGE', 'SCENE_KEYS', 'OUTPUT_KEYS', 'find_config', 'load_defaults',
            'scene_from_params', 'solver_options', 'sensor_settings', 'SensorSettings',
@@ -121,7 +122,7 @@ def apply_kalibr(params):
         found, _topic = load_kalibr_imu(path)
     except ValueError as exc:
         raise ValueError(f'parameter imu.kalibr_yaml: {exc}') from None
-    keys = {name: key for key, (name, _, _) in _kalibr_keys().items()}
+    keys = {name: key for key, (name, _, _) in KALIBR_KEYS.items()}
     out = dict(params)
     for name, value in found.items():
         value = BY_NAME[name].check(value)
@@ -132,11 +133,6 @@ def apply_kalibr(params):
             raise ValueError(f'parameter {name} = {current!r} contradicts imu.kalibr_yaml '
                              f'({path}: {keys[name]} = {value!r}); set it one way only')
     return out
-
-
-def _kalibr_keys():
-    from rigidrot_ros.sensors.kalibr import KALIBR_KEYS
-    return KALIBR_KEYS
 
 
 def scene_from_params(params):
