@@ -35,6 +35,9 @@ ACCEL_MAG = [
     '-p', 'mag.latency:=0.01', '-p', 'mag.stamp_jitter:=0.0002',
     '-p', 'mag.drop_probability:=0.15', '-p', 'mag.clock_offset:=-0.5',
 ]
+#: the torque-free triaxial preset (config/torque_free_triaxial.yaml): its own model
+TRIAXIAL = ['-p', 'inertia:=[1.0, 2.0, 3.0]', '-p', 'torque:=[0.0, 0.0, 0.0]',
+            '-p', 'omega0:=[0.02, 1.0, 0.03]']
 
 
 _STORE = get_typestore(Stores.ROS2_JAZZY)
@@ -73,7 +76,8 @@ def _values(args):
     return dict(parse_override(a) for a in args[1::2])
 
 
-@pytest.mark.parametrize('extra', [[], ACCEL_MAG], ids=['gyro-star', 'accel-mag-timing'])
+@pytest.mark.parametrize('extra', [[], ACCEL_MAG, TRIAXIAL],
+                         ids=['gyro-star', 'accel-mag-timing', 'triaxial-gyro-star'])
 def test_generated_bag_matches_the_recording_node(tmp_path, extra):
     env = ros_env(next_domain_id())
     root = tmp_path / 'runs'
@@ -108,7 +112,9 @@ def test_generated_bag_matches_the_recording_node(tmp_path, extra):
     # the node delivered most of its grid (a loaded machine may miss a few ticks)
     assert len(recorded['/attitude']) >= 0.8 * len(generated['/attitude'])
     assert len(recorded['/imu']) >= 0.8 * len(generated['/imu'])
-    if extra:
+    if extra is TRIAXIAL:
+        assert run['model'] == 'torque-free-triaxial', run
+    if extra is ACCEL_MAG:
         assert {'/delta_velocity', '/mag'} <= set(recorded)
         # the same drops: within the span the node recorded, the generator has no sample
         # the node left out (the node loses no sensor sample short of a clock jump)

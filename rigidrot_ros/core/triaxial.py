@@ -34,7 +34,10 @@ is in the bound): the first five degrees in fixed point, the rest in float64 for
 cells at once, every coefficient's error bounded a priori. Per sample, in float64
 (vectorised): the phases ``lam t`` and ``Omega t`` reduced modulo the period exactly (the
 constant split in 26-bit pieces, every partial product exact), one Horner pass per
-function, three quaternion products.
+function, three quaternion products. Every step is elementwise (the pieces a sample takes
+follow from its own |t|; the body rate is a signed permutation, no matrix product) and a
+scalar call repeats the same operations on floats, with numpy's sin, cos, exp and arctan:
+a sample's quaternion, rate and bound depend on t alone, not on the batch.
 
 The error bound is an a-priori float64 analysis, proved, not an estimate: the majorant
 series ``1/(1 - u)`` bounds every Taylor coefficient of sn, cn, dn at a real point by 1
@@ -79,6 +82,10 @@ _DELTA = 2.0 ** -80             # the fixed-point table's error, as its check at
 _TWO27 = 134217729.0            # Veltkamp splitter 2^27 + 1
 _T_MAX = 1e250                  # beyond, t * 2^27 could overflow: refuse
 _K_MAX = 60.0                   # largest quarter period tabulated (1 - m >~ 1e-51)
+#: 4.1 |du| bounds the angle of q_LB' from the error du of the unit h in B'; |du| is
+#: computed as sqrt((a^2 + b^2) + c^2) (elementwise, the same operations for one sample and
+#: a batch), within 3 ulp of its exact value: the factor covers that
+_D_LB = 4.1 * (1 + 4 * _U)
 
 
 # ---------------------------------------------------------------------------------------
@@ -403,7 +410,9 @@ class _Turns:
     double-double. Error, in turns: ``2 u + |t| (residual(k pieces) + |rho| 2^(8 - prec)
     + rho_err)``, the last two terms for rho itself, computed from the exact inputs in some
     tens of operations at ``prec`` bits (the current mpmath precision), and ``rho_err``
-    for any input of rho known less well than that.
+    for any input of rho known less well than that. The number of pieces k is chosen per
+    sample from its own |t| (:meth:`count`), so a sample's phase and its error depend on
+    t alone, not on the batch it is evaluated in.
     """
 
     def __init__(self, rho, offset, rho_err=0.0):
@@ -411,40 +420,76 @@ class _Turns:
         self.off = _split_offset(offset)
         rel = float(abs(rho)) * 2.0 ** (8 - mp.prec) + float(rho_err)
         self.resid = [r + rel for r in self.resid]
+        # the pieces any t takes at most: where one more would not halve the residual
+        cap = len(self.pieces)
+        for k in range(1, len(self.resid)):
+            if self.resid[k] >= 0.5 * self.resid[k - 1]:
+                cap = k + 1
+                break
+        self._cap = cap
+        self._resid_arr = np.array(self.resid)
 
-    def _count(self, tmax):
-        for k, r in enumerate(self.resid):
-            if r * tmax <= 2.0 ** -62 or (k and r >= 0.5 * self.resid[k - 1]):
-                return k + 1                      # enough, or no better with more pieces
-        return len(self.pieces)
+    def count(self, at):
+        """Pieces for |t| = at: the fewest whose residual times |t| is <= 2^-62, at most the cap.
+
+        The residuals fall (by half at least) up to the cap, so this is one plus the number
+        of them, before the cap's, that |t| does not bring below 2^-62.
+        """
+        k = 1
+        for r in self.resid[:self._cap - 1]:
+            if r * at > 2.0 ** -62:
+                k += 1
+        return k
+
+    def counts(self, at):
+        """Vectorised :meth:`count` for an array ``at`` of |t| (the same comparisons)."""
+        k = np.ones(at.shape, dtype=np.int64)
+        for r in self.resid[:self._cap - 1]:
+            k += r * at > 2.0 ** -62
+        return k
 
     def reduce(self, t):
-        """Vectorised: (tau in [-1/2, 1/2], error bound in turns) for a float array t."""
+        """Vectorised: (tau in [-1/2, 1/2], error bound in turns) for a float array t.
+
+        Each sample takes its own :meth:`count` of pieces (a piece it does not take leaves
+        its sums untouched), so its bits are those of :meth:`reduce1`.
+        """
+        at = np.abs(t)
+        ks = self.counts(at)
+        k_lo = int(np.min(ks)) if t.size else 1
+        k_hi = int(np.max(ks)) if t.size else 1
         c = _TWO27 * t
         th = c - (c - t)
         tl = t - th
-        k = self._count(float(np.max(np.abs(t))) if t.size else 0.0)
         hi = np.full_like(t, self.off[0])
         lo = np.full_like(t, self.off[1])
-        for p in self.pieces[:k]:
+        for n, p in enumerate(self.pieces[:k_hi]):
+            hi_p, lo_p = hi, lo.copy()
             for part in (th, tl):
                 x = p * part
                 # a product beyond float range is an exact integer: fraction 0
                 f = np.where(np.isfinite(x), x - np.rint(x), 0.0)
-                s = hi + f
-                bb = s - hi
-                lo += (hi - (s - bb)) + (f - bb)
-                hi = s - np.rint(s)
+                s = hi_p + f
+                bb = s - hi_p
+                lo_p += (hi_p - (s - bb)) + (f - bb)
+                hi_p = s - np.rint(s)
+            if n < k_lo:
+                hi, lo = hi_p, lo_p
+            else:
+                take = ks > n
+                hi = np.where(take, hi_p, hi)
+                lo = np.where(take, lo_p, lo)
         tau = hi + lo
         tau -= np.rint(tau)
-        return tau, 2 * _U + np.abs(t) * self.resid[k - 1] + 1e-30
+        return tau, 2 * _U + at * self._resid_arr[ks - 1] + 1e-30
 
     def reduce1(self, t):
         """Scalar :meth:`reduce` in Python floats."""
         c = _TWO27 * t
         th = c - (c - t)
         tl = t - th
-        k = self._count(abs(t))
+        at = abs(t)
+        k = self.count(at)
         hi, lo = self.off
         for p in self.pieces[:k]:
             for part in (th, tl):
@@ -456,7 +501,7 @@ class _Turns:
                 hi = s - round(s)
         tau = hi + lo
         tau -= round(tau)
-        return tau, 2 * _U + abs(t) * self.resid[k - 1] + 1e-30
+        return tau, 2 * _U + at * self.resid[k - 1] + 1e-30
 
 
 def _frame(inertia, w):
@@ -513,6 +558,10 @@ class TriaxialSolution(BaseSolution):
         inertia = scene.inertia
         rows, on_separatrix = _frame(inertia, scene.omega0)
         self._rows = rows                                        # R_B'B
+        # omega_B = R_B'B^T omega_B': a signed permutation, each component one product
+        # (amp * sign) * f of the B' component it comes from (exact, no matrix product)
+        self._w_src = tuple(int(np.argmax(np.abs(rows[:, j]))) for j in range(3))
+        self._w_sign = tuple(float(rows[i, j]) for j, i in enumerate(self._w_src))
         q_b1b = quat.from_matrix(rows)
         # 1 - m, free of cancellation, sets the working precision (m itself must not round
         # to 1); K ~ log(4 / sqrt(1 - m)) sets the size of the table
@@ -575,6 +624,7 @@ class TriaxialSolution(BaseSolution):
         self.m = m
         self._beta_mp = beta
         self._amp = np.array([float(amp1), float(amp2), float(a3)])
+        self._w_amp = tuple(s * float(self._amp[i]) for s, i in zip(self._w_sign, self._w_src))
         self._ut = np.array([float(i1 * amp1 / hn), float(i2 * amp2 / hn), float(beta)])
         cq = (i1 * amp1) * (i2 * amp2) / hn ** 2
         self._cq = float(cq)
@@ -819,7 +869,8 @@ class TriaxialSolution(BaseSolution):
         dy = 4 * k * e_u + 3 * _U * k + _U * _R
         err = self._cell_err[idx] + dy[:, None]                  # (n, 4)
         du = np.abs(self._ut) * (err[:, :3] + 2 * _U)
-        d_lb = 4.1 * np.hypot(np.hypot(du[:, 0], du[:, 1]), du[:, 2]) + 10 * _U
+        a, b, c = du[:, 0], du[:, 1], du[:, 2]
+        d_lb = _D_LB * np.sqrt(a * a + b * b + c * c) + 10 * _U
         d_xi = 4 * np.pi * e_xi + abs(self._cq) * err[:, 3] + self._xi_round
         return d_lb + d_xi + self._floor
 
@@ -868,15 +919,36 @@ class TriaxialSolution(BaseSolution):
         return sech, tanh, fint, f_err
 
     def _compose1(self, ux, uy, uz, txi, q):
-        """q_NB (float 4-tuple) from the unit h in B and the turns of xi (scalar paths)."""
+        """q_NB (float 4-tuple) from the unit h in B and the turns of xi (scalar paths).
+
+        The operations of :meth:`_at_array`'s composition in the same order, on Python
+        floats; sin and cos are numpy's (the functions the arrays use), so one sample's
+        bits are the batch's.
+        """
         pw = 1.0 + uz
         pn = math.sqrt(uy * uy + ux * ux + pw * pw)
         px, py, pw = uy / pn, -ux / pn, pw / pn
         xi = 4 * math.pi * txi + self._xi_c - self._cq * q
-        hs, hc = math.sin(0.5 * xi), math.cos(0.5 * xi)
+        hs, hc = float(np.sin(0.5 * xi)), float(np.cos(0.5 * xi))
         mid = (hc * px - hs * py, hc * py + hs * px, hs * pw, hc * pw)
         mul = quat.multiply_floats
         return mul(mul(self._left_t, mid), self._right_t)
+
+    def _w_array(self, f):
+        """omega_BN_B, (n, 3), from the B' functions ``f = (f1, f2, f3)`` (arrays).
+
+        ``omega_B = R_B'B^T (amp_i f_i)``: a signed permutation, one product a component.
+        """
+        src, wa = self._w_src, self._w_amp
+        out = np.empty(f[0].shape + (3,))
+        for j in range(3):
+            np.multiply(wa[j], f[src[j]], out=out[..., j])
+        return out
+
+    def _w_scalar(self, f):
+        """:meth:`_w_array` for one sample (floats): the same products."""
+        src, wa = self._w_src, self._w_amp
+        return np.array([wa[0] * f[src[0]], wa[1] * f[src[1]], wa[2] * f[src[2]]])
 
     def _separatrix_scalar(self, t, txi, exi):
         """:meth:`at` on the separatrix for one time, in plain floats (as :meth:`at`)."""
@@ -884,10 +956,9 @@ class TriaxialSolution(BaseSolution):
         c0 = self._sep_c[0]
         ut = self._ut
         qq = self._compose1(ut[0] * sech, ut[1] * tanh, ut[2] * sech, txi, fint)
-        amp = self._amp
-        omega = np.array([amp[0] * sech, amp[1] * tanh, amp[2] * sech]) @ self._rows
-        du = [abs(ut[f]) * (f_err + 2 * _U) for f in range(3)]
-        bound = (4.1 * math.hypot(*(float(v) for v in du)) + 10 * _U +
+        omega = self._w_scalar((sech, tanh, sech))
+        a, b, c = (abs(float(ut[f])) * (f_err + 2 * _U) for f in range(3))
+        bound = (_D_LB * math.sqrt(a * a + b * b + c * c) + 10 * _U +
                  4 * math.pi * exi + abs(self._cq) * c0 * f_err + self._xi_round + self._floor)
         if bound > self.tol:
             raise PrecisionError(f'the triaxial bound at t = {t!r} s is {bound:.2e} rad, '
@@ -902,20 +973,17 @@ class TriaxialSolution(BaseSolution):
             tf = float(tt)
             if self._sep:
                 sech, tanh, _, _ = self._sep1(tf)
-                f = (sech, tanh, sech)
-            else:
-                sn, cn, dn, _, _, _ = self._table1(tf)
-                f = (cn, sn, dn)
-            return np.array([self._amp[i] * f[i] for i in range(3)]) @ self._rows
+                return self._w_scalar((sech, tanh, sech))
+            sn, cn, dn, _, _, _ = self._table1(tf)
+            return self._w_scalar((cn, sn, dn))
         if self._sep:
             sech, tanh, _, _ = self._separatrix(flat)
-            w = np.stack([self._amp[0] * sech, self._amp[1] * tanh, self._amp[2] * sech], -1)
+            w = self._w_array((sech, tanh, sech))
         else:
             tau, _ = self._u_turns.reduce(flat)
             sn, cn, dn, _, _ = self._table(tau)
-            w = np.stack([self._amp[0] * cn, self._amp[1] * sn, self._amp[2] * dn], -1)
-        out = w @ self._rows
-        return out.reshape(tt.shape + (3,))
+            w = self._w_array((cn, sn, dn))
+        return w.reshape(tt.shape + (3,))
 
     @staticmethod
     def _check_t(tt):
@@ -927,7 +995,12 @@ class TriaxialSolution(BaseSolution):
                                  f'phase of the triaxial model can be reduced exactly')
 
     def _at_array(self, tt):
-        """:meth:`at` at a finite 1-D float array of times."""
+        """:meth:`at` at a finite 1-D float array of times.
+
+        Every operation is elementwise (no matrix product, no reduction across samples), so
+        a sample's quaternion, rate and bound depend on its t alone: :meth:`_at_scalar`
+        repeats them on floats.
+        """
         self._check_t(tt)
         txi, exi = self._xi_turns.reduce(tt)
         if self._sep:
@@ -936,18 +1009,17 @@ class TriaxialSolution(BaseSolution):
             q_val = fint
             ferr = np.stack([f_err] * 4, -1)
             du = np.abs(self._ut) * (ferr[:, :3] + 2 * _U)
-            bound = (4.1 * np.hypot(np.hypot(du[:, 0], du[:, 1]), du[:, 2]) + 10 * _U +
+            bound = (_D_LB * np.sqrt(du[:, 0] * du[:, 0] + du[:, 1] * du[:, 1] +
+                                     du[:, 2] * du[:, 2]) + 10 * _U +
                      4 * np.pi * exi + abs(self._cq) * self._sep_c[0] * f_err +
                      self._xi_round + self._floor)
-            cn, sn, dn = sech, tanh, sech
         else:
             tau, eu = self._u_turns.reduce(tt)
             sn, cn, dn, q_val, idx = self._table(tau)
             bound = self._bound(eu, exi, idx)
             fn = (cn, sn, dn)
         ux, uy, uz = (self._ut[i] * fn[i] for i in range(3))
-        w = np.stack([self._amp[0] * fn[0], self._amp[1] * fn[1], self._amp[2] * fn[2]], -1)
-        omega = w @ self._rows
+        omega = self._w_array(fn)
         pw = 1.0 + uz
         pn = np.sqrt(uy * uy + ux * ux + pw * pw)
         px, py, pw = uy / pn, -ux / pn, pw / pn
@@ -972,8 +1044,8 @@ class TriaxialSolution(BaseSolution):
         i = min(max(int(y * (1.0 / _H)), 0), self._ncell - 1)
         z = y - (i + 0.5) * _H
         rows = self._coef[:, i, :].tolist()
-        s = c = d = q = 0.0
-        for kk in range(_DEG, -1, -1):
+        s, c, d, q = rows[_DEG]                 # as _table: from the top coefficient
+        for kk in range(_DEG - 1, -1, -1):
             r = rows[kk]
             s = s * z + r[0]
             c = c * z + r[1]
@@ -984,20 +1056,23 @@ class TriaxialSolution(BaseSolution):
         return s * st, c * sj, d, q * st * sj, i, eu
 
     def _sep1(self, t):
-        """Scalar :meth:`_separatrix` at time t: sech, tanh, the integral, their error."""
+        """Scalar :meth:`_separatrix` at time t: sech, tanh, the integral, their error.
+
+        numpy's exp and arctan (those of the arrays: libm's may differ in the last bit).
+        """
         u = self._lam * t + self._u0
         au = abs(u)
-        e = math.exp(-au)
+        e = float(np.exp(-au))
         sech = 2 * e / (1 + e * e)
         sg = -1.0 if u < 0 else 1.0
         tanh = sg * (1 - e * e) / (1 + e * e)
         th2 = sg * (1 - e) / (1 + e)
-        fint = self._sep_c[0] * math.atan(self._sep_c[1] * th2)
+        fint = self._sep_c[0] * float(np.arctan(self._sep_c[1] * th2))
         u_err = 3 * _U * (abs(self._lam * t) + abs(self._u0)) + self._u0_err
         return sech, tanh, fint, float(_sep_err(np.float64(au), np.float64(u_err)))
 
     def _at_scalar(self, t):
-        """:meth:`at` for one time, in plain floats."""
+        """:meth:`at` for one time, in plain floats: :meth:`_at_array`'s operations."""
         if not math.isfinite(t):
             raise ValueError('t must be finite')
         if abs(t) > _T_MAX:
@@ -1009,14 +1084,13 @@ class TriaxialSolution(BaseSolution):
         k = self._K
         ut = self._ut
         qq = self._compose1(ut[0] * c, ut[1] * s, ut[2] * d, txi, q)
-        amp = self._amp
-        omega = np.array([amp[0] * c, amp[1] * s, amp[2] * d]) @ self._rows
+        omega = self._w_scalar((c, s, d))
         # the bound, as in _bound (scalar)
         dy = 4 * k * eu + 3 * _U * k + _U * _R
         ce = self._cell_err[i]
-        du = [abs(ut[f]) * (ce[f] + dy + 2 * _U) for f in range(3)]
-        d_lb = 4.1 * math.hypot(*(float(v) for v in du)) + 10 * _U
-        d_xi = 4 * math.pi * exi + abs(self._cq) * (ce[3] + dy) + self._xi_round
+        a, b, cc = (abs(float(ut[f])) * (float(ce[f]) + dy + 2 * _U) for f in range(3))
+        d_lb = _D_LB * math.sqrt(a * a + b * b + cc * cc) + 10 * _U
+        d_xi = 4 * math.pi * exi + abs(self._cq) * (float(ce[3]) + dy) + self._xi_round
         bound = d_lb + d_xi + self._floor
         if bound > self.tol:
             raise PrecisionError(f'the triaxial bound at t = {t!r} s is {bound:.2e} rad, '
