@@ -24,6 +24,7 @@ from typing import Any, Callable, Optional, Tuple
 import yaml
 
 from rigidrot_ros.core import MIN_TOL, TORQUE_FRAMES
+from rigidrot_ros.core.scene import float_vector
 
 __all__ = ['Param', 'PARAMS', 'BY_NAME', 'MAX_RATE', 'MIN_RATE', 'MAX_TOL', 'BACKENDS',
            'MAX_SEED', 'APPLIES', 'SENSOR_PARAMS',
@@ -98,21 +99,7 @@ def _choice(p, v):
 
 def _floats(p, v):
     """Return a list of ``p.size`` numbers as a tuple of floats (finiteness: the model)."""
-    size = p.size
-    if isinstance(v, (str, bytes)) or not hasattr(v, '__len__'):
-        raise ValueError(f'parameter {p.name} must be a list of {size} numbers, got {v!r}')
-    out = []
-    for i, x in enumerate(v):
-        if isinstance(x, bool) or not isinstance(x, numbers.Real):
-            raise ValueError(f'parameter {p.name}[{i}] must be a number, got {x!r}')
-        try:
-            out.append(float(x))
-        except OverflowError:                                   # an int beyond 1.8e308
-            raise ValueError(f'parameter {p.name}[{i}] is beyond the float64 range '
-                             f'(|x| <= 1.8e308)') from None
-    if len(out) != size:
-        raise ValueError(f'parameter {p.name} must have {size} numbers, got {len(out)}')
-    return tuple(out)
+    return float_vector(f'parameter {p.name}', v, p.size, kind='list', finite=False)
 
 
 def _strings(p, v):

@@ -103,8 +103,12 @@ def test_each_validator_names_its_parameter_and_its_rule():
              ('imu.rate', 5e-4, '0 (= publish_rate)'), ('qos_depth', 0, '[1, 10000]'),
              ('imu.seed', -1, '[0, 2^63 - 1]'), ('record', 1, 'true or false'),
              ('frame_id', '', 'non-empty'), ('backend', 'gpu', "one of ('auto'"),
-             ('inertia', [1.0, 2.0], 'must have 3 numbers'), ('record_topics', 'a', 'list'),
-             ('inertia', [1, 'a', 1], 'inertia[1] must be a number')]
+             ('inertia', [1.0, 2.0], 'must have 3 components, got 2'),
+             ('record_topics', 'a', 'list'),
+             ('inertia', [1, 'a', 1], "inertia[1] must be a real number, got 'a'"),
+             ('inertia', 'abc', 'inertia must be a list of 3 numbers'),
+             ('omega0', [0, 10 ** 400, 0], 'omega0[1] = 1000'),
+             ('omega0', [0, 10 ** 400, 0], 'beyond the float64 range')]
     for name, value, words in cases:
         with pytest.raises(ValueError, match=None) as exc:
             params.check(name, value)

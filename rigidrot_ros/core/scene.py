@@ -10,20 +10,52 @@ import math
 import numbers
 import reprlib
 
-__all__ = ['Scene', 'TORQUE_FRAMES']
+__all__ = ['Scene', 'TORQUE_FRAMES', 'float_vector']
 
 TORQUE_FRAMES = ('body', 'virtual')
 
 
-def _vector(name, value, size):
-    if isinstance(value, (str, bytes)) or not hasattr(value, '__len__'):
-        raise ValueError(f'{name} must be a sequence of {size} numbers, got {value!r}')
+def float_vector(name, value, size, kind='sequence', finite=True):
+    """Return ``value``, a sequence of ``size`` real numbers, as a tuple of floats.
+
+    The one check of a list of numbers, for the scene and for the node's parameters; each
+    refusal is one ``ValueError`` line that starts with ``name`` and names the problem.
+
+    Parameters
+    ----------
+    name : str
+        How the messages name the value: ``'omega0'``, or ``'parameter omega0'``.
+    value : object
+        What was given.
+    size : int
+        How many numbers it must hold.
+    kind : str
+        What the messages call the container: ``'sequence'`` (Python callers) or
+        ``'list'`` (ROS parameters).
+    finite : bool
+        Refuse NaN and infinities too (else the caller's own rules judge them).
+
+    Returns
+    -------
+    tuple of float
+
+    Raises
+    ------
+    ValueError
+        Not a sized sequence (a string, a mapping, a scalar), the wrong length, an element
+        that is not a real number (bool included), beyond the float64 range, or not finite.
+
+    Examples
+    --------
+    >>> float_vector('omega0', [1, 2.5, 0], 3)
+    (1.0, 2.5, 0.0)
+    """
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, '__len__'):
+        raise ValueError(f'{name} must be a {kind} of {size} numbers, got {value!r}')
     try:
         count = len(value)
     except TypeError:
-        count = None
-    if count is None or isinstance(value, dict):
-        raise ValueError(f'{name} must be a sequence of {size} numbers, got {value!r}')
+        raise ValueError(f'{name} must be a {kind} of {size} numbers, got {value!r}') from None
     if count != size:
         raise ValueError(f'{name} must have {size} components, got {count}')
     out = []
@@ -35,7 +67,7 @@ def _vector(name, value, size):
         except (OverflowError, ValueError, TypeError):      # e.g. int(10**400)
             raise ValueError(f'{name}[{i}] = {reprlib.repr(v)} is beyond the float64 range '
                              f'(|x| <= 1.8e308)') from None
-        if not math.isfinite(v):
+        if finite and not math.isfinite(v):
             raise ValueError(f'{name}[{i}] must be finite, got {v!r}')
         out.append(v)
     return tuple(out)
@@ -85,7 +117,7 @@ class Scene:
     attitude0: tuple = (0.0, 0.0, 0.0, 1.0)
 
     def __post_init__(self):
-        inertia = _vector('inertia', self.inertia, 3)
+        inertia = float_vector('inertia', self.inertia, 3)
         for i, v in enumerate(inertia):
             if v <= 0.0:
                 raise ValueError(f'inertia[{i}] must be positive (kg m^2), got {v!r}')
@@ -96,12 +128,12 @@ class Scene:
                     f'inertia {inertia} breaks the triangle inequality: '
                     f'I{j + 1} + I{k + 1} = {inertia[j] + inertia[k]!r} < I{i + 1} = '
                     f'{inertia[i]!r}; no rigid body has these principal moments')
-        torque = _vector('torque', self.torque, 3)
+        torque = float_vector('torque', self.torque, 3)
         if not isinstance(self.torque_frame, str) or self.torque_frame not in TORQUE_FRAMES:
             raise ValueError(
                 f'torque_frame must be one of {TORQUE_FRAMES}, got {self.torque_frame!r}')
-        omega0 = _vector('omega0', self.omega0, 3)
-        att = _vector('attitude0', self.attitude0, 4)
+        omega0 = float_vector('omega0', self.omega0, 3)
+        att = float_vector('attitude0', self.attitude0, 4)
         big = max(abs(v) for v in att)
         if big == 0.0:
             raise ValueError(f'attitude0 must be a nonzero quaternion (x, y, z, w), got {att}')
