@@ -1,14 +1,17 @@
 """Benchmark part ``generate``: offline generation speed, memory, and the CDR writer's cost.
 
-``python -m rigidrot_ros.bench.generate [--duration S] [--quick]`` generates the issue's
-scene (the default scene with 100 Hz truth, a 1 kHz gyro with both increments and a 10 Hz
-star tracker) for S scene seconds (default 3600) in a child process, and reports its wall
-time, the speed-up over real time and the child's peak RSS; then the serialization cost
-per message of :mod:`rigidrot_ros.io.cdr` against ``rclpy.serialization.serialize_message``
-(message building included for the latter, as the node pays it).
+``python -m rigidrot_ros.bench.generate [--generate-seconds S] [--quick] [--out DIR]``
+(or ``rigidrot_bench --only generate``) generates the issue's scene (the default scene
+with 100 Hz truth, a 1 kHz gyro with both increments and a 10 Hz star tracker) for S scene
+seconds (default 3600, 20 with ``--quick``) in a child process, and reports its wall
+time, the speed-up over real time and the child's peak RSS; the same loop's stages in
+this process; the serialization cost per message of :mod:`rigidrot_ros.io.cdr` against
+``rclpy.serialization.serialize_message`` (message building included for the latter, as
+the node pays it); and the gyro's and accelerometer's cost per sample, read one interval
+at a time and in a block. :func:`render_md` turns the results into ``OUT/generate.md``
+(``doc/bench/generate.md``, included by ``doc/generate.md``).
 """
 
-import argparse
 import os
 import resource
 import subprocess
@@ -18,7 +21,9 @@ import time
 
 import numpy as np
 
-__all__ = ['NAME', 'NEEDS', 'run', 'main', 'SCENE']
+from rigidrot_ros.bench import common
+
+__all__ = ['NAME', 'NEEDS', 'run', 'main', 'render_md', 'add_arguments', 'SCENE']
 
 NAME = 'generate'
 NEEDS = ('rclpy', 'mcap')
@@ -44,12 +49,14 @@ def _generate(duration, log):
         size = sum(os.path.getsize(os.path.join(out, f)) for f in os.listdir(out))
     rss_mb = after.ru_maxrss / 1024.0       # kB on Linux: the largest child so far
     cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    load = os.getloadavg()[0]
     res = {'scene_s': duration, 'wall_s': wall, 'cpu_s': cpu, 'speedup': duration / wall,
-           'peak_rss_mb': rss_mb, 'bag_mb': size / 1e6}
+           'peak_rss_mb': rss_mb, 'bag_mb': size / 1e6, 'load_average': load,
+           'cores': os.cpu_count()}
     log(f'generate: {duration:g} scene s (100 Hz truth, 1 kHz gyro + increments, 10 Hz star '
         f'tracker) in {wall:.3g} s wall ({cpu:.3g} s CPU): {res["speedup"]:.3g}x real time, '
         f'peak RSS {rss_mb:.0f} MB, bag {size / 1e6:.3g} MB (load average '
-        f'{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores)')
+        f'{load:.2f} on {os.cpu_count()} cores)')
     return res
 
 
@@ -152,24 +159,112 @@ def _serialize_costs(n, log):
     return out
 
 
-def run(quick=False, log=print, duration=None):
-    """Measure and return the figures (JSON-serialisable); ``quick``: 20 scene seconds."""
-    if duration is None:
-        duration = 20.0 if quick else 3600.0
-    return {'generation': _generate(float(duration), log),
+#: The accelerometer of the per-sample row: gravity and a lever arm (centripetal terms).
+ACCEL = {'lever_arm': (0.1, -0.05, 0.2), 'gravity': (0.0, 0.0, -9.80665)}
+
+
+def _sensor_costs(quick, log):
+    """Wall time per sample of the gyro and the accelerometer, single reads and a block.
+
+    The default scene at 1 kHz, error models off: ``read(t0, t1)`` one interval at a time
+    (``n_single`` intervals), then ``read_many`` over ``n_block`` intervals, each on a
+    fresh sensor, the truth evaluated over the span first (so the figure is the sensor's).
+    """
+    from rigidrot_ros import params, settings
+    from rigidrot_ros.sensors import Accelerometer, Gyro
+    sol = settings.build_solution(params.defaults())
+    n_single, n_block = (100, 300) if quick else (300, 1000)
+    times = np.arange(max(n_single, n_block) + 1) * 1e-3
+    sol.at(times)
+    out = {}
+    for name, make in (('gyro', lambda: Gyro(sol)),
+                       ('accelerometer', lambda: Accelerometer(sol, **ACCEL))):
+        sensor = make()
+        t0 = time.perf_counter()
+        for k in range(n_single):
+            sensor.read(float(times[k]), float(times[k + 1]))
+        single = (time.perf_counter() - t0) / n_single
+        sensor = make()
+        t0 = time.perf_counter()
+        sensor.read_many(times[:n_block + 1])
+        block = (time.perf_counter() - t0) / n_block
+        out[name] = {'rate_hz': 1000.0, 'single_us': single * 1e6, 'single_reads': n_single,
+                     'block_us': block * 1e6, 'block_size': n_block}
+        log(f'{name} per sample at 1 kHz: single read {single * 1e6:.3g} us ({n_single} '
+            f'reads), a block of {n_block} {block * 1e6:.3g} us')
+    return out
+
+
+def run(quick=False, log=print, generate_seconds=None):
+    """Measure and return the figures (JSON-serialisable); ``quick``: 20 scene seconds.
+
+    ``generate_seconds`` (option ``--generate-seconds``) sets the generated span instead.
+    """
+    duration = generate_seconds or (20.0 if quick else 3600.0)
+    return {'quick': bool(quick),
+            'generation': _generate(float(duration), log),
             'stages': _stages(10.0 if quick else 120.0, log),
-            'serialize': _serialize_costs(2000 if quick else 20000, log)}
+            'serialize': _serialize_costs(2000 if quick else 20000, log),
+            'sensors': _sensor_costs(quick, log)}
+
+
+def add_arguments(ap):
+    """Add ``--generate-seconds`` to the parser ``ap``."""
+    ap.add_argument('--generate-seconds', type=common.positive_number, metavar='S',
+                    help='generate: scene seconds to generate (default 3600, 20 with --quick)')
+
+
+_SCENE_TEXT = '100 Hz truth, 1 kHz gyro + both increments, 10 Hz star tracker'
+
+
+def render_md(results):
+    """Return the part's table from merged results (``'generate'``), or None without them.
+
+    One row per measurement present: the generation in a child process, its stages in
+    process, the serialization cost per message type, the sensors per sample. The caption
+    says a quick run and the load average where the results record them.
+    """
+    res = results.get('generate')
+    if not res:
+        return None
+    fmt = common.fmt
+    rows = []
+    gen = res.get('generation')
+    if gen:
+        rows.append((f'benchmark scene ({_SCENE_TEXT}), {gen["scene_s"]:g} scene s, '
+                     '`rigidrot_generate` in a child process',
+                     f'{fmt(gen["wall_s"])} s wall, {fmt(gen["cpu_s"])} s CPU: '
+                     f'**{fmt(gen["speedup"])}× real time**, peak RSS '
+                     f'{fmt(gen["peak_rss_mb"])} MB, bag {fmt(gen["bag_mb"])} MB'))
+    st = res.get('stages')
+    if st:
+        ms = sorted(st['ms_per_scene_s'].items(), key=lambda kv: -kv[1])
+        rows.append((f'the same, {st["scene_s"]:g} scene s in process, ms per scene second',
+                     f'{fmt(st["wall_s"])} s wall ({fmt(st["scene_s"] / st["wall_s"])}×): '
+                     + ', '.join(f'{k} {fmt(v)}' for k, v in ms)))
+    for kind, c in res.get('serialize', {}).items():
+        rows.append((f'serialize `{kind}`',
+                     f'io.cdr {fmt(c["cdr_us"])} µs/message; build + `serialize_message` '
+                     f'{fmt(c["rclpy_us"])} µs ({fmt(c["ratio"])}×)'))
+    for name, c in res.get('sensors', {}).items():
+        rows.append((f'{name} per sample at {c["rate_hz"]:g} Hz: single `read` / '
+                     f'`read_many` of {c["block_size"]}',
+                     f'{fmt(c["single_us"])} µs / {fmt(c["block_us"])} µs '
+                     f'({fmt(c["single_us"] / c["block_us"])}×)'))
+    title = ('Offline generation (`rigidrot_bench --only generate`): the default scene with '
+             + _SCENE_TEXT)
+    if res.get('quick'):
+        title += '; quick run (--quick: short spans, small batches)'
+    if gen and gen.get('load_average') is not None:
+        title += (f'; load average {gen["load_average"]:.2f} on {gen.get("cores", "?")} '
+                  'cores at the end of the generation')
+    return common.part_md(results, NAME, title, common.md_table(['what', 'figure'], rows))
 
 
 def main(argv=None):
-    """Command line: ``python -m rigidrot_ros.bench.generate [--duration S] [--quick]``."""
-    ap = argparse.ArgumentParser(prog='python -m rigidrot_ros.bench.generate',
-                                 description=__doc__.splitlines()[0])
-    ap.add_argument('--quick', action='store_true', help='20 scene seconds, small batches')
-    ap.add_argument('--duration', type=float, help='scene seconds to generate')
-    opts = ap.parse_args(argv)
-    run(quick=opts.quick, duration=opts.duration)
-    return 0
+    """``python -m rigidrot_ros.bench.generate``: this part alone, into ``--out``."""
+    from rigidrot_ros.bench import driver
+    return driver.part_main(NAME, argv)
 
 
 if __name__ == '__main__':
