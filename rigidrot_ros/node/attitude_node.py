@@ -101,6 +101,7 @@ class AttitudeNode(Node):
         self._ahead = None
         self._last_sample = None
         self._counters = diagnostics.Counters()
+        self._gc = diagnostics.GcWatch()
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._on_post_set)
         self._make_publishers()
@@ -235,15 +236,23 @@ class AttitudeNode(Node):
         """Publish every sample due now, of every stream, in stamp order (the one timer).
 
         Then at most one look-ahead batch (the stream whose buffer runs out first), and
-        the diagnostics once a second.
+        the diagnostics once a second. Each phase's time goes to the diagnostics (the
+        window's longest call: ``call_max_phases``).
         """
         c_tick = time.perf_counter_ns()
+        gc0 = self._gc.total_ns
         now_ns = self._now_ns()
+        due_ns = self._grid_due_ns(now_ns)
         groups = []                     # (stamp ns, rank, [(publisher, msg, raw), ...])
-        truth = self._truth_due(now_ns, groups)
+        owed = []                       # (stream, samples due, of them evaluated now)
+        truth = self._truth_due(now_ns, groups, owed)
         if self._t_start is not None:
             for sensor in self._sensors:
+                n0, m0 = len(groups), sensor.ahead.misses
                 sensor.due(now_ns, groups, self._pubs, self._failed)
+                owed.append((sensor.stream.name, len(groups) - n0,
+                             sensor.ahead.misses - m0))
+        c_collect = c_publish = c_record = time.perf_counter_ns()
         if groups:
             groups.sort(key=lambda g: (g[0], g[1]))
             items = [it for g in groups for it in g[2]]
@@ -252,16 +261,28 @@ class AttitudeNode(Node):
                 return
             for sensor in self._sensors:
                 sensor.published(pub_ns, self._counters)
+            c_publish = time.perf_counter_ns()
             if truth:
-                self._counters.tick_times.append(time.perf_counter_ns() - c_tick)
+                self._counters.tick_times.append(c_publish - c_tick)
             start = self._t_start.nanoseconds if self._t_start is not None else now_ns
             self._runs.tick(self, self._setup, start, now_ns, items)
+            c_record = time.perf_counter_ns()
         # a call that came late (a catch-up) leaves its batch to the next call while the
         # buffers hold enough: a batch now would make the next samples late too
-        self._refill(behind=now_ns - self._grid_due_ns(now_ns) > _CATCH_UP * self._timer_ns)
+        batch = self._refill(behind=now_ns - due_ns > _CATCH_UP * self._timer_ns)
+        c_batch = time.perf_counter_ns()
         if time.monotonic() >= self._next_diag:
             self._next_diag = max(self._next_diag + 1.0, time.monotonic() + 0.5)
             self._publish_diagnostics()
+        c_end = time.perf_counter_ns()
+        wake = max(now_ns - due_ns, 0)
+        self._counters.call(wake + c_end - c_tick, [
+            ('wake', wake),
+            ('collect', (c_collect - c_tick, ', '.join(
+                f'{name} {n} owed/{m} now' for name, n, m in owed if n or m))),
+            ('publish', c_publish - c_collect), ('record', c_record - c_publish),
+            ('batch', (c_batch - c_record, batch)), ('diag', c_end - c_batch),
+            ('gc', self._gc.total_ns - gc0)])
 
     def _grid_due_ns(self, now_ns):
         """Return the scheduler grid time this call was due at (the last one at or before now)."""
@@ -270,15 +291,24 @@ class AttitudeNode(Node):
         return now_ns - (now_ns - self._grid0) % self._timer_ns
 
     def _refill(self, behind=False):
-        """Run at most one look-ahead batch (:func:`scheduler.next_batch` chooses it)."""
+        """Run at most one look-ahead batch (:func:`scheduler.next_batch` chooses it).
+
+        Returns what ran, for the diagnostics: ``'<stream> <samples>'``, ``'deferred'`` or ''.
+        """
         streams = [(s.ahead, s.track.last, s.track.rate) for s in self._sensors]
+        names = [s.stream.name for s in self._sensors]
         if self._ahead is not None:
             streams.insert(0, (self._ahead, self._tick_k, self._period_hz))
+            names.insert(0, 'truth')
         best = scheduler.next_batch(streams, behind)
         if best is scheduler.DEFERRED:
             self._counters.deferred += 1
-        elif best is not None:
-            best[0].refill(best[1])
+            return 'deferred'
+        if best is None:
+            return ''
+        n = best[0].refill(best[1])
+        name = next(nm for (a, _, _), nm in zip(streams, names) if a is best[0])
+        return f'{name} {n}' if n else ''
 
     # -- the truth ---------------------------------------------------------------------------
     def _anchor(self, now_ns):
@@ -358,30 +388,35 @@ class AttitudeNode(Node):
                 out.append((self._pubs[topic], msg, None))
         return out
 
-    def _truth_due(self, now_ns, groups):
+    def _truth_due(self, now_ns, groups, owed):
         """Append the truth ticks due at ``now_ns`` to ``groups``; True if any.
 
         Every grid tick from the last published one to now goes out (a call that comes
         late publishes the ticks it owes: counted ``ticks_late``, not lost); only a backlog
         beyond a second (a clock jump) is skipped and counted ``ticks_missed``
-        (:func:`grid.truth_due`).
+        (:func:`grid.truth_due`). Appends ``('truth', ticks, of them evaluated now)`` to
+        ``owed``.
         """
         st = self._counters
         if self._grid0 is None or now_ns < self._grid0:     # new grid, or the clock went back
             self._anchor(now_ns)
-        owed = grid.truth_due(self._grid0, self._period_hz, self._tick_k, now_ns)
-        if owed is None:
+        due = grid.truth_due(self._grid0, self._period_hz, self._tick_k, now_ns)
+        if due is None:
             return False                # this grid time is published already
-        if owed is grid.NEW_GRID:
+        if due is grid.NEW_GRID:
             self._anchor(now_ns)        # the clock went back: a new grid, from its tick 0
-            owed = (0, 0, 0)
-        first, k, missed = owed
+            due = (0, 0, 0)
+        first, k, missed = due
         st.missed += missed
         if k > first:
             st.late += 1
+        m0 = self._ahead.misses
+        n0 = len(groups)
+        self._ahead.fill_to(first, k)       # a catch-up: the owed ticks as one batch
         for j in range(first, k + 1):
             if not self._truth_tick(j, now_ns, groups):
                 break
+        owed.append(('truth', len(groups) - n0, self._ahead.misses - m0))
         return True
 
     def _truth_tick(self, k, now_ns, groups):
@@ -428,7 +463,7 @@ class AttitudeNode(Node):
         gyro = [s.bound for s in self._streams if s.name == 'imu']
         sensors = {s.stream.name: s.report() for s in self._sensors}
         level, msg, values = diagnostics.report(
-            self._counters.window(STREAMS), self.solution, period_hz=self._period_hz,
+            self._counters.window(STREAMS, self._gc.take()), self.solution, period_hz=self._period_hz,
             delivered=self._delivered_rate(),
             error_bound=float(self._last_sample[1]) if self._last_sample else 0.0,
             scene_time=self._last_sample[0] if self._last_sample else None,
@@ -452,6 +487,7 @@ class AttitudeNode(Node):
 
     def destroy_node(self):
         """Finish the bag (summary, index, metadata.yaml), then destroy the node."""
+        self._gc.remove()
         self._runs.close(self._counters.published)
         return super().destroy_node()
 

@@ -98,6 +98,8 @@ class Ahead(abc.ABC):
         self._costs = []                # (n, CPU s) of the last batches
         self.batch_times = []           # wall seconds per batch, since the last take_stats()
         self.last_per_sample = 0.0      # wall seconds per sample of the last batch
+        self.misses = 0                 # get() calls that evaluated their index then
+        self.catch_ups = 0              # fill_to() batches
 
     def __len__(self):
         return len(self._buf)
@@ -119,6 +121,7 @@ class Ahead(abc.ABC):
         entry = self._buf.pop(k, None)
         if entry is not None:
             return entry
+        self.misses += 1
         return self._one(k), None
 
     def ahead_of(self, k):
@@ -141,7 +144,30 @@ class Ahead(abc.ABC):
         start = max(self._next, k + 1)
         if start - (k + 1) > self.size // 2:
             return 0
-        n = self.size
+        return self._run(start, self.size, judge=True)
+
+    def fill_to(self, first, k):
+        """Evaluate indices ``first`` .. ``k`` not buffered yet as one batch: a catch-up.
+
+        A call that owes many samples (the process was held: a stall, a loaded machine)
+        takes them from one batch instead of evaluating each alone, whose fixed cost per
+        sample (a gyro read, one message built and serialized) is beyond a period at
+        2 kHz: evaluated one by one, the samples owed grow faster than they are published
+        until a second's backlog is skipped. Only where two or more are missing and the
+        look-ahead is on; the batch is no strike whatever it costs. Returns its size.
+        """
+        if self.size < AHEAD_MIN:
+            return 0
+        start = max(self._next, int(first))
+        n = int(k) - start + 1
+        if n < 2:
+            return 0
+        if self._buf and start > self._next:      # indices skipped: drop their samples
+            self._buf = {j: v for j, v in self._buf.items() if j >= start}
+        return self._run(start, n, judge=False)
+
+    def _run(self, start, n, judge):
+        """Evaluate (and build) ``n`` indices from ``start`` into the buffer; returns n or 0."""
         c0, cpu0 = time.perf_counter(), time.thread_time()
         try:
             samples, data = self._batch(start, n)
@@ -158,7 +184,10 @@ class Ahead(abc.ABC):
         cost = time.thread_time() - cpu0        # CPU: another process's load is no reason
         self.batch_times.append(wall)
         self.last_per_sample = wall / n
-        self._judge(n, cost)
+        if judge:
+            self._judge(n, cost)
+        else:
+            self.catch_ups += 1
         return n
 
     def _fit(self):

@@ -232,6 +232,8 @@ class Sensor:
         """
         ks, skipped = self.track.due(now_ns)
         self.counters.skipped += skipped
+        if len(ks) > 1:
+            self.ahead.fill_to(ks.start, ks.stop - 1)     # a catch-up: as one batch
         for k in ks:
             try:
                 sample, built = self.ahead.get(k)
