@@ -36,6 +36,8 @@ evaluated, and the attitude and rate messages built and serialized, ahead in bat
 tick reads the clock and publishes the bytes.
 """
 
+import contextlib
+import os
 import sys
 import time
 
@@ -59,7 +61,7 @@ from rigidrot_ros.io import cdr
 from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.node import cli, diagnostics, grid, outputs, recording, scheduler
 from rigidrot_ros.node.cli import SceneError
-from rigidrot_ros.node.lookahead import Lookahead
+from rigidrot_ros.node.lookahead import BatchWorker, Lookahead
 from rigidrot_ros.node.ros_params import descriptor, UnknownParameterError
 from rigidrot_ros.node.ros_params import warn_unknown_overrides
 from rigidrot_ros.node.sensor_ahead import Sensor
@@ -73,6 +75,14 @@ _EXTRA_TYPES = {'transform': TransformStamped, 'odom': Odometry, 'markers': Mark
 _LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
 #: A scheduler call this many timer periods after its due time is a catch-up (see _refill).
 _CATCH_UP = 1.0
+
+
+def _use_worker():
+    """Whether look-ahead batches run in a worker thread (``RIGIDROT_LOOKAHEAD_WORKER=0``: not).
+
+    The variable is for measuring the two against each other; anything but ``0`` means on.
+    """
+    return os.environ.get('RIGIDROT_LOOKAHEAD_WORKER', '1').strip() != '0'
 
 
 class AttitudeNode(Node):
@@ -102,6 +112,8 @@ class AttitudeNode(Node):
         self._last_sample = None
         self._counters = diagnostics.Counters()
         self._gc = diagnostics.GcWatch()
+        #: Runs the look-ahead batches off the executor's thread (lookahead.BatchWorker)
+        self._worker = BatchWorker() if _use_worker() else None
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._on_post_set)
         self._make_publishers()
@@ -172,7 +184,8 @@ class AttitudeNode(Node):
         """Validate a change against the whole run; refuse with a reason naming it."""
         names = [p.name for p in params]
         try:
-            reason = self._check_change(params, names)
+            with self._eval_lock():     # solving a candidate: not beside a batch (mpmath)
+                reason = self._check_change(params, names)
         except Exception as exc:        # never let a parameter change kill the node
             reason = f'{type(exc).__name__}: {exc}'
         if reason is None:
@@ -323,18 +336,21 @@ class AttitudeNode(Node):
             self._runs.pending = True       # the first publication announces it on ~/run
             self._start_sensor_tracks()
         self._grid0, self._tick_k = g0, -1
-        self._ahead = Lookahead(self.solution,
-                                lambda k: self._scene_time(self._tick_stamp_ns(k)),
-                                self._period, build=self._build_ahead)
+        # the grid, run start and scale are bound now: a batch may run in the worker thread
+        hz, t0, scale = self._period_hz, self._t_start.nanoseconds, self._setup.time_scale
+        self._ahead = Lookahead(
+            self.solution, lambda k: scene_time(grid.stamp_ns(g0, hz, k), t0, scale),
+            self._period, build=lambda start, data: self._build_ahead(start, data, g0, hz),
+            worker=self._worker)
 
-    def _build_ahead(self, start, data):
+    def _build_ahead(self, start, data, g0, hz):
         """Serialize (CDR) the attitude and rate messages of a batch of ticks to come.
 
         One :mod:`rigidrot_ros.io.cdr` call per topic: the tick then publishes the bytes
-        (``publish_raw``), and the recorder writes the same bytes.
+        (``publish_raw``), and the recorder writes the same bytes. ``g0``, ``hz``: the grid.
         """
         q, w, _ = data
-        stamps = [self._tick_stamp_ns(k) for k in range(start, start + len(q))]
+        stamps = [grid.stamp_ns(g0, hz, k) for k in range(start, start + len(q))]
         frame, body = self._frames
         return list(zip(cdr.attitude(stamps, q, frame).tolist(),
                         cdr.vector(stamps, w, body).tolist()))
@@ -453,7 +469,8 @@ class AttitudeNode(Node):
     def _start_sensor_tracks(self):
         """At a run's t_start: each sensor's grid, timing model and look-ahead."""
         t0 = self._t_start.nanoseconds
-        self._sensors = [Sensor(s, t0, rank, self._setup, self._counters, lambda: self._frames)
+        self._sensors = [Sensor(s, t0, rank, self._setup, self._counters, lambda: self._frames,
+                                self._worker)
                          for rank, s in enumerate(self._streams, start=1)]
 
     # -- diagnostics -------------------------------------------------------------------------
@@ -488,13 +505,20 @@ class AttitudeNode(Node):
     def destroy_node(self):
         """Finish the bag (summary, index, metadata.yaml), then destroy the node."""
         self._gc.remove()
+        if self._worker is not None:
+            self._worker.stop()
         self._runs.close(self._counters.published)
         return super().destroy_node()
 
     # -- reset -------------------------------------------------------------------------------
+    def _eval_lock(self):
+        """The worker's evaluation lock (mpmath's precision, the core's caches), if any."""
+        return self._worker.lock if self._worker is not None else contextlib.nullcontext()
+
     def _on_reset(self, request, response):
         try:
-            setup = settings.prepare_run(self._values)
+            with self._eval_lock():
+                setup = settings.prepare_run(self._values)
         except ValueError as exc:
             response.success = False
             response.message = f'reset refused, previous scene keeps running: {exc}'

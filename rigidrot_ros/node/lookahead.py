@@ -30,15 +30,32 @@ when it is due (the truth: one scalar call; a sensor: its per-sample reader).
 
 Each buffered truth sample is the same exact solution, with its own error bound, as a
 scalar call at that time would give (both within the bound; the last bits may differ).
+
+**Off the publishing thread.** With a :class:`BatchWorker` (the node has one), a batch
+that :meth:`Ahead.refill` starts runs in the worker's thread: the indices are reserved at
+once, and the publishing thread takes the results in when it next touches that buffer, so
+a batch no longer holds the executor (a gyro batch has a fixed part of ~0.6 ms, past
+half a period at 1 kHz). Only one evaluation runs at a time (:attr:`BatchWorker.lock`:
+the core's caches, a sensor's noise stream and mpmath's working precision are not
+thread-safe): an index asked for while its batch runs waits for it, and the publishing
+thread's own evaluations (a miss, a catch-up) take the lock. A sensor's samples are still
+read in index order, each once. The process's thread switch interval is lowered
+(:data:`SWITCH_INTERVAL_S`) so that the publishing thread gets the interpreter within
+that time of its wake-up while a batch runs.
 """
 
 import abc
+import contextlib
+import queue
+import sys
+import threading
 import time
 
 import numpy as np
 
-__all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'AHEAD_MIN', 'AHEAD_MAX', 'BATCH_BUDGET_S',
-           'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S']
+__all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'BatchWorker', 'AHEAD_MIN', 'AHEAD_MAX',
+           'BATCH_BUDGET_S', 'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S',
+           'SWITCH_INTERVAL_S']
 
 #: The first batch's size, and the smallest.
 AHEAD_MIN = 8
@@ -63,6 +80,77 @@ STRIKES = 3
 WARMUP_S = 2.0
 #: Batches the cost model remembers.
 _HISTORY = 8
+#: The interpreter's thread switch interval with a worker (``sys.setswitchinterval``; 5 ms
+#: by default: the publishing thread would wait that long for a running batch).
+SWITCH_INTERVAL_S = 1e-4
+
+
+class _Job:
+    """One batch for the worker: ``ahead``'s ``n`` indices from ``start``; its result."""
+
+    __slots__ = ('ahead', 'start', 'n', 'samples', 'built', 'exc', 'wall', 'cost', 'done',
+                 'keep_built')
+
+    def __init__(self, ahead, start, n):
+        self.ahead, self.start, self.n = ahead, start, n
+        self.samples = self.built = self.exc = None
+        self.wall = self.cost = 0.0
+        self.keep_built = True
+        self.done = threading.Event()
+
+    def run(self):
+        c0, cpu0 = time.perf_counter(), time.thread_time()
+        try:
+            self.samples, data = self.ahead._batch(self.start, self.n)
+            b = self.ahead.build
+            self.built = b(self.start, data) if b is not None else [None] * self.n
+        except Exception as exc:    # noqa: B902 - whatever the model raises: the owner judges
+            self.exc = exc
+        self.wall = time.perf_counter() - c0
+        self.cost = time.thread_time() - cpu0
+        self.done.set()
+
+
+class BatchWorker:
+    """A thread that evaluates look-ahead batches, one at a time, off the publishing thread.
+
+    :attr:`lock` is held during every batch; hold it for any other evaluation of the same
+    solutions and sensors (:meth:`Ahead.get` and :meth:`Ahead.fill_to` do). :meth:`stop`
+    ends the thread (idempotent); a job still queued then is finished first.
+    """
+
+    def __init__(self, name='rigidrot-lookahead'):
+        self.lock = threading.RLock()
+        self._jobs = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread.start()
+        if sys.getswitchinterval() > SWITCH_INTERVAL_S:
+            sys.setswitchinterval(SWITCH_INTERVAL_S)
+
+    def submit(self, job):
+        """Queue a :class:`_Job`."""
+        if not self._thread.is_alive():
+            raise RuntimeError('the look-ahead worker has stopped')
+        self._jobs.put(job)
+
+    def _loop(self):
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            with self.lock:
+                job.run()
+
+    @property
+    def alive(self):
+        """Whether the thread runs."""
+        return self._thread.is_alive()
+
+    def stop(self, timeout=5.0):
+        """End the thread after the jobs queued; wait at most ``timeout`` s. Idempotent."""
+        if self._thread.is_alive():
+            self._jobs.put(None)
+            self._thread.join(timeout)
 
 
 class Ahead(abc.ABC):
@@ -82,8 +170,10 @@ class Ahead(abc.ABC):
     amortize = False
 
     def __init__(self, period_s, budget_s=BATCH_BUDGET_S, enabled=True, build=None,
-                 first=0, clock=time.monotonic):
+                 first=0, clock=time.monotonic, worker=None):
         self.period_s = float(period_s)
+        self.worker = worker            # a BatchWorker: refill()'s batches run there
+        self._job = None                # the batch in the worker, if any
         self.build = build
         self.budget_s = float(budget_s)
         self.size = AHEAD_MIN if enabled else 0
@@ -112,17 +202,45 @@ class Ahead(abc.ABC):
     def _batch(self, start, n):
         """Evaluate ``n`` indices from ``start`` at once: ``(samples, built)``."""
 
+    def _lock(self):
+        return self.worker.lock if self.worker is not None else contextlib.nullcontext()
+
+    def _collect(self, wait):
+        """Take the worker's batch in, if it is done (or once done, with ``wait``)."""
+        job = self._job
+        if job is None or not (wait or job.done.is_set()):
+            return
+        job.done.wait()
+        self._job = None
+        if job.exc is not None:
+            self._failed(job.start, job.n, job.exc)
+            self._next = min(self._next, job.start)     # per sample from there
+            return
+        built = job.built if job.keep_built else [None] * job.n
+        for j, entry in enumerate(zip(job.samples, built), job.start):
+            if j > self._last:          # not skipped meanwhile
+                self._buf[j] = entry
+        self._account(job.n, job.wall, job.cost, judge=True)
+
     def get(self, k):
         """Return ``(sample, built)`` for index k (evaluated now if not buffered).
 
         ``built`` is what ``build`` made of a buffered sample, None for a sample evaluated
-        now. Raises what the evaluation of that sample raises.
+        now. Raises what the evaluation of that sample raises. An index whose batch runs
+        in the worker waits for it.
         """
+        job = self._job
+        self._collect(wait=job is not None and job.start <= k < job.start + job.n)
+        entry = self._buf.pop(k, None)
+        if entry is not None:
+            return entry
+        self._collect(wait=True)        # in order: a sensor's batch before its later samples
         entry = self._buf.pop(k, None)
         if entry is not None:
             return entry
         self.misses += 1
-        return self._one(k), None
+        with self._lock():
+            return self._one(k), None
 
     def ahead_of(self, k):
         """Return how many samples after index k are buffered (or evaluated) already."""
@@ -136,14 +254,22 @@ class Ahead(abc.ABC):
 
     def refill(self, k):
         """After index k: evaluate the next batch if at most half a batch is left; its size."""
+        self._collect(wait=False)
         if self.size < AHEAD_MIN:
             return 0
         if k != self._last + 1 and self._buf:     # indices skipped: drop their samples
             self._buf = {j: v for j, v in self._buf.items() if j > k}
         self._last = k
+        if self._job is not None:
+            return 0                    # one batch at a time
         start = max(self._next, k + 1)
         if start - (k + 1) > self.size // 2:
             return 0
+        if self.worker is not None:
+            self._job = _Job(self, start, self.size)
+            self._next = start + self.size
+            self.worker.submit(self._job)
+            return self.size
         return self._run(start, self.size, judge=True)
 
     def fill_to(self, first, k):
@@ -156,6 +282,7 @@ class Ahead(abc.ABC):
         until a second's backlog is skipped. Only where two or more are missing and the
         look-ahead is on; the batch is no strike whatever it costs. Returns its size.
         """
+        self._collect(wait=True)
         if self.size < AHEAD_MIN:
             return 0
         start = max(self._next, int(first))
@@ -168,27 +295,31 @@ class Ahead(abc.ABC):
 
     def _run(self, start, n, judge):
         """Evaluate (and build) ``n`` indices from ``start`` into the buffer; returns n or 0."""
-        c0, cpu0 = time.perf_counter(), time.thread_time()
-        try:
-            samples, data = self._batch(start, n)
-            built = self.build(start, data) if self.build is not None else [None] * n
-        except Exception as exc:    # noqa: B902 - whatever the model raises: per sample now
-            self.size = 0               # the samples buffered so far are still good: kept
-            self.off_reason = (f'a batch of {n} samples from index {start} failed '
-                               f'({type(exc).__name__}: {exc}); evaluating per sample')
+        job = _Job(self, start, n)
+        with self._lock():
+            job.run()
+        if job.exc is not None:
+            self._failed(start, n, job.exc)
             return 0
-        for j, entry in enumerate(zip(samples, built), start):
+        for j, entry in enumerate(zip(job.samples, job.built), start):
             self._buf[j] = entry
         self._next = start + n
-        wall = time.perf_counter() - c0
-        cost = time.thread_time() - cpu0        # CPU: another process's load is no reason
+        self._account(n, job.wall, job.cost, judge)
+        return n
+
+    def _failed(self, start, n, exc):
+        self.size = 0                   # the samples buffered so far are still good: kept
+        self.off_reason = (f'a batch of {n} samples from index {start} failed '
+                           f'({type(exc).__name__}: {exc}); evaluating per sample')
+
+    def _account(self, n, wall, cost, judge):
+        """Note a batch's wall and CPU time (CPU: another process's load is no reason)."""
         self.batch_times.append(wall)
         self.last_per_sample = wall / n
         if judge:
             self._judge(n, cost)
         else:
             self.catch_ups += 1
-        return n
 
     def _fit(self):
         """Return ``(fixed s, per sample s)`` of the cost model fitted to the last batches."""
@@ -234,6 +365,8 @@ class Ahead(abc.ABC):
 
     def drop_built(self):
         """Forget what ``build`` made (e.g. the frame ids changed); keep the samples."""
+        if self._job is not None:
+            self._job.keep_built = False        # the batch in the worker too
         self._buf = {j: (smp, None) for j, (smp, _) in self._buf.items()}
 
     def take_stats(self):
@@ -252,8 +385,8 @@ class Lookahead(Ahead):
     """
 
     def __init__(self, solution, time_of, period_s, budget_s=BATCH_BUDGET_S, enabled=True,
-                 build=None, clock=time.monotonic):
-        super().__init__(period_s, budget_s, enabled, build, 0, clock)
+                 build=None, clock=time.monotonic, worker=None):
+        super().__init__(period_s, budget_s, enabled, build, 0, clock, worker)
         self.solution = solution
         self.time_of = time_of
 
@@ -282,8 +415,8 @@ class SensorAhead(Ahead):
     amortize = True
 
     def __init__(self, read, read_one, period_s, first, budget_s=BATCH_BUDGET_S,
-                 enabled=True, build=None, clock=time.monotonic):
-        super().__init__(period_s, budget_s, enabled, build, first, clock)
+                 enabled=True, build=None, clock=time.monotonic, worker=None):
+        super().__init__(period_s, budget_s, enabled, build, first, clock, worker)
         self._read, self._read_one = read, read_one
 
     def _one(self, k):
@@ -294,5 +427,6 @@ class SensorAhead(Ahead):
 
     def peek_built(self, k):
         """Return True if index k is buffered with its built messages."""
+        self._collect(wait=False)
         entry = self._buf.get(k)
         return entry is not None and entry[1] is not None

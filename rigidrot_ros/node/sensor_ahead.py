@@ -38,7 +38,7 @@ class Sensor:
     stamped by it: its stamp is not jittered nor offset).
     """
 
-    def __init__(self, stream, t_start_ns, rank, setup, counters, frames):
+    def __init__(self, stream, t_start_ns, rank, setup, counters, frames, worker=None):
         self.stream, self.rank = stream, rank
         self.setup, self.counters, self.frames = setup, counters, frames
         self.t_start_ns = t_start_ns
@@ -59,7 +59,8 @@ class Sensor:
         self.types = dict(stream.topics)
         self.ahead = SensorAhead(self._read, lambda k: self._read(range(k, k + 1))[0][0],
                                  1.0 / stream.rate, stream.first,
-                                 build=self._build_batch if self._build else None)
+                                 build=self._build_batch if self._build else None,
+                                 worker=worker)
 
     # -- reading -----------------------------------------------------------------------------
     def _scene(self, ns):
