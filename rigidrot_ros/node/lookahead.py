@@ -35,7 +35,9 @@ scalar call at that time would give (both within the bound; the last bits may di
 that :meth:`Ahead.refill` starts runs in the worker's thread: the indices are reserved at
 once, and the publishing thread takes the results in when it next touches that buffer, so
 a batch no longer holds the executor (a gyro batch has a fixed part of ~0.6 ms, past
-half a period at 1 kHz). Only one evaluation runs at a time (:attr:`BatchWorker.lock`:
+half a period at 1 kHz). There the next batch starts when a whole batch is left (not
+half), and the sizes double up to :data:`AHEAD_MAX` whatever they cost: no budget, no
+strikes. Only one evaluation runs at a time (:attr:`BatchWorker.lock`:
 the core's caches, a sensor's noise stream and mpmath's working precision are not
 thread-safe): an index asked for while its batch runs waits for it, and the publishing
 thread's own evaluations (a miss, a catch-up) take the lock. A sensor's samples are still
@@ -250,7 +252,7 @@ class Ahead(abc.ABC):
         """Return True if, after index k, at most half a batch is buffered ahead."""
         if self.size < AHEAD_MIN:
             return False
-        return max(self._next, k + 1) - (k + 1) <= self.size // 2
+        return max(self._next, k + 1) - (k + 1) <= self._low_water()
 
     def refill(self, k):
         """After index k: evaluate the next batch if at most half a batch is left; its size."""
@@ -263,7 +265,7 @@ class Ahead(abc.ABC):
         if self._job is not None:
             return 0                    # one batch at a time
         start = max(self._next, k + 1)
-        if start - (k + 1) > self.size // 2:
+        if start - (k + 1) > self._low_water():
             return 0
         if self.worker is not None:
             self._job = _Job(self, start, self.size)
@@ -331,9 +333,25 @@ class Ahead(abc.ABC):
         b = max(float(b), 1e-9)
         return max(float(a), 0.0), b
 
+    def _low_water(self):
+        """Samples buffered ahead at or below which the next batch starts.
+
+        Half a batch inline; a whole batch with a worker, so that a batch has the time of
+        a batch to run before its first sample is due.
+        """
+        return self.size if self.worker is not None else self.size // 2
+
     def _judge(self, n, cost):
-        """Choose the next batch size from the cost model; count a strike, or turn off."""
+        """Choose the next batch size from the cost model; count a strike, or turn off.
+
+        With a worker a batch holds no one up: the size doubles up to :data:`AHEAD_MAX`
+        (fewer fixed costs, less CPU) and is never a strike.
+        """
         self._costs = (self._costs + [(n, cost)])[-_HISTORY:]
+        if self.worker is not None:
+            self.size = min(AHEAD_MAX, 2 * n)
+            self._strikes = 0
+            return
         fixed, per = self._fit()
         # a batch aims at PERIOD_SHARE of a period (it then fits between two samples),
         # else at LATE_SHARE, else at the budget: a longer batch makes samples late
