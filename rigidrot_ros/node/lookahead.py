@@ -36,8 +36,7 @@ that :meth:`Ahead.refill` starts runs in the worker's thread: the indices are re
 once, and the publishing thread takes the results in when it next touches that buffer, so
 a batch no longer holds the executor (a gyro batch has a fixed part of ~0.6 ms, past
 half a period at 1 kHz). There the next batch starts when a whole batch is left (not
-half), and the sizes double up to :data:`AHEAD_MAX` whatever they cost: no budget, no
-strikes. Only one evaluation runs at a time (:attr:`BatchWorker.lock`:
+half), and a batch beyond its budget is no strike (it only keeps the next one small). Only one evaluation runs at a time (:attr:`BatchWorker.lock`:
 the core's caches, a sensor's noise stream and mpmath's working precision are not
 thread-safe): an index asked for while its batch runs waits for it, and the publishing
 thread's own evaluations (a miss, a catch-up) take the lock. A sensor's samples are still
@@ -344,14 +343,10 @@ class Ahead(abc.ABC):
     def _judge(self, n, cost):
         """Choose the next batch size from the cost model; count a strike, or turn off.
 
-        With a worker a batch holds no one up: the size doubles up to :data:`AHEAD_MAX`
-        (fewer fixed costs, less CPU) and is never a strike.
+        With a worker a batch holds no one up: it is sized the same way (small batches
+        keep the garbage collector's young generations small) but never a strike.
         """
         self._costs = (self._costs + [(n, cost)])[-_HISTORY:]
-        if self.worker is not None:
-            self.size = min(AHEAD_MAX, 2 * n)
-            self._strikes = 0
-            return
         fixed, per = self._fit()
         # a batch aims at PERIOD_SHARE of a period (it then fits between two samples),
         # else at LATE_SHARE, else at the budget: a longer batch makes samples late
@@ -371,8 +366,8 @@ class Ahead(abc.ABC):
             self._strikes = 0
             return
         self.size = AHEAD_MIN
-        if self._clock() - self._born < WARMUP_S or self.amortize:
-            return                        # starting up: slow batches keep it small
+        if self._clock() - self._born < WARMUP_S or self.amortize or self.worker is not None:
+            return                        # starting up (or in the worker): only smaller
         self._strikes += 1
         if self._strikes >= STRIKES:
             self.size = 0               # the buffered samples are kept and published first
