@@ -377,3 +377,27 @@ def test_with_a_worker_a_batch_starts_a_batch_ahead_and_is_never_a_strike():
         assert la.needs(k) and not inline.needs(k)  # a batch sooner than inline
     finally:
         worker.stop()
+
+
+def test_a_call_owing_samples_of_the_running_batch_does_not_wait_in_fill_to():
+    """fill_to only waits for the worker's batch when it must evaluate past it."""
+    import threading
+    reads, gate = [], threading.Event()
+    worker = BatchWorker()
+    try:
+        gate.set()
+        la = _sensor(reads, worker, gate)
+        la.get(1)
+        la._collect(wait=True)
+        gate.clear()
+        timer = threading.Timer(2.0, gate.set)      # releases the batch in any case
+        timer.start()
+        assert la.refill(1) == AHEAD_MIN            # 2 .. 9 reserved, blocked in the worker
+        assert la.fill_to(2, 9) == 0                # all reserved: returns at once
+        assert not la._job.done.is_set()            # (it did not wait for the batch)
+        assert la.fill_to(2, 20) == 11              # past it: waits, then 10 .. 20
+        assert reads == list(range(1, 21))          # in order, each once
+        timer.cancel()
+    finally:
+        gate.set()
+        worker.stop()

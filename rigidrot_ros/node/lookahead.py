@@ -283,12 +283,12 @@ class Ahead(abc.ABC):
         until a second's backlog is skipped. Only where two or more are missing and the
         look-ahead is on; the batch is no strike whatever it costs. Returns its size.
         """
-        self._collect(wait=True)
-        if self.size < AHEAD_MIN:
-            return 0
+        if self.size < AHEAD_MIN or int(k) - max(self._next, int(first)) + 1 < 2:
+            return 0                    # buffered, or reserved for the worker's batch
+        self._collect(wait=True)        # in order: after the worker's batch
         start = max(self._next, int(first))
         n = int(k) - start + 1
-        if n < 2:
+        if self.size < AHEAD_MIN or n < 2:
             return 0
         if self._buf and start > self._next:      # indices skipped: drop their samples
             self._buf = {j: v for j, v in self._buf.items() if j >= start}
