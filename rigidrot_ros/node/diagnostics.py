@@ -156,26 +156,45 @@ class Counters:
         self.errors += 1
         self.last_error = text
 
+    def take(self, gc_counts=(0, 0, 0, 0)):
+        """Return the window's raw counts and start the next one (cheap: lists moved out).
+
+        :meth:`summarize` turns them into a :class:`Window` (in another thread, if need
+        be); ``gc_counts``: the window's :meth:`GcWatch.take`, carried along.
+        """
+        raw = {'times': self.times, 'tick_times': self.tick_times,
+               'latencies': self.latencies, 'sample_times': self.sample_times,
+               'samples': dict(self.samples), 'published': self.published,
+               'late': self.late, 'missed': self.missed, 'skipped': self.skipped,
+               'new_skips': self.skipped > self.skipped_reported, 'errors': self.errors,
+               'last_error': self.last_error, 'deferred': self.deferred,
+               'slowest': self.slowest, 'gc': tuple(gc_counts)}
+        self.times, self.tick_times, self.latencies, self.sample_times = [], [], [], {}
+        self.slowest = None
+        self.skipped_reported = self.skipped
+        self.errors = 0
+        return raw
+
+    @staticmethod
+    def summarize(raw, stream_names):
+        """Return the :class:`Window` of raw counts (:meth:`take`)."""
+        streams = {}
+        for name in stream_names:
+            mean, _, mx = _summary(raw['sample_times'].get(name, []))
+            streams[name] = (raw['samples'].get(name, 0), mean, mx)
+        return Window(eval_s=_summary(raw['times']), tick_s=_summary(raw['tick_times'], 1e-9),
+                      latency_s=_summary(raw['latencies'], 1e-9), streams=streams,
+                      published=raw['published'], late=raw['late'], missed=raw['missed'],
+                      skipped=raw['skipped'], new_skips=raw['new_skips'],
+                      errors=raw['errors'], last_error=raw['last_error'],
+                      deferred=raw['deferred'], slowest=raw['slowest'], gc=raw['gc'])
+
     def window(self, stream_names, gc_counts=(0, 0, 0, 0)):
         """Return the :class:`Window` since the last call, and start the next one.
 
         ``gc_counts``: the window's :meth:`GcWatch.take`, carried into the window.
         """
-        streams = {}
-        for name in stream_names:
-            mean, _, mx = _summary(self.sample_times.get(name, []))
-            streams[name] = (self.samples.get(name, 0), mean, mx)
-        out = Window(eval_s=_summary(self.times), tick_s=_summary(self.tick_times, 1e-9),
-                     latency_s=_summary(self.latencies, 1e-9), streams=streams,
-                     published=self.published, late=self.late, missed=self.missed,
-                     skipped=self.skipped, new_skips=self.skipped > self.skipped_reported,
-                     errors=self.errors, last_error=self.last_error, deferred=self.deferred,
-                     slowest=self.slowest, gc=tuple(gc_counts))
-        self.times, self.tick_times, self.latencies, self.sample_times = [], [], [], {}
-        self.slowest = None
-        self.skipped_reported = self.skipped
-        self.errors = 0
-        return out
+        return self.summarize(self.take(gc_counts), stream_names)
 
 
 def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_bound,

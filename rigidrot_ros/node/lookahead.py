@@ -112,6 +112,22 @@ class _Job:
         self.done.set()
 
 
+class _Call:
+    """A plain call for the worker; its exception goes to ``on_error``."""
+
+    __slots__ = ('fn', 'on_error')
+
+    def __init__(self, fn, on_error):
+        self.fn, self.on_error = fn, on_error
+
+    def run(self):
+        try:
+            self.fn()
+        except Exception as exc:    # noqa: B902 - the worker thread never ends on a call
+            if self.on_error is not None:
+                self.on_error(exc)
+
+
 class BatchWorker:
     """A thread that evaluates look-ahead batches, one at a time, off the publishing thread.
 
@@ -128,8 +144,15 @@ class BatchWorker:
         if sys.getswitchinterval() > SWITCH_INTERVAL_S:
             sys.setswitchinterval(SWITCH_INTERVAL_S)
 
+    def call(self, fn, on_error=None):
+        """Queue ``fn()`` (any work that should not hold the publishing thread).
+
+        An exception goes to ``on_error(exc)`` if given, else it is dropped.
+        """
+        self.submit(_Call(fn, on_error))
+
     def submit(self, job):
-        """Queue a :class:`_Job`."""
+        """Queue a :class:`_Job` (anything with ``run()``)."""
         if not self._thread.is_alive():
             raise RuntimeError('the look-ahead worker has stopped')
         self._jobs.put(job)

@@ -263,6 +263,15 @@ class Sensor:
 
     def report(self):
         """Return ``(latency mean, p99, max s, dropped)`` of this window, and start the next."""
-        out = diagnostics.summary(self.latencies, 1e-9) + (self.dropped,)
-        self.latencies = []
+        return self.report_of(self.take_latencies())
+
+    def take_latencies(self):
+        """Return ``(latencies ns, dropped)`` of this window (moved out), and start the next."""
+        out, self.latencies = (self.latencies, self.dropped), []
         return out
+
+    @staticmethod
+    def report_of(taken):
+        """Return ``(latency mean, p99, max s, dropped)`` of :meth:`take_latencies`."""
+        latencies, dropped = taken
+        return diagnostics.summary(latencies, 1e-9) + (dropped,)
