@@ -47,6 +47,7 @@ that time of its wake-up while a batch runs.
 
 import abc
 import contextlib
+import os
 import queue
 import sys
 import threading
@@ -56,7 +57,7 @@ import numpy as np
 
 __all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'BatchWorker', 'AHEAD_MIN', 'AHEAD_MAX',
            'BATCH_BUDGET_S', 'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S',
-           'SWITCH_INTERVAL_S']
+           'SWITCH_INTERVAL_S', 'WORKER_NICE']
 
 #: The first batch's size, and the smallest.
 AHEAD_MIN = 8
@@ -81,6 +82,10 @@ STRIKES = 3
 WARMUP_S = 2.0
 #: Batches the cost model remembers.
 _HISTORY = 8
+#: How much nicer (lower CPU priority, ``setpriority`` on the thread: no root needed) the
+#: worker thread runs than the publishing thread: on a busy machine the OS then runs the
+#: publishing thread first when it wakes. ``RIGIDROT_WORKER_NICE`` overrides it (0: off).
+WORKER_NICE = 10
 #: The interpreter's thread switch interval with a worker (``sys.setswitchinterval``; 5 ms
 #: by default: the publishing thread would wait that long for a running batch).
 SWITCH_INTERVAL_S = 1e-4
@@ -110,6 +115,14 @@ class _Job:
         self.wall = time.perf_counter() - c0
         self.cost = time.thread_time() - cpu0
         self.done.set()
+
+
+def _worker_nice():
+    """Return :data:`WORKER_NICE`, or ``$RIGIDROT_WORKER_NICE`` (an integer >= 0) if set."""
+    try:
+        return max(int(os.environ.get('RIGIDROT_WORKER_NICE', WORKER_NICE)), 0)
+    except ValueError:
+        return WORKER_NICE
 
 
 class _Call:
@@ -158,6 +171,13 @@ class BatchWorker:
         self._jobs.put(job)
 
     def _loop(self):
+        nice = _worker_nice()
+        if nice > 0:
+            try:
+                tid = threading.get_native_id()
+                os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
+            except (OSError, AttributeError):
+                pass                    # not allowed here, or not Linux: as it is
         while True:
             job = self._jobs.get()
             if job is None:
