@@ -8,7 +8,7 @@ import pytest
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, AMORTIZE, BATCH_BUDGET_S
-from rigidrot_ros.node.lookahead import BatchWorker
+from rigidrot_ros.node.lookahead import BatchWorker, WORKER_AHEAD_S
 from rigidrot_ros.node.lookahead import LATE_SHARE, Lookahead, PERIOD_SHARE, SensorAhead
 from rigidrot_ros.node.lookahead import STRIKES, WARMUP_S
 
@@ -367,11 +367,12 @@ def test_with_a_worker_a_batch_starts_a_batch_ahead_and_is_never_a_strike():
             n = la.refill(k)
             if n:
                 sizes.append(n)
-                assert before <= size               # at most a whole batch left, then
+                assert before <= max(size, WORKER_AHEAD_S / PERIOD)    # then, not sooner
         assert len(sizes) > 3 * STRIKES and set(sizes) == {AHEAD_MIN}
         assert la.off_reason == '' and la.size == AHEAD_MIN
         la._collect(wait=True)
-        k = la._next - 1 - la.size                  # a whole batch buffered after k
+        k = la._next - 1 - la.size                  # a whole batch (5 samples) after k
+        assert WORKER_AHEAD_S / PERIOD < la.size
         inline = Lookahead(solve(SCENE), _time_of, PERIOD)
         inline.size, inline._next = la.size, la._next
         assert la.needs(k) and not inline.needs(k)  # a batch sooner than inline

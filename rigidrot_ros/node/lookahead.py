@@ -35,8 +35,9 @@ scalar call at that time would give (both within the bound; the last bits may di
 that :meth:`Ahead.refill` starts runs in the worker's thread: the indices are reserved at
 once, and the publishing thread takes the results in when it next touches that buffer, so
 a batch no longer holds the executor (a gyro batch has a fixed part of ~0.6 ms, past
-half a period at 1 kHz). There the next batch starts when a whole batch is left (not
-half), and a batch beyond its budget is no strike (it only keeps the next one small). Only one evaluation runs at a time (:attr:`BatchWorker.lock`:
+half a period at 1 kHz). There the next batch starts when a whole batch, and at least
+:data:`WORKER_AHEAD_S` of samples, is left (not half a batch), and a batch beyond its
+budget is no strike (it only keeps the next one small). Only one evaluation runs at a time (:attr:`BatchWorker.lock`:
 the core's caches, a sensor's noise stream and mpmath's working precision are not
 thread-safe): an index asked for while its batch runs waits for it, and the publishing
 thread's own evaluations (a miss, a catch-up) take the lock. A sensor's samples are still
@@ -57,7 +58,7 @@ import numpy as np
 
 __all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'BatchWorker', 'AHEAD_MIN', 'AHEAD_MAX',
            'BATCH_BUDGET_S', 'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S',
-           'SWITCH_INTERVAL_S', 'WORKER_NICE']
+           'SWITCH_INTERVAL_S', 'WORKER_NICE', 'WORKER_AHEAD_S']
 
 #: The first batch's size, and the smallest.
 AHEAD_MIN = 8
@@ -83,9 +84,14 @@ WARMUP_S = 2.0
 #: Batches the cost model remembers.
 _HISTORY = 8
 #: How much nicer (lower CPU priority, ``setpriority`` on the thread: no root needed) the
-#: worker thread runs than the publishing thread: on a busy machine the OS then runs the
-#: publishing thread first when it wakes. ``RIGIDROT_WORKER_NICE`` overrides it (0: off).
-WORKER_NICE = 10
+#: worker thread runs than the publishing thread (``RIGIDROT_WORKER_NICE`` overrides it).
+#: 0: measured no better at 10 on the shared machine (late gyro 487, 323 against 414, 287
+#: at 1 kHz over 20 s; a niced worker starved by other processes made calls wait for it).
+WORKER_NICE = 0
+#: With a worker, the next batch starts while at least this many seconds of samples are
+#: buffered (measured: calls waited 4 to 11 ms for batches of 8 to 16 samples at 1 kHz,
+#: under load, when they started with a batch left).
+WORKER_AHEAD_S = 0.05
 #: The interpreter's thread switch interval with a worker (``sys.setswitchinterval``; 5 ms
 #: by default: the publishing thread would wait that long for a running batch).
 SWITCH_INTERVAL_S = 1e-4
@@ -378,10 +384,13 @@ class Ahead(abc.ABC):
     def _low_water(self):
         """Samples buffered ahead at or below which the next batch starts.
 
-        Half a batch inline; a whole batch with a worker, so that a batch has the time of
-        a batch to run before its first sample is due.
+        Half a batch inline; with a worker a whole batch, and at least
+        :data:`WORKER_AHEAD_S` of samples: a batch then has that long to run (a worker
+        held up by other processes) before its first sample is due.
         """
-        return self.size if self.worker is not None else self.size // 2
+        if self.worker is None:
+            return self.size // 2
+        return max(self.size, int(WORKER_AHEAD_S / self.period_s))
 
     def _judge(self, n, cost):
         """Choose the next batch size from the cost model; count a strike, or turn off.
