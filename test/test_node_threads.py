@@ -8,7 +8,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
-import rclpy
 from rosbags.highlevel import AnyReader
 from std_srvs.srv import Trigger
 

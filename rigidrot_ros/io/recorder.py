@@ -257,7 +257,7 @@ class Recorder:
         return self._queue.qsize() if self._queue is not None else 0
 
     def _drain(self):
-        """The writer thread: do the queued writes in order; consecutive messages at once."""
+        """Do the queued writes in order, consecutive messages at once (the writer thread)."""
         msgs = ([], [], [])             # topics, payloads, log times not written yet
         while True:
             item = self._queue.get()

@@ -535,7 +535,7 @@ class AttitudeNode(Node):
 
     # -- reset -------------------------------------------------------------------------------
     def _eval_lock(self):
-        """The worker's evaluation lock (mpmath's precision, the core's caches), if any."""
+        """Return the worker's evaluation lock (mpmath's precision, the core's caches), if any."""
         return self._worker.lock if self._worker is not None else contextlib.nullcontext()
 
     def _on_reset(self, request, response):

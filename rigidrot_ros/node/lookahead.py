@@ -37,13 +37,14 @@ once, and the publishing thread takes the results in when it next touches that b
 a batch no longer holds the executor (a gyro batch has a fixed part of ~0.6 ms, past
 half a period at 1 kHz). There the next batch starts when a whole batch, and at least
 :data:`WORKER_AHEAD_S` of samples, is left (not half a batch), and a batch beyond its
-budget is no strike (it only keeps the next one small). Only one evaluation runs at a time (:attr:`BatchWorker.lock`:
-the core's caches, a sensor's noise stream and mpmath's working precision are not
-thread-safe): an index asked for while its batch runs waits for it, and the publishing
-thread's own evaluations (a miss, a catch-up) take the lock. A sensor's samples are still
-read in index order, each once. The process's thread switch interval is lowered
-(:data:`SWITCH_INTERVAL_S`) so that the publishing thread gets the interpreter within
-that time of its wake-up while a batch runs.
+budget is no strike (it only keeps the next one small). Only one evaluation runs at a
+time (:attr:`BatchWorker.lock`: the core's caches, a sensor's noise stream and mpmath's
+working precision are not thread-safe): an index asked for while its batch runs waits for
+it, and the publishing thread's own evaluations (a miss, a catch-up) take the lock. A
+sensor's samples are still read in index order, each once. The process's thread switch
+interval is lowered (:data:`SWITCH_INTERVAL_S`) so that the publishing thread gets the
+interpreter within that time of its wake-up while a batch runs. The node's diagnostics
+report is built in the worker too (:meth:`BatchWorker.call`).
 """
 
 import abc
@@ -382,7 +383,7 @@ class Ahead(abc.ABC):
         return max(float(a), 0.0), b
 
     def _low_water(self):
-        """Samples buffered ahead at or below which the next batch starts.
+        """Return how few samples buffered ahead start the next batch.
 
         Half a batch inline; with a worker a whole batch, and at least
         :data:`WORKER_AHEAD_S` of samples: a batch then has that long to run (a worker
