@@ -402,3 +402,15 @@ def test_a_call_owing_samples_of_the_running_batch_does_not_wait_in_fill_to():
     finally:
         gate.set()
         worker.stop()
+
+
+def test_a_call_in_the_worker_reports_its_error_and_the_worker_goes_on():
+    worker = BatchWorker()
+    try:
+        errors, done = [], []
+        worker.call(lambda: 1 / 0, errors.append)
+        worker.call(lambda: done.append(True))
+        assert worker.drain(timeout=30.0)
+        assert [type(e) for e in errors] == [ZeroDivisionError] and done == [True]
+    finally:
+        worker.stop()

@@ -474,11 +474,12 @@ class AttitudeNode(Node):
                          for rank, s in enumerate(self._streams, start=1)]
 
     # -- diagnostics -------------------------------------------------------------------------
-    def _publish_diagnostics(self):
+    def _publish_diagnostics(self, wait=False):
         """Take the window's counts now; build and publish the report in the worker thread.
 
         The report (percentiles, ~60 key-value pairs, one message) took 1.5 to 3 ms in the
-        scheduler call (under load): a sample or two late every second at 1 kHz.
+        scheduler call (under load): a sample or two late every second at 1 kHz. With
+        ``wait``, return once it is published.
         """
         ahead = self._ahead
         snap = {'raw': self._counters.take(self._gc.take()),
@@ -492,6 +493,8 @@ class AttitudeNode(Node):
             self._send_diagnostics(snap)
         else:
             self._worker.call(lambda: self._send_diagnostics(snap), self._diag_failed)
+            if wait:
+                self._worker.drain()
 
     def _diag_failed(self, exc):
         if self.context.ok():

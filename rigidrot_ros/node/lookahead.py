@@ -171,6 +171,12 @@ class BatchWorker:
         """
         self.submit(_Call(fn, on_error))
 
+    def drain(self, timeout=None):
+        """Wait until every job queued so far has run; False if ``timeout`` s passed first."""
+        done = threading.Event()
+        self.call(done.set)
+        return done.wait(timeout)
+
     def submit(self, job):
         """Queue a :class:`_Job` (anything with ``run()``)."""
         if not self._thread.is_alive():
