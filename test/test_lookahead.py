@@ -8,6 +8,7 @@ import pytest
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, AMORTIZE, BATCH_BUDGET_S
+from rigidrot_ros.node.lookahead import BatchWorker, WORKER_AHEAD_S
 from rigidrot_ros.node.lookahead import LATE_SHARE, Lookahead, PERIOD_SHARE, SensorAhead
 from rigidrot_ros.node.lookahead import STRIKES, WARMUP_S
 
@@ -230,3 +231,186 @@ def test_disabled_lookahead_evaluates_every_tick():
     la = Lookahead(solve(SCENE), _time_of, PERIOD, enabled=False)
     assert la.refill(0) == 0 and la.off_reason == 'disabled'
     assert la.get(3)[1] is None
+
+
+def _sensor(reads, worker=None, gate=None):
+    """A SensorAhead whose reads are logged in ``reads`` (and wait for ``gate``, if any)."""
+    def read(ks):
+        if gate is not None:
+            gate.wait()
+        reads.extend(ks)
+        return [('s', k) for k in ks], None
+    return SensorAhead(read, lambda k: read(range(k, k + 1))[0][0], 1e-3, first=1,
+                       budget_s=1.0, worker=worker)
+
+
+def test_a_catch_up_reads_the_owed_samples_as_one_batch_each_once():
+    """fill_to: the samples a late call owes come from one batch, none evaluated alone."""
+    reads = []
+    la = _sensor(reads)
+    la.get(1)
+    la.refill(1)                                    # 2 .. 9 buffered
+    assert la.fill_to(2, 300) == 300 - (1 + AHEAD_MIN)   # 10 .. 300 in one read
+    assert la.catch_ups == 1
+    misses = la.misses
+    assert [la.get(k)[0] for k in range(2, 301)] == [('s', k) for k in range(2, 301)]
+    assert la.misses == misses                      # every one was buffered
+    assert reads == list(range(1, 301))             # each once, in order
+    assert la.fill_to(301, 301) == 0                # one missing sample: evaluated alone
+    la.refill(300)
+    assert la.fill_to(500, 520) == 21               # indices skipped: read from 500 on
+    assert la.get(500)[0] == ('s', 500) and 400 not in reads
+
+
+def test_a_truth_catch_up_is_the_solution_and_no_strike():
+    sol = solve(SCENE)
+    la = Lookahead(sol, _time_of, PERIOD, budget_s=1e-9)     # every judged batch is over
+    la.get(0)
+    la.fill_to(1, 400)
+    assert la.size == AHEAD_MIN and la.off_reason == '' and la.catch_ups == 1
+    for k in (1, 200, 400):
+        (q, _, bound), built = la.get(k)
+        assert built is None                        # no build: the sample alone
+        r = sol.at(_time_of(k))
+        assert float(quat.angle_between(np.array(q), r.quaternion)) <= 2 * bound
+    assert la.misses == 1                           # tick 0 only
+
+
+def test_worker_batches_give_the_samples_of_inline_batches_bit_for_bit():
+    sol = solve(SCENE)
+    worker = BatchWorker()
+    try:
+        inline = Lookahead(sol, _time_of, PERIOD, budget_s=1.0)
+        threaded = Lookahead(sol, _time_of, PERIOD, budget_s=1.0, worker=worker)
+        for k in range(400):
+            a, b = inline.get(k), threaded.get(k)
+            assert a[0] == b[0], k                  # plain floats: exactly equal
+            inline.refill(k)
+            threaded.refill(k)
+        assert threaded.misses == 1 and len(threaded.take_stats()) > 3
+    finally:
+        worker.stop()
+    assert not worker.alive
+    with pytest.raises(RuntimeError, match='stopped'):
+        worker.submit(None)
+
+
+def test_a_sensor_in_the_worker_is_read_once_in_order_and_waited_for():
+    """An index whose batch still runs in the worker waits for it; none is read twice."""
+    import threading
+    reads, gate = [], threading.Event()
+    gate.set()
+    worker = BatchWorker()
+    try:
+        la = _sensor(reads, worker, gate)
+        got = []
+        for k in range(1, 300):
+            got.append(la.get(k)[0])
+            if k == 100:
+                la._collect(wait=True)
+                gate.clear()                        # the next batch blocks in the worker
+                threading.Timer(0.2, gate.set).start()      # released while get() waits
+            n = la.refill(k)
+            if n and not gate.is_set():
+                assert la.ahead_of(k) >= n          # reserved at once, read later
+        assert got == [('s', k) for k in range(1, 300)]
+        assert reads == list(range(1, max(reads) + 1))      # each once, in order
+        assert la.misses == 1
+    finally:
+        gate.set()
+        worker.stop()
+
+
+def test_frames_changed_while_a_batch_runs_drop_its_built_messages():
+    import threading
+    gate = threading.Event()
+    worker = BatchWorker()
+    try:
+        def build(start, data):
+            gate.wait()
+            return ['old frames'] * len(data[0])
+        la = Lookahead(solve(SCENE), _time_of, PERIOD, budget_s=1.0, build=build,
+                       worker=worker)
+        la.get(0)
+        assert la.refill(0) == AHEAD_MIN            # in the worker, blocked in build
+        la.drop_built()
+        gate.set()
+        assert all(la.get(k)[1] is None for k in range(1, 1 + AHEAD_MIN))
+    finally:
+        gate.set()
+        worker.stop()
+
+
+def test_a_failing_batch_in_the_worker_turns_off_and_evaluates_per_sample():
+    worker = BatchWorker()
+    try:
+        la = Lookahead(_FailingBatches(solve(SCENE)), _time_of, PERIOD, worker=worker)
+        assert la.refill(0) == AHEAD_MIN            # queued: the failure shows when taken in
+        (q, w, b), built = la.get(1)
+        assert built is None and math.isfinite(b)
+        assert la.size == 0 and 'ArithmeticError' in la.off_reason
+    finally:
+        worker.stop()
+
+
+def test_with_a_worker_a_batch_starts_a_batch_ahead_and_is_never_a_strike():
+    clock = _Clock()
+    worker = BatchWorker()
+    try:
+        la = Lookahead(solve(SCENE), _time_of, PERIOD, budget_s=1e-9, clock=clock,
+                       worker=worker)
+        clock.t += 10 * WARMUP_S                    # past the warm-up: these would be strikes
+        sizes = []
+        for k in range(300):
+            la.get(k)
+            before, size = la.ahead_of(k), la.size
+            n = la.refill(k)
+            if n:
+                sizes.append(n)
+                assert before <= max(size, WORKER_AHEAD_S / PERIOD)    # then, not sooner
+        assert len(sizes) > 3 * STRIKES and set(sizes) == {AHEAD_MIN}
+        assert la.off_reason == '' and la.size == AHEAD_MIN
+        la._collect(wait=True)
+        k = la._next - 1 - la.size                  # a whole batch (5 samples) after k
+        assert WORKER_AHEAD_S / PERIOD < la.size
+        inline = Lookahead(solve(SCENE), _time_of, PERIOD)
+        inline.size, inline._next = la.size, la._next
+        assert la.needs(k) and not inline.needs(k)  # a batch sooner than inline
+    finally:
+        worker.stop()
+
+
+def test_a_call_owing_samples_of_the_running_batch_does_not_wait_in_fill_to():
+    """fill_to only waits for the worker's batch when it must evaluate past it."""
+    import threading
+    reads, gate = [], threading.Event()
+    worker = BatchWorker()
+    try:
+        gate.set()
+        la = _sensor(reads, worker, gate)
+        la.get(1)
+        la._collect(wait=True)
+        gate.clear()
+        timer = threading.Timer(2.0, gate.set)      # releases the batch in any case
+        timer.start()
+        assert la.refill(1) == AHEAD_MIN            # 2 .. 9 reserved, blocked in the worker
+        assert la.fill_to(2, 9) == 0                # all reserved: returns at once
+        assert not la._job.done.is_set()            # (it did not wait for the batch)
+        assert la.fill_to(2, 20) == 11              # past it: waits, then 10 .. 20
+        assert reads == list(range(1, 21))          # in order, each once
+        timer.cancel()
+    finally:
+        gate.set()
+        worker.stop()
+
+
+def test_a_call_in_the_worker_reports_its_error_and_the_worker_goes_on():
+    worker = BatchWorker()
+    try:
+        errors, done = [], []
+        worker.call(lambda: 1 / 0, errors.append)
+        worker.call(lambda: done.append(True))
+        assert worker.drain(timeout=30.0)
+        assert [type(e) for e in errors] == [ZeroDivisionError] and done == [True]
+    finally:
+        worker.stop()

@@ -136,7 +136,7 @@ def _diagnostics_of(node):
     """Publish one diagnostics array of ``node`` and return its status (captured, not sent)."""
     sent = []
     node._pub_diag.publish = sent.append
-    node._publish_diagnostics()
+    node._publish_diagnostics(wait=True)
     return sent[0].status[0]
 
 

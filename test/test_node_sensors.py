@@ -388,7 +388,7 @@ def test_an_infinite_gyro_bound_is_refused_and_the_bound_is_per_run(monkeypatch)
         node._streams[0].bound = math.inf
         sent = []
         node._pub_diag.publish = sent.append
-        node._publish_diagnostics()
+        node._publish_diagnostics(wait=True)
         st = sent[0].status[0]
         assert st.level == DiagnosticStatus.WARN and 'gyro increment' in st.message, st.message
         response = node._on_reset(None, type('R', (), {})())

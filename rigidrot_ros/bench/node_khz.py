@@ -22,7 +22,12 @@ From the diagnostics (1 s windows whose stamp is past the warm-up): ``tick_p99_u
 ``latency_p99_us`` (median and worst window), per-sensor latency keys where the node has
 them (``latency_<sensor>_p99_us`` or ``<sensor>_latency_p99_us``), ``ticks_missed`` after
 warm-up, and ``lookahead`` over the whole run (on throughout, or when and why it went
-off). A key the installed node does not report reads "n/a".
+off); where the time went: ``call_max_us`` (median and worst window of the longest
+scheduler call, from its due time to its end) with the worst window's phases
+(``call_max_phases``: wake-up, collect, publish, record, batch, diag, gc; see
+:mod:`rigidrot_ros.node.diagnostics`), and the garbage collector's passes
+(``gc_collections``, summed per generation) and longest pass (``gc_max_us``). A key the
+installed node does not report reads "n/a".
 
 Targets (issue 20): at 1 kHz 0 missed ticks and 0 late gyro samples after warm-up with
 the look-ahead on throughout; at 2 kHz at least 99 % of the ticks delivered; 4 kHz
@@ -91,6 +96,13 @@ def _diag_listener(domain, node_name, sink):
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     return ctx, ex, node
+
+
+def _float(text):
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return None
 
 
 def _int(values, key):
@@ -258,6 +270,19 @@ def diag_figures(diags, rate, warmup, seconds, t0_ns=None):
         if m:
             sensors[m.group(1) or m.group(2)] = _windows(after, key)
     out['sensor_latency_p99_us'] = sensors
+    out['call_max_us'] = _windows(after, 'call_max_us')
+    worst = max(((float(d['values']['call_max_us']), d['values'].get('call_max_phases', ''))
+                 for d in after if _float(d['values'].get('call_max_us')) is not None),
+                default=None)
+    out['call_max_phases'] = worst[1] if worst else None
+    gens = [0, 0, 0]
+    for d in after:
+        parts = str(d['values'].get('gc_collections', '')).split('/')
+        if len(parts) == 3 and all(p.isdigit() for p in parts):
+            gens = [g + int(p) for g, p in zip(gens, parts)]
+    out['gc_collections'] = gens if any('gc_collections' in d['values'] for d in after) \
+        else None
+    out['gc_max_us'] = _windows(after, 'gc_max_us')
     before = [d for d in ticked if d['stamp_ns'] <= w_ns]
     base = before[-1] if before else None
     last = next((d for d in ticked if d['stamp_ns'] >= end_ns), ticked[-1])
@@ -344,6 +369,15 @@ def _log_rate(r, log):
         f'{_w(d.get("latency_p99_us"))} us, per sensor {sensors}; look-ahead '
         f'{_look(d.get("lookahead"))}; node exit {r["exit_code"]}; target '
         f'{r["target"]}: {r["verdict"]}')
+    log(f'    longest call median/worst {_w(d.get("call_max_us"))} us (worst: '
+        f'{d.get("call_max_phases") or "n/a"}); gc passes {_gc(d)}')
+
+
+def _gc(d):
+    gens = d.get('gc_collections')
+    if gens is None:
+        return 'n/a'
+    return f'{"/".join(map(str, gens))} (gen 0/1/2), longest {_w(d.get("gc_max_us"))} us'
 
 
 def run(quick=False, log=print, khz_seconds=None, khz_rate=None, khz_domain=None):
@@ -374,7 +408,7 @@ def render_md(results):
     res = results.get('node_khz')
     if not res or not res.get('rates'):
         return None
-    rows = []
+    rows, slow = [], []
     for r in res['rates']:
         b, d = r['bag'], r['diagnostics']
         rows.append([
@@ -386,6 +420,8 @@ def render_md(results):
             '; '.join(f'{k} {_w(v)}' for k, v in
                       (d.get('sensor_latency_p99_us') or {}).items()) or 'n/a',
             _look(d.get('lookahead')), f'{r["target"]}: **{r["verdict"]}**'])
+        slow.append([f'{r["rate_hz"]:g}', _w(d.get('call_max_us')),
+                     d.get('call_max_phases') or 'n/a', _gc(d)])
     return common.md_fragment(
         f'The node at IMU rates: truth and gyro at the same rate, recording, '
         f'{common.fmt(res["warmup_s"])} s warm-up then {common.fmt(res["seconds"])} s '
@@ -394,7 +430,12 @@ def render_md(results):
         common.md_table(['rate [Hz]', 'ticks delivered', 'missed (diagnostics)',
                          'late gyro (absent)', 'gyro log delay p99 [µs]',
                          'tick p99 [µs]', 'wake-up p99 [µs]', 'per-sensor wake-up p99 [µs]',
-                         'look-ahead', 'target'], rows))
+                         'look-ahead', 'target'], rows)
+        + '\n\nWhere the time went: the longest scheduler call of each 1 s window '
+        '(from its due time to its end), and the phases of the worst one (µs; '
+        '"owed": samples the call published, "now": of those evaluated then):\n\n'
+        + common.md_table(['rate [Hz]', 'longest call [µs]', 'its phases (worst window)',
+                           'gc passes'], slow))
 
 
 def main(argv=None):

@@ -36,6 +36,8 @@ evaluated, and the attitude and rate messages built and serialized, ahead in bat
 tick reads the clock and publishes the bytes.
 """
 
+import contextlib
+import os
 import sys
 import time
 
@@ -59,7 +61,7 @@ from rigidrot_ros.io import cdr
 from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.node import cli, diagnostics, grid, outputs, recording, scheduler
 from rigidrot_ros.node.cli import SceneError
-from rigidrot_ros.node.lookahead import Lookahead
+from rigidrot_ros.node.lookahead import BatchWorker, Lookahead
 from rigidrot_ros.node.ros_params import descriptor, UnknownParameterError
 from rigidrot_ros.node.ros_params import warn_unknown_overrides
 from rigidrot_ros.node.sensor_ahead import Sensor
@@ -73,6 +75,14 @@ _EXTRA_TYPES = {'transform': TransformStamped, 'odom': Odometry, 'markers': Mark
 _LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
 #: A scheduler call this many timer periods after its due time is a catch-up (see _refill).
 _CATCH_UP = 1.0
+
+
+def _use_worker():
+    """Whether look-ahead batches run in a worker thread (``RIGIDROT_LOOKAHEAD_WORKER=0``: not).
+
+    The variable is for measuring the two against each other; anything but ``0`` means on.
+    """
+    return os.environ.get('RIGIDROT_LOOKAHEAD_WORKER', '1').strip() != '0'
 
 
 class AttitudeNode(Node):
@@ -101,6 +111,9 @@ class AttitudeNode(Node):
         self._ahead = None
         self._last_sample = None
         self._counters = diagnostics.Counters()
+        self._gc = diagnostics.GcWatch()
+        #: Runs the look-ahead batches off the executor's thread (lookahead.BatchWorker)
+        self._worker = BatchWorker() if _use_worker() else None
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._on_post_set)
         self._make_publishers()
@@ -171,7 +184,8 @@ class AttitudeNode(Node):
         """Validate a change against the whole run; refuse with a reason naming it."""
         names = [p.name for p in params]
         try:
-            reason = self._check_change(params, names)
+            with self._eval_lock():     # solving a candidate: not beside a batch (mpmath)
+                reason = self._check_change(params, names)
         except Exception as exc:        # never let a parameter change kill the node
             reason = f'{type(exc).__name__}: {exc}'
         if reason is None:
@@ -235,15 +249,23 @@ class AttitudeNode(Node):
         """Publish every sample due now, of every stream, in stamp order (the one timer).
 
         Then at most one look-ahead batch (the stream whose buffer runs out first), and
-        the diagnostics once a second.
+        the diagnostics once a second. Each phase's time goes to the diagnostics (the
+        window's longest call: ``call_max_phases``).
         """
         c_tick = time.perf_counter_ns()
+        gc0 = self._gc.total_ns
         now_ns = self._now_ns()
+        due_ns = self._grid_due_ns(now_ns)
         groups = []                     # (stamp ns, rank, [(publisher, msg, raw), ...])
-        truth = self._truth_due(now_ns, groups)
+        owed = []                       # (stream, samples due, of them evaluated now)
+        truth = self._truth_due(now_ns, groups, owed)
         if self._t_start is not None:
             for sensor in self._sensors:
+                n0, m0 = len(groups), sensor.ahead.misses
                 sensor.due(now_ns, groups, self._pubs, self._failed)
+                owed.append((sensor.stream.name, len(groups) - n0,
+                             sensor.ahead.misses - m0))
+        c_collect = c_publish = c_record = time.perf_counter_ns()
         if groups:
             groups.sort(key=lambda g: (g[0], g[1]))
             items = [it for g in groups for it in g[2]]
@@ -252,16 +274,28 @@ class AttitudeNode(Node):
                 return
             for sensor in self._sensors:
                 sensor.published(pub_ns, self._counters)
+            c_publish = time.perf_counter_ns()
             if truth:
-                self._counters.tick_times.append(time.perf_counter_ns() - c_tick)
+                self._counters.tick_times.append(c_publish - c_tick)
             start = self._t_start.nanoseconds if self._t_start is not None else now_ns
             self._runs.tick(self, self._setup, start, now_ns, items)
+            c_record = time.perf_counter_ns()
         # a call that came late (a catch-up) leaves its batch to the next call while the
         # buffers hold enough: a batch now would make the next samples late too
-        self._refill(behind=now_ns - self._grid_due_ns(now_ns) > _CATCH_UP * self._timer_ns)
+        batch = self._refill(behind=now_ns - due_ns > _CATCH_UP * self._timer_ns)
+        c_batch = time.perf_counter_ns()
         if time.monotonic() >= self._next_diag:
             self._next_diag = max(self._next_diag + 1.0, time.monotonic() + 0.5)
             self._publish_diagnostics()
+        c_end = time.perf_counter_ns()
+        wake = max(now_ns - due_ns, 0)
+        self._counters.call(wake + c_end - c_tick, [
+            ('wake', wake),
+            ('collect', (c_collect - c_tick, ', '.join(
+                f'{name} {n} owed/{m} now' for name, n, m in owed if n or m))),
+            ('publish', c_publish - c_collect), ('record', c_record - c_publish),
+            ('batch', (c_batch - c_record, batch)), ('diag', c_end - c_batch),
+            ('gc', self._gc.total_ns - gc0)])
 
     def _grid_due_ns(self, now_ns):
         """Return the scheduler grid time this call was due at (the last one at or before now)."""
@@ -270,15 +304,24 @@ class AttitudeNode(Node):
         return now_ns - (now_ns - self._grid0) % self._timer_ns
 
     def _refill(self, behind=False):
-        """Run at most one look-ahead batch (:func:`scheduler.next_batch` chooses it)."""
+        """Run at most one look-ahead batch (:func:`scheduler.next_batch` chooses it).
+
+        Returns what ran, for the diagnostics: ``'<stream> <samples>'``, ``'deferred'`` or ''.
+        """
         streams = [(s.ahead, s.track.last, s.track.rate) for s in self._sensors]
+        names = [s.stream.name for s in self._sensors]
         if self._ahead is not None:
             streams.insert(0, (self._ahead, self._tick_k, self._period_hz))
+            names.insert(0, 'truth')
         best = scheduler.next_batch(streams, behind)
         if best is scheduler.DEFERRED:
             self._counters.deferred += 1
-        elif best is not None:
-            best[0].refill(best[1])
+            return 'deferred'
+        if best is None:
+            return ''
+        n = best[0].refill(best[1])
+        name = next(nm for (a, _, _), nm in zip(streams, names) if a is best[0])
+        return f'{name} {n}' if n else ''
 
     # -- the truth ---------------------------------------------------------------------------
     def _anchor(self, now_ns):
@@ -293,18 +336,21 @@ class AttitudeNode(Node):
             self._runs.pending = True       # the first publication announces it on ~/run
             self._start_sensor_tracks()
         self._grid0, self._tick_k = g0, -1
-        self._ahead = Lookahead(self.solution,
-                                lambda k: self._scene_time(self._tick_stamp_ns(k)),
-                                self._period, build=self._build_ahead)
+        # the grid, run start and scale are bound now: a batch may run in the worker thread
+        hz, t0, scale = self._period_hz, self._t_start.nanoseconds, self._setup.time_scale
+        self._ahead = Lookahead(
+            self.solution, lambda k: scene_time(grid.stamp_ns(g0, hz, k), t0, scale),
+            self._period, build=lambda start, data: self._build_ahead(start, data, g0, hz),
+            worker=self._worker)
 
-    def _build_ahead(self, start, data):
+    def _build_ahead(self, start, data, g0, hz):
         """Serialize (CDR) the attitude and rate messages of a batch of ticks to come.
 
         One :mod:`rigidrot_ros.io.cdr` call per topic: the tick then publishes the bytes
-        (``publish_raw``), and the recorder writes the same bytes.
+        (``publish_raw``), and the recorder writes the same bytes. ``g0``, ``hz``: the grid.
         """
         q, w, _ = data
-        stamps = [self._tick_stamp_ns(k) for k in range(start, start + len(q))]
+        stamps = [grid.stamp_ns(g0, hz, k) for k in range(start, start + len(q))]
         frame, body = self._frames
         return list(zip(cdr.attitude(stamps, q, frame).tolist(),
                         cdr.vector(stamps, w, body).tolist()))
@@ -358,30 +404,35 @@ class AttitudeNode(Node):
                 out.append((self._pubs[topic], msg, None))
         return out
 
-    def _truth_due(self, now_ns, groups):
+    def _truth_due(self, now_ns, groups, owed):
         """Append the truth ticks due at ``now_ns`` to ``groups``; True if any.
 
         Every grid tick from the last published one to now goes out (a call that comes
         late publishes the ticks it owes: counted ``ticks_late``, not lost); only a backlog
         beyond a second (a clock jump) is skipped and counted ``ticks_missed``
-        (:func:`grid.truth_due`).
+        (:func:`grid.truth_due`). Appends ``('truth', ticks, of them evaluated now)`` to
+        ``owed``.
         """
         st = self._counters
         if self._grid0 is None or now_ns < self._grid0:     # new grid, or the clock went back
             self._anchor(now_ns)
-        owed = grid.truth_due(self._grid0, self._period_hz, self._tick_k, now_ns)
-        if owed is None:
+        due = grid.truth_due(self._grid0, self._period_hz, self._tick_k, now_ns)
+        if due is None:
             return False                # this grid time is published already
-        if owed is grid.NEW_GRID:
+        if due is grid.NEW_GRID:
             self._anchor(now_ns)        # the clock went back: a new grid, from its tick 0
-            owed = (0, 0, 0)
-        first, k, missed = owed
+            due = (0, 0, 0)
+        first, k, missed = due
         st.missed += missed
         if k > first:
             st.late += 1
+        m0 = self._ahead.misses
+        n0 = len(groups)
+        self._ahead.fill_to(first, k)       # a catch-up: the owed ticks as one batch
         for j in range(first, k + 1):
             if not self._truth_tick(j, now_ns, groups):
                 break
+        owed.append(('truth', len(groups) - n0, self._ahead.misses - m0))
         return True
 
     def _truth_tick(self, k, now_ns, groups):
@@ -418,28 +469,55 @@ class AttitudeNode(Node):
     def _start_sensor_tracks(self):
         """At a run's t_start: each sensor's grid, timing model and look-ahead."""
         t0 = self._t_start.nanoseconds
-        self._sensors = [Sensor(s, t0, rank, self._setup, self._counters, lambda: self._frames)
+        self._sensors = [Sensor(s, t0, rank, self._setup, self._counters, lambda: self._frames,
+                                self._worker)
                          for rank, s in enumerate(self._streams, start=1)]
 
     # -- diagnostics -------------------------------------------------------------------------
-    def _publish_diagnostics(self):
+    def _publish_diagnostics(self, wait=False):
+        """Take the window's counts now; build and publish the report in the worker thread.
+
+        The report (percentiles, ~60 key-value pairs, one message) took 1.5 to 3 ms in the
+        scheduler call (under load): a sample or two late every second at 1 kHz. With
+        ``wait``, return once it is published.
+        """
         ahead = self._ahead
-        batches = ahead.take_stats() if ahead is not None else []
-        gyro = [s.bound for s in self._streams if s.name == 'imu']
-        sensors = {s.stream.name: s.report() for s in self._sensors}
+        snap = {'raw': self._counters.take(self._gc.take()),
+                'batches': ahead.take_stats() if ahead is not None else [],
+                'ahead': ahead, 'solution': self.solution, 'period_hz': self._period_hz,
+                'sensors': {s.stream.name: s.take_latencies() for s in self._sensors},
+                'gyro': [s.bound for s in self._streams if s.name == 'imu'],
+                'delivered': self._delivered_rate(), 'last': self._last_sample,
+                'stamp': self.get_clock().now()}
+        if self._worker is None:
+            self._send_diagnostics(snap)
+        else:
+            self._worker.call(lambda: self._send_diagnostics(snap), self._diag_failed)
+            if wait:
+                self._worker.drain()
+
+    def _diag_failed(self, exc):
+        if self.context.ok():
+            self.get_logger().error(f'diagnostics failed: {type(exc).__name__}: {exc}',
+                                    throttle_duration_sec=10.0)
+
+    def _send_diagnostics(self, snap):
+        """Build the report of a :meth:`_publish_diagnostics` snapshot, and publish it."""
+        last, gyro = snap['last'], snap['gyro']
         level, msg, values = diagnostics.report(
-            self._counters.window(STREAMS), self.solution, period_hz=self._period_hz,
-            delivered=self._delivered_rate(),
-            error_bound=float(self._last_sample[1]) if self._last_sample else 0.0,
-            scene_time=self._last_sample[0] if self._last_sample else None,
-            increment_bound=gyro[0] if gyro else 0.0, lookahead=ahead, batches=batches,
-            sensors=sensors)
+            diagnostics.Counters.summarize(snap['raw'], STREAMS), snap['solution'],
+            period_hz=snap['period_hz'], delivered=snap['delivered'],
+            error_bound=float(last[1]) if last else 0.0,
+            scene_time=last[0] if last else None,
+            increment_bound=gyro[0] if gyro else 0.0, lookahead=snap['ahead'],
+            batches=snap['batches'],
+            sensors={k: Sensor.report_of(v) for k, v in snap['sensors'].items()})
         status = DiagnosticStatus(level=_LEVELS[level], name=f'{self.get_name()}: exact '
                                   'attitude', message=msg,
                                   hardware_id=self.get_fully_qualified_name())
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         arr = DiagnosticArray()
-        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.header.stamp = snap['stamp'].to_msg()
         arr.status = [status]
         self._pub_diag.publish(arr)
 
@@ -452,13 +530,21 @@ class AttitudeNode(Node):
 
     def destroy_node(self):
         """Finish the bag (summary, index, metadata.yaml), then destroy the node."""
+        self._gc.remove()
+        if self._worker is not None:
+            self._worker.stop()
         self._runs.close(self._counters.published)
         return super().destroy_node()
 
     # -- reset -------------------------------------------------------------------------------
+    def _eval_lock(self):
+        """Return the worker's evaluation lock (mpmath's precision, the core's caches), if any."""
+        return self._worker.lock if self._worker is not None else contextlib.nullcontext()
+
     def _on_reset(self, request, response):
         try:
-            setup = settings.prepare_run(self._values)
+            with self._eval_lock():
+                setup = settings.prepare_run(self._values)
         except ValueError as exc:
             response.success = False
             response.message = f'reset refused, previous scene keeps running: {exc}'

@@ -23,13 +23,25 @@ started);
 ``increment_error_bound_rad`` (the largest bound of this run's gyro increments);
 ``sensor_samples_skipped``, ``ticks_published``, ``ticks_late``, ``ticks_missed``,
 ``publish_rate_hz`` and ``delivered_rate_hz``.
+
+Where a window's time went: ``call_max_us`` (the window's longest scheduler call, from
+its due time on the scheduler grid to its end, µs) and ``call_max_phases`` (that call's
+phases, µs: ``wake`` its due time to its start, ``collect`` the samples due taken from
+the buffers, or evaluated then (``owed``: samples per stream, ``now``: of those not
+buffered), ``publish``, ``record`` (handing the messages to the recorder), ``batch`` (the
+look-ahead batch, and whose), ``diag``, and ``gc``: the garbage collector's passes within
+the call); ``gc_collections`` (passes in the window, generations 0/1/2) and ``gc_max_us``
+(the longest, :class:`GcWatch`).
 """
 
 from dataclasses import dataclass, field
+import gc
+import time
 
 import numpy as np
 
-__all__ = ['Counters', 'Window', 'report', 'summary', 'delivered', 'OK', 'WARN', 'ERROR']
+__all__ = ['Counters', 'Window', 'report', 'summary', 'delivered', 'GcWatch', 'OK', 'WARN',
+           'ERROR']
 
 #: Levels, as diagnostic_msgs/DiagnosticStatus numbers them.
 OK, WARN, ERROR = 0, 1, 2
@@ -60,6 +72,48 @@ class Window:
     errors: int
     last_error: str
     deferred: int = 0
+    slowest: tuple = None       # (ns, phases) of the window's longest scheduler call
+    gc: tuple = (0, 0, 0, 0)    # collections of generations 0, 1, 2; the longest, ns
+
+
+class GcWatch:
+    """Time the garbage collector's passes (``gc.callbacks``): per window, and the running sum.
+
+    :attr:`total_ns` only grows (a scheduler call reads it before and after to know its
+    share); :meth:`take` returns the window's ``(gen 0, gen 1, gen 2 collections, longest
+    ns)`` and starts the next. :meth:`remove` takes the callback out again.
+    """
+
+    def __init__(self, clock=time.perf_counter_ns):
+        self.total_ns = 0
+        self._clock = clock
+        self._t0 = None
+        self._counts = [0, 0, 0]
+        self._longest = 0
+        gc.callbacks.append(self._on_gc)
+
+    def _on_gc(self, phase, info):
+        if phase == 'start':
+            self._t0 = self._clock()
+            return
+        if self._t0 is None:
+            return
+        dt = self._clock() - self._t0
+        self._t0 = None
+        self.total_ns += dt
+        self._counts[min(int(info.get('generation', 0)), 2)] += 1
+        self._longest = max(self._longest, dt)
+
+    def take(self):
+        """Return ``(gen 0, gen 1, gen 2 collections, longest ns)`` of the window; reset."""
+        out = tuple(self._counts) + (self._longest,)
+        self._counts, self._longest = [0, 0, 0], 0
+        return out
+
+    def remove(self):
+        """Stop watching (idempotent)."""
+        if self._on_gc in gc.callbacks:
+            gc.callbacks.remove(self._on_gc)
 
 
 @dataclass
@@ -82,6 +136,15 @@ class Counters:
     deferred: int = 0       # look-ahead batches a late call left to the next one
     errors: int = 0
     last_error: str = ''
+    slowest: tuple = None   # (ns, phases) of the longest scheduler call of this window
+
+    def call(self, total_ns, phases):
+        """Note one scheduler call of ``total_ns``; keep its ``phases`` if the window's longest.
+
+        ``phases`` is a list of ``(name, ns or (ns, detail text))`` in the order they ran.
+        """
+        if self.slowest is None or total_ns > self.slowest[0]:
+            self.slowest = (total_ns, phases)
 
     def sampled(self, name, seconds):
         """Count one sample of stream ``name`` that took ``seconds`` to build."""
@@ -93,21 +156,45 @@ class Counters:
         self.errors += 1
         self.last_error = text
 
-    def window(self, stream_names):
-        """Return the :class:`Window` since the last call, and start the next one."""
-        streams = {}
-        for name in stream_names:
-            mean, _, mx = _summary(self.sample_times.get(name, []))
-            streams[name] = (self.samples.get(name, 0), mean, mx)
-        out = Window(eval_s=_summary(self.times), tick_s=_summary(self.tick_times, 1e-9),
-                     latency_s=_summary(self.latencies, 1e-9), streams=streams,
-                     published=self.published, late=self.late, missed=self.missed,
-                     skipped=self.skipped, new_skips=self.skipped > self.skipped_reported,
-                     errors=self.errors, last_error=self.last_error, deferred=self.deferred)
+    def take(self, gc_counts=(0, 0, 0, 0)):
+        """Return the window's raw counts and start the next one (cheap: lists moved out).
+
+        :meth:`summarize` turns them into a :class:`Window` (in another thread, if need
+        be); ``gc_counts``: the window's :meth:`GcWatch.take`, carried along.
+        """
+        raw = {'times': self.times, 'tick_times': self.tick_times,
+               'latencies': self.latencies, 'sample_times': self.sample_times,
+               'samples': dict(self.samples), 'published': self.published,
+               'late': self.late, 'missed': self.missed, 'skipped': self.skipped,
+               'new_skips': self.skipped > self.skipped_reported, 'errors': self.errors,
+               'last_error': self.last_error, 'deferred': self.deferred,
+               'slowest': self.slowest, 'gc': tuple(gc_counts)}
         self.times, self.tick_times, self.latencies, self.sample_times = [], [], [], {}
+        self.slowest = None
         self.skipped_reported = self.skipped
         self.errors = 0
-        return out
+        return raw
+
+    @staticmethod
+    def summarize(raw, stream_names):
+        """Return the :class:`Window` of raw counts (:meth:`take`)."""
+        streams = {}
+        for name in stream_names:
+            mean, _, mx = _summary(raw['sample_times'].get(name, []))
+            streams[name] = (raw['samples'].get(name, 0), mean, mx)
+        return Window(eval_s=_summary(raw['times']), tick_s=_summary(raw['tick_times'], 1e-9),
+                      latency_s=_summary(raw['latencies'], 1e-9), streams=streams,
+                      published=raw['published'], late=raw['late'], missed=raw['missed'],
+                      skipped=raw['skipped'], new_skips=raw['new_skips'],
+                      errors=raw['errors'], last_error=raw['last_error'],
+                      deferred=raw['deferred'], slowest=raw['slowest'], gc=raw['gc'])
+
+    def window(self, stream_names, gc_counts=(0, 0, 0, 0)):
+        """Return the :class:`Window` since the last call, and start the next one.
+
+        ``gc_counts``: the window's :meth:`GcWatch.take`, carried into the window.
+        """
+        return self.summarize(self.take(gc_counts), stream_names)
 
 
 def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_bound,
@@ -195,7 +282,30 @@ def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_b
         'publish_rate_hz': f'{period_hz:g}',
         'delivered_rate_hz': '' if delivered is None else f'{delivered:.4g}',
     })
+    values.update(phase_values(w.slowest))
+    g0, g1, g2, longest = w.gc
+    values.update({'gc_collections': f'{g0}/{g1}/{g2}', 'gc_max_us': f'{longest / 1e3:.1f}'})
     return level, msg, values
+
+
+def phase_values(slowest):
+    """Return ``call_max_us`` and ``call_max_phases`` of a window's longest call (or empty).
+
+    ``slowest`` is ``(ns, [(name, ns or (ns, detail)), ...])`` (:meth:`Counters.call`).
+
+    Examples
+    --------
+    >>> phase_values((1500000, [('wake', 1200000), ('batch', (300000, 'imu 64'))]))
+    {'call_max_us': '1500.0', 'call_max_phases': 'wake 1200.0, batch 300.0 (imu 64)'}
+    """
+    if not slowest:
+        return {'call_max_us': '', 'call_max_phases': ''}
+    total, phases = slowest
+    parts = []
+    for name, value in phases:
+        ns, detail = value if isinstance(value, tuple) else (value, '')
+        parts.append(f'{name} {ns / 1e3:.1f}' + (f' ({detail})' if detail else ''))
+    return {'call_max_us': f'{total / 1e3:.1f}', 'call_max_phases': ', '.join(parts)}
 
 
 def delivered(last, now, count, period_hz):

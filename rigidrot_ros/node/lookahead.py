@@ -30,15 +30,36 @@ when it is due (the truth: one scalar call; a sensor: its per-sample reader).
 
 Each buffered truth sample is the same exact solution, with its own error bound, as a
 scalar call at that time would give (both within the bound; the last bits may differ).
+
+**Off the publishing thread.** With a :class:`BatchWorker` (the node has one), a batch
+that :meth:`Ahead.refill` starts runs in the worker's thread: the indices are reserved at
+once, and the publishing thread takes the results in when it next touches that buffer, so
+a batch no longer holds the executor (a gyro batch has a fixed part of ~0.6 ms, past
+half a period at 1 kHz). There the next batch starts when a whole batch, and at least
+:data:`WORKER_AHEAD_S` of samples, is left (not half a batch), and a batch beyond its
+budget is no strike (it only keeps the next one small). Only one evaluation runs at a
+time (:attr:`BatchWorker.lock`: the core's caches, a sensor's noise stream and mpmath's
+working precision are not thread-safe): an index asked for while its batch runs waits for
+it, and the publishing thread's own evaluations (a miss, a catch-up) take the lock. A
+sensor's samples are still read in index order, each once. The process's thread switch
+interval is lowered (:data:`SWITCH_INTERVAL_S`) so that the publishing thread gets the
+interpreter within that time of its wake-up while a batch runs. The node's diagnostics
+report is built in the worker too (:meth:`BatchWorker.call`).
 """
 
 import abc
+import contextlib
+import os
+import queue
+import sys
+import threading
 import time
 
 import numpy as np
 
-__all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'AHEAD_MIN', 'AHEAD_MAX', 'BATCH_BUDGET_S',
-           'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S']
+__all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'BatchWorker', 'AHEAD_MIN', 'AHEAD_MAX',
+           'BATCH_BUDGET_S', 'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S',
+           'SWITCH_INTERVAL_S', 'WORKER_NICE', 'WORKER_AHEAD_S']
 
 #: The first batch's size, and the smallest.
 AHEAD_MIN = 8
@@ -63,6 +84,130 @@ STRIKES = 3
 WARMUP_S = 2.0
 #: Batches the cost model remembers.
 _HISTORY = 8
+#: How much nicer (lower CPU priority, ``setpriority`` on the thread: no root needed) the
+#: worker thread runs than the publishing thread (``RIGIDROT_WORKER_NICE`` overrides it).
+#: 0: measured no better at 10 on the shared machine (late gyro 487, 323 against 414, 287
+#: at 1 kHz over 20 s; a niced worker starved by other processes made calls wait for it).
+WORKER_NICE = 0
+#: With a worker, the next batch starts while at least this many seconds of samples are
+#: buffered (measured: calls waited 4 to 11 ms for batches of 8 to 16 samples at 1 kHz,
+#: under load, when they started with a batch left).
+WORKER_AHEAD_S = 0.05
+#: The interpreter's thread switch interval with a worker (``sys.setswitchinterval``; 5 ms
+#: by default: the publishing thread would wait that long for a running batch).
+SWITCH_INTERVAL_S = 1e-4
+
+
+class _Job:
+    """One batch for the worker: ``ahead``'s ``n`` indices from ``start``; its result."""
+
+    __slots__ = ('ahead', 'start', 'n', 'samples', 'built', 'exc', 'wall', 'cost', 'done',
+                 'keep_built')
+
+    def __init__(self, ahead, start, n):
+        self.ahead, self.start, self.n = ahead, start, n
+        self.samples = self.built = self.exc = None
+        self.wall = self.cost = 0.0
+        self.keep_built = True
+        self.done = threading.Event()
+
+    def run(self):
+        c0, cpu0 = time.perf_counter(), time.thread_time()
+        try:
+            self.samples, data = self.ahead._batch(self.start, self.n)
+            b = self.ahead.build
+            self.built = b(self.start, data) if b is not None else [None] * self.n
+        except Exception as exc:    # noqa: B902 - whatever the model raises: the owner judges
+            self.exc = exc
+        self.wall = time.perf_counter() - c0
+        self.cost = time.thread_time() - cpu0
+        self.done.set()
+
+
+def _worker_nice():
+    """Return :data:`WORKER_NICE`, or ``$RIGIDROT_WORKER_NICE`` (an integer >= 0) if set."""
+    try:
+        return max(int(os.environ.get('RIGIDROT_WORKER_NICE', WORKER_NICE)), 0)
+    except ValueError:
+        return WORKER_NICE
+
+
+class _Call:
+    """A plain call for the worker; its exception goes to ``on_error``."""
+
+    __slots__ = ('fn', 'on_error')
+
+    def __init__(self, fn, on_error):
+        self.fn, self.on_error = fn, on_error
+
+    def run(self):
+        try:
+            self.fn()
+        except Exception as exc:    # noqa: B902 - the worker thread never ends on a call
+            if self.on_error is not None:
+                self.on_error(exc)
+
+
+class BatchWorker:
+    """A thread that evaluates look-ahead batches, one at a time, off the publishing thread.
+
+    :attr:`lock` is held during every batch; hold it for any other evaluation of the same
+    solutions and sensors (:meth:`Ahead.get` and :meth:`Ahead.fill_to` do). :meth:`stop`
+    ends the thread (idempotent); a job still queued then is finished first.
+    """
+
+    def __init__(self, name='rigidrot-lookahead'):
+        self.lock = threading.RLock()
+        self._jobs = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread.start()
+        if sys.getswitchinterval() > SWITCH_INTERVAL_S:
+            sys.setswitchinterval(SWITCH_INTERVAL_S)
+
+    def call(self, fn, on_error=None):
+        """Queue ``fn()`` (any work that should not hold the publishing thread).
+
+        An exception goes to ``on_error(exc)`` if given, else it is dropped.
+        """
+        self.submit(_Call(fn, on_error))
+
+    def drain(self, timeout=None):
+        """Wait until every job queued so far has run; False if ``timeout`` s passed first."""
+        done = threading.Event()
+        self.call(done.set)
+        return done.wait(timeout)
+
+    def submit(self, job):
+        """Queue a :class:`_Job` (anything with ``run()``)."""
+        if not self._thread.is_alive():
+            raise RuntimeError('the look-ahead worker has stopped')
+        self._jobs.put(job)
+
+    def _loop(self):
+        nice = _worker_nice()
+        if nice > 0:
+            try:
+                tid = threading.get_native_id()
+                os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
+            except (OSError, AttributeError):
+                pass                    # not allowed here, or not Linux: as it is
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            with self.lock:
+                job.run()
+
+    @property
+    def alive(self):
+        """Whether the thread runs."""
+        return self._thread.is_alive()
+
+    def stop(self, timeout=5.0):
+        """End the thread after the jobs queued; wait at most ``timeout`` s. Idempotent."""
+        if self._thread.is_alive():
+            self._jobs.put(None)
+            self._thread.join(timeout)
 
 
 class Ahead(abc.ABC):
@@ -82,8 +227,10 @@ class Ahead(abc.ABC):
     amortize = False
 
     def __init__(self, period_s, budget_s=BATCH_BUDGET_S, enabled=True, build=None,
-                 first=0, clock=time.monotonic):
+                 first=0, clock=time.monotonic, worker=None):
         self.period_s = float(period_s)
+        self.worker = worker            # a BatchWorker: refill()'s batches run there
+        self._job = None                # the batch in the worker, if any
         self.build = build
         self.budget_s = float(budget_s)
         self.size = AHEAD_MIN if enabled else 0
@@ -98,6 +245,8 @@ class Ahead(abc.ABC):
         self._costs = []                # (n, CPU s) of the last batches
         self.batch_times = []           # wall seconds per batch, since the last take_stats()
         self.last_per_sample = 0.0      # wall seconds per sample of the last batch
+        self.misses = 0                 # get() calls that evaluated their index then
+        self.catch_ups = 0              # fill_to() batches
 
     def __len__(self):
         return len(self._buf)
@@ -110,16 +259,45 @@ class Ahead(abc.ABC):
     def _batch(self, start, n):
         """Evaluate ``n`` indices from ``start`` at once: ``(samples, built)``."""
 
+    def _lock(self):
+        return self.worker.lock if self.worker is not None else contextlib.nullcontext()
+
+    def _collect(self, wait):
+        """Take the worker's batch in, if it is done (or once done, with ``wait``)."""
+        job = self._job
+        if job is None or not (wait or job.done.is_set()):
+            return
+        job.done.wait()
+        self._job = None
+        if job.exc is not None:
+            self._failed(job.start, job.n, job.exc)
+            self._next = min(self._next, job.start)     # per sample from there
+            return
+        built = job.built if job.keep_built else [None] * job.n
+        for j, entry in enumerate(zip(job.samples, built), job.start):
+            if j > self._last:          # not skipped meanwhile
+                self._buf[j] = entry
+        self._account(job.n, job.wall, job.cost, judge=True)
+
     def get(self, k):
         """Return ``(sample, built)`` for index k (evaluated now if not buffered).
 
         ``built`` is what ``build`` made of a buffered sample, None for a sample evaluated
-        now. Raises what the evaluation of that sample raises.
+        now. Raises what the evaluation of that sample raises. An index whose batch runs
+        in the worker waits for it.
         """
+        job = self._job
+        self._collect(wait=job is not None and job.start <= k < job.start + job.n)
         entry = self._buf.pop(k, None)
         if entry is not None:
             return entry
-        return self._one(k), None
+        self._collect(wait=True)        # in order: a sensor's batch before its later samples
+        entry = self._buf.pop(k, None)
+        if entry is not None:
+            return entry
+        self.misses += 1
+        with self._lock():
+            return self._one(k), None
 
     def ahead_of(self, k):
         """Return how many samples after index k are buffered (or evaluated) already."""
@@ -129,37 +307,76 @@ class Ahead(abc.ABC):
         """Return True if, after index k, at most half a batch is buffered ahead."""
         if self.size < AHEAD_MIN:
             return False
-        return max(self._next, k + 1) - (k + 1) <= self.size // 2
+        return max(self._next, k + 1) - (k + 1) <= self._low_water()
 
     def refill(self, k):
         """After index k: evaluate the next batch if at most half a batch is left; its size."""
+        self._collect(wait=False)
         if self.size < AHEAD_MIN:
             return 0
         if k != self._last + 1 and self._buf:     # indices skipped: drop their samples
             self._buf = {j: v for j, v in self._buf.items() if j > k}
         self._last = k
+        if self._job is not None:
+            return 0                    # one batch at a time
         start = max(self._next, k + 1)
-        if start - (k + 1) > self.size // 2:
+        if start - (k + 1) > self._low_water():
             return 0
-        n = self.size
-        c0, cpu0 = time.perf_counter(), time.thread_time()
-        try:
-            samples, data = self._batch(start, n)
-            built = self.build(start, data) if self.build is not None else [None] * n
-        except Exception as exc:    # noqa: B902 - whatever the model raises: per sample now
-            self.size = 0               # the samples buffered so far are still good: kept
-            self.off_reason = (f'a batch of {n} samples from index {start} failed '
-                               f'({type(exc).__name__}: {exc}); evaluating per sample')
+        if self.worker is not None:
+            self._job = _Job(self, start, self.size)
+            self._next = start + self.size
+            self.worker.submit(self._job)
+            return self.size
+        return self._run(start, self.size, judge=True)
+
+    def fill_to(self, first, k):
+        """Evaluate indices ``first`` .. ``k`` not buffered yet as one batch: a catch-up.
+
+        A call that owes many samples (the process was held: a stall, a loaded machine)
+        takes them from one batch instead of evaluating each alone, whose fixed cost per
+        sample (a gyro read, one message built and serialized) is beyond a period at
+        2 kHz: evaluated one by one, the samples owed grow faster than they are published
+        until a second's backlog is skipped. Only where two or more are missing and the
+        look-ahead is on; the batch is no strike whatever it costs. Returns its size.
+        """
+        if self.size < AHEAD_MIN or int(k) - max(self._next, int(first)) + 1 < 2:
+            return 0                    # buffered, or reserved for the worker's batch
+        self._collect(wait=True)        # in order: after the worker's batch
+        start = max(self._next, int(first))
+        n = int(k) - start + 1
+        if self.size < AHEAD_MIN or n < 2:
             return 0
-        for j, entry in enumerate(zip(samples, built), start):
+        if self._buf and start > self._next:      # indices skipped: drop their samples
+            self._buf = {j: v for j, v in self._buf.items() if j >= start}
+        return self._run(start, n, judge=False)
+
+    def _run(self, start, n, judge):
+        """Evaluate (and build) ``n`` indices from ``start`` into the buffer; returns n or 0."""
+        job = _Job(self, start, n)
+        with self._lock():
+            job.run()
+        if job.exc is not None:
+            self._failed(start, n, job.exc)
+            return 0
+        for j, entry in enumerate(zip(job.samples, job.built), start):
             self._buf[j] = entry
         self._next = start + n
-        wall = time.perf_counter() - c0
-        cost = time.thread_time() - cpu0        # CPU: another process's load is no reason
+        self._account(n, job.wall, job.cost, judge)
+        return n
+
+    def _failed(self, start, n, exc):
+        self.size = 0                   # the samples buffered so far are still good: kept
+        self.off_reason = (f'a batch of {n} samples from index {start} failed '
+                           f'({type(exc).__name__}: {exc}); evaluating per sample')
+
+    def _account(self, n, wall, cost, judge):
+        """Note a batch's wall and CPU time (CPU: another process's load is no reason)."""
         self.batch_times.append(wall)
         self.last_per_sample = wall / n
-        self._judge(n, cost)
-        return n
+        if judge:
+            self._judge(n, cost)
+        else:
+            self.catch_ups += 1
 
     def _fit(self):
         """Return ``(fixed s, per sample s)`` of the cost model fitted to the last batches."""
@@ -171,8 +388,23 @@ class Ahead(abc.ABC):
         b = max(float(b), 1e-9)
         return max(float(a), 0.0), b
 
+    def _low_water(self):
+        """Return how few samples buffered ahead start the next batch.
+
+        Half a batch inline; with a worker a whole batch, and at least
+        :data:`WORKER_AHEAD_S` of samples: a batch then has that long to run (a worker
+        held up by other processes) before its first sample is due.
+        """
+        if self.worker is None:
+            return self.size // 2
+        return max(self.size, int(WORKER_AHEAD_S / self.period_s))
+
     def _judge(self, n, cost):
-        """Choose the next batch size from the cost model; count a strike, or turn off."""
+        """Choose the next batch size from the cost model; count a strike, or turn off.
+
+        With a worker a batch holds no one up: it is sized the same way (small batches
+        keep the garbage collector's young generations small) but never a strike.
+        """
         self._costs = (self._costs + [(n, cost)])[-_HISTORY:]
         fixed, per = self._fit()
         # a batch aims at PERIOD_SHARE of a period (it then fits between two samples),
@@ -193,8 +425,8 @@ class Ahead(abc.ABC):
             self._strikes = 0
             return
         self.size = AHEAD_MIN
-        if self._clock() - self._born < WARMUP_S or self.amortize:
-            return                        # starting up: slow batches keep it small
+        if self._clock() - self._born < WARMUP_S or self.amortize or self.worker is not None:
+            return                        # starting up (or in the worker): only smaller
         self._strikes += 1
         if self._strikes >= STRIKES:
             self.size = 0               # the buffered samples are kept and published first
@@ -205,6 +437,8 @@ class Ahead(abc.ABC):
 
     def drop_built(self):
         """Forget what ``build`` made (e.g. the frame ids changed); keep the samples."""
+        if self._job is not None:
+            self._job.keep_built = False        # the batch in the worker too
         self._buf = {j: (smp, None) for j, (smp, _) in self._buf.items()}
 
     def take_stats(self):
@@ -223,8 +457,8 @@ class Lookahead(Ahead):
     """
 
     def __init__(self, solution, time_of, period_s, budget_s=BATCH_BUDGET_S, enabled=True,
-                 build=None, clock=time.monotonic):
-        super().__init__(period_s, budget_s, enabled, build, 0, clock)
+                 build=None, clock=time.monotonic, worker=None):
+        super().__init__(period_s, budget_s, enabled, build, 0, clock, worker)
         self.solution = solution
         self.time_of = time_of
 
@@ -253,8 +487,8 @@ class SensorAhead(Ahead):
     amortize = True
 
     def __init__(self, read, read_one, period_s, first, budget_s=BATCH_BUDGET_S,
-                 enabled=True, build=None, clock=time.monotonic):
-        super().__init__(period_s, budget_s, enabled, build, first, clock)
+                 enabled=True, build=None, clock=time.monotonic, worker=None):
+        super().__init__(period_s, budget_s, enabled, build, first, clock, worker)
         self._read, self._read_one = read, read_one
 
     def _one(self, k):
@@ -265,5 +499,6 @@ class SensorAhead(Ahead):
 
     def peek_built(self, k):
         """Return True if index k is buffered with its built messages."""
+        self._collect(wait=False)
         entry = self._buf.get(k)
         return entry is not None and entry[1] is not None

@@ -3,9 +3,11 @@
 :class:`RunLog` announces each run (start-up, every ``~/reset``) with its first
 publication, and hands what the node published to the recorder
 (:class:`rigidrot_ros.io.recorder.Recorder`, which writes the same bytes); the recorder is
-opened by :func:`open_recorder` from the parameters.
+opened by :func:`open_recorder` from the parameters; it writes inline, or with
+``RIGIDROT_RECORD_THREAD=1`` in a thread of its own (``Recorder(threaded=True)``).
 """
 
+import os
 import sys
 
 from rigidrot_ros.io.bag import BagWriter
@@ -20,6 +22,16 @@ __all__ = ['RunLog', 'open_recorder', 'RECORD_FLUSH_S']
 RECORD_FLUSH_S = 0.1
 
 
+def _threaded():
+    """Whether the recorder writes in its own thread (``RIGIDROT_RECORD_THREAD=1``: it does).
+
+    Off by default: measured at 1 kHz under load, a third Python thread contending for
+    the interpreter cost more wake-up latency than writing inline (doc/node.md). The
+    variable is for measuring the two against each other; ``1`` means on.
+    """
+    return os.environ.get('RIGIDROT_RECORD_THREAD', '0').strip() == '1'
+
+
 def open_recorder(node, values):
     """Return a :class:`Recorder` of ``node`` into a new bag (``record_path``, ``record_topics``).
 
@@ -32,7 +44,8 @@ def open_recorder(node, values):
     except OSError as exc:
         raise SceneError(f'cannot record to {path!r}: {exc}') from None
     try:
-        recorder = Recorder(node, writer, topics=topics, exclude_own=True)
+        recorder = Recorder(node, writer, topics=topics, exclude_own=True,
+                            threaded=_threaded())
     except Exception as exc:  # noqa: B902 - ValueError, or rclpy's invalid-name errors
         writer.close()
         raise SceneError(f'parameter record_topics: {exc}') from None

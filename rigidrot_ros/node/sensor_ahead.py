@@ -38,7 +38,7 @@ class Sensor:
     stamped by it: its stamp is not jittered nor offset).
     """
 
-    def __init__(self, stream, t_start_ns, rank, setup, counters, frames):
+    def __init__(self, stream, t_start_ns, rank, setup, counters, frames, worker=None):
         self.stream, self.rank = stream, rank
         self.setup, self.counters, self.frames = setup, counters, frames
         self.t_start_ns = t_start_ns
@@ -59,7 +59,8 @@ class Sensor:
         self.types = dict(stream.topics)
         self.ahead = SensorAhead(self._read, lambda k: self._read(range(k, k + 1))[0][0],
                                  1.0 / stream.rate, stream.first,
-                                 build=self._build_batch if self._build else None)
+                                 build=self._build_batch if self._build else None,
+                                 worker=worker)
 
     # -- reading -----------------------------------------------------------------------------
     def _scene(self, ns):
@@ -232,6 +233,8 @@ class Sensor:
         """
         ks, skipped = self.track.due(now_ns)
         self.counters.skipped += skipped
+        if len(ks) > 1:
+            self.ahead.fill_to(ks.start, ks.stop - 1)     # a catch-up: as one batch
         for k in ks:
             try:
                 sample, built = self.ahead.get(k)
@@ -260,6 +263,15 @@ class Sensor:
 
     def report(self):
         """Return ``(latency mean, p99, max s, dropped)`` of this window, and start the next."""
-        out = diagnostics.summary(self.latencies, 1e-9) + (self.dropped,)
-        self.latencies = []
+        return self.report_of(self.take_latencies())
+
+    def take_latencies(self):
+        """Return ``(latencies ns, dropped)`` of this window (moved out), and start the next."""
+        out, self.latencies = (self.latencies, self.dropped), []
         return out
+
+    @staticmethod
+    def report_of(taken):
+        """Return ``(latency mean, p99, max s, dropped)`` of :meth:`take_latencies`."""
+        latencies, dropped = taken
+        return diagnostics.summary(latencies, 1e-9) + (dropped,)

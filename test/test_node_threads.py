@@ -1,0 +1,110 @@
+"""The node's threads: catch-ups from one batch, the look-ahead worker, the recorder thread."""
+
+import functools
+from pathlib import Path
+import re
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+import pytest
+from rosbags.highlevel import AnyReader
+from std_srvs.srv import Trigger
+
+from ros_helpers import node_and_listener, spin_until, stamp_ns
+
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
+
+_spin_until = functools.partial(spin_until, timeout=30.0)
+_THREADS = ('rigidrot-lookahead', 'rigidrot-recorder')
+
+
+def _alive(name):
+    return [t for t in threading.enumerate() if t.name == name and t.is_alive()]
+
+
+def test_a_stall_is_caught_up_from_one_batch_nothing_missed_nothing_alone():
+    """0.4 s without a call at 1 kHz owes 400 ticks, past the largest batch (256).
+
+    Each owed truth tick and gyro sample comes from one catch-up batch (``fill_to``), none
+    is evaluated alone (which costs more than a period at 2 kHz: the stall spiral), and
+    none is skipped.
+    """
+    node, ex, lis = node_and_listener(publish_rate=1000.0, **{'imu.enable': True,
+                                                              'imu.rate': 1000.0})
+    try:
+        _spin_until(ex, lambda: node._counters.published >= 400)
+        imu = node._sensors[0].ahead
+        truth_misses, imu_misses = node._ahead.misses, imu.misses
+        catch_ups = node._ahead.catch_ups + imu.catch_ups
+        published = node._counters.published
+        time.sleep(0.4)                                 # the process is held
+        _spin_until(ex, lambda: node._counters.published >= published + 800)
+        assert node._counters.missed == 0 and node._counters.skipped == 0
+        assert node._ahead.catch_ups + imu.catch_ups >= catch_ups + 2
+        assert (node._ahead.misses, imu.misses) == (truth_misses, imu_misses)
+        assert node._ahead.off_reason == '' and imu.off_reason == ''
+    finally:
+        node.destroy_node()
+        lis.destroy_node()
+
+
+@pytest.mark.parametrize('record_thread', ['0', '1'])
+def test_threads_serve_resets_and_stop_with_the_node(tmp_path, monkeypatch, record_thread):
+    monkeypatch.setenv('RIGIDROT_RECORD_THREAD', record_thread)
+    threads = _THREADS if record_thread == '1' else _THREADS[:1]
+    node, ex, lis = node_and_listener(publish_rate=500.0, record=True,
+                                      record_path=str(tmp_path), **{'imu.enable': True,
+                                                                    'imu.rate': 500.0})
+    ex.add_node(lis)
+    try:
+        worker = node._worker
+        for name in _THREADS:
+            assert len(_alive(name)) == (name in threads), name
+        for _ in range(2):
+            published = node._counters.published
+            _spin_until(ex, lambda: node._counters.published >= published + 100)
+            resp = node._on_reset(Trigger.Request(), Trigger.Response())
+            assert resp.success, resp.message
+        _spin_until(ex, lambda: node._counters.published >= published + 200)
+        assert node._worker is worker and worker.alive      # one worker for every run
+        counts = node._runs.recorder.counts
+    finally:
+        node.destroy_node()
+        lis.destroy_node()
+    for name in _THREADS:
+        assert not _alive(name), name
+    bag = next(tmp_path.iterdir())
+    imu, logs, runs = [], [], 0
+    with AnyReader([Path(bag)]) as reader:
+        for conn, log_ns, raw in reader.messages():
+            logs.append(log_ns)
+            if conn.topic == '/imu':
+                imu.append(stamp_ns(reader.deserialize(raw, conn.msgtype)))
+            runs += conn.topic.endswith('/run')
+    assert len(imu) >= counts['/imu'] >= 200        # everything queued before the close
+    assert logs == sorted(logs)                     # written in the order handed over
+    assert all(b > a for a, b in zip(imu, imu[1:]))     # no sample twice, none reordered
+    assert runs == 3                                # start-up and two resets
+
+
+def test_diagnostics_name_the_longest_call_by_phase_and_the_gc():
+    node, ex, lis = node_and_listener(publish_rate=400.0, **{'imu.enable': True,
+                                                             'imu.rate': 400.0})
+    got = []
+    lis.create_subscription(DiagnosticArray, '/diagnostics', got.append, 10)
+    ex.add_node(lis)
+    try:
+        _spin_until(ex, lambda: len(got) >= 2)
+    finally:
+        node.destroy_node()
+        lis.destroy_node()
+    values = {kv.key: kv.value for kv in got[-1].status[0].values}
+    assert float(values['call_max_us']) > 0
+    phases = re.sub(r' \([^)]*\)', '', values['call_max_phases'])   # without the details
+    names = re.findall(r'(?:^|, )([a-z]+) [0-9.]+', phases)
+    assert names == ['wake', 'collect', 'publish', 'record', 'batch', 'diag', 'gc'], phases
+    total = sum(float(x) for x in re.findall(r'[a-z]+ ([0-9.]+)', phases))
+    assert total == pytest.approx(float(values['call_max_us']), rel=1e-3, abs=1.0)
+    assert re.fullmatch(r'\d+/\d+/\d+', values['gc_collections'])
+    assert float(values['gc_max_us']) >= 0
