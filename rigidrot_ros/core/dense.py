@@ -75,7 +75,7 @@ ANCHOR_TOL = 1.0 / 64
 ANCHOR_FLOOR = 4e-15
 #: Checkpoint blocks kept, least recently used dropped beyond this many bytes (2.6 MB:
 #: 512 full blocks).
-CHECKPOINT_BYTES = 40 * BLOCK * 512
+CHECKPOINT_BYTES = 40 * 65536
 #: The most bytes one block holds (its chain partial): the store can pass
 #: CHECKPOINT_BYTES by at most this (the block in use is never dropped).
 BLOCK_BYTES = 56 * BLOCK + 40
@@ -318,14 +318,17 @@ class DenseSpinor:
 
         The kernel adapts its working precision to what earlier calls needed, so the bound
         it states (and, rarely, the last bit of a value) could depend on history. Here the
-        1F1 kernel starts from the precision it started with, and the anchor's bound is
+        1F1 kernel starts from a precision that is a function of the anchor's time alone
+        (:meth:`.HyperKernel.prec_at`), and the anchor's bound is
         ``max(stated, cap)`` with ``cap = max(ANCHOR_TOL tol, ANCHOR_FLOOR)`` (at most tol):
         the stated bound is nearly always far below cap, so the bound is the same for
         every anchor whatever came before.
         """
         kernel = self.kernel
         cap = min(self.tol, max(ANCHOR_TOL * self.tol, ANCHOR_FLOOR))
-        if hasattr(kernel, 'start_prec'):
+        if hasattr(kernel, 'prec_at'):
+            kernel.prec = kernel.prec_at(a) or kernel.start_prec
+        elif hasattr(kernel, 'start_prec'):
             kernel.prec = kernel.start_prec
         (x, y, z, w), err_a = kernel.evaluate(a)
         self.exact_anchors += 1

@@ -235,6 +235,12 @@ class HyperKernel:
     #: With flint, a sample whose 1F1 would need more bits than this is continued by
     #: certified Taylor series instead (see :mod:`rigidrot_ros.core.taylor`).
     FALLBACK_BITS = 1024
+    #: With flint, Kummer's functions at ``|z| = s^2 / 2`` from this up are formed from
+    #: Tricomi's U (:meth:`_kummer_far`); None: always 1F1.
+    FAR_Z = 512.0
+    #: Bits added to the starting precision of a dense anchor away from t = 0
+    #: (:meth:`prec_at`).
+    PREC_MARGIN = 8
 
     def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=None, check=True,
                  setup_prec=SETUP_PREC):
@@ -272,6 +278,8 @@ class HyperKernel:
         self.predicted = int(max(64, 24 + min(need, 1e9)))
         self.prec = min(self.predicted, self.max_prec)
         self.start_prec = self.prec              # dense anchors start here (determinism)
+        self._need0, self._ms0 = need - 2 * ms0, ms0
+        self._s_float = (float(self.r0), float(self.U), float(self.sqrtU))
         if not self.backend.certified and self.predicted > self.max_prec:
             # mpmath would grind through hopeless precisions: say so at once
             raise PrecisionError(
@@ -282,6 +290,23 @@ class HyperKernel:
                 f'max_prec.')
         if check:
             self.evaluate(0.0)                   # fail now, not at the first sample
+
+    def prec_at(self, t):
+        """Working precision to start from at t: a function of t alone (dense anchors).
+
+        As the starting precision, with the phase bits of ``s(t) = (r0 + U t) / sqrt U``
+        in place of those of ``s0`` (the phase ``s^2 / 4`` is formed at the working
+        precision), plus ``PREC_MARGIN``: far anchors then need one evaluation, not a
+        failed one at the start precision first. None past the float range.
+        """
+        r0, u, su = self._s_float
+        s = abs((r0 + u * t) / su) * (1 + 1e-9)
+        if not math.isfinite(s):
+            return None
+        ms = max(self._ms0, math.frexp(s)[1] if s else 0)
+        need = self._need0 + 2 * ms + (0 if ms == self._ms0 else self.PREC_MARGIN)
+        prec = -(-int(max(64, 24 + min(need, 1e9))) // 16) * 16      # few distinct precisions
+        return min(self.max_prec, max(self.start_prec, prec))
 
     # -- per-precision constants ----------------------------------------------------------
     def _constants(self, prec):
@@ -310,6 +335,50 @@ class HyperKernel:
         self._consts[prec] = c
         return c
 
+    def _kummer_far(self, c, z):
+        """The four Kummer functions of :meth:`_fundamental` at ``z = i s^2 / 2``, |z| large.
+
+        For Im z > 0 (principal branches; DLMF 13.2.41 and 13.7.2 with ``arg z = pi/2``):
+
+            M(a, b, z) = G1 U(a, b, z) + G2 e^z U(b - a, b, -z),
+            G1 = Gamma(b) e^{i pi a} / Gamma(b - a),  G2 = Gamma(b) e^{i pi (a - b)} / Gamma(a),
+
+        with Tricomi's U, whose asymptotic series Arb sums fast at large |z| (about a third
+        of a 1F1 there, which recomputes the gamma factors at every call; here they are
+        constants of the scene). ``U(a, b, z) = z^{1-b} U(a - b + 1, 2 - b, z)`` (DLMF
+        13.2.40) gives the pair of M(beta, 3/2) from that of M(alpha, 1/2): six U, not
+        eight. Ball arithmetic throughout: the result is certified as the 1F1 route's is.
+        """
+        b = self.backend
+        g = c.get('far')
+        if g is None:
+            g = c['far'] = {}
+            pi_i = b.pi_i()
+            for key, ak, bk in (('m1', 'alpha', 'b12'), ('m2', 'alpha1', 'b32'),
+                                ('m3', 'beta', 'b32'), ('m4', 'beta1', 'b52')):
+                a_, b_ = c[ak], c[bk]
+                gb = b.gamma(b_)
+                g[key] = (gb * b.exp(pi_i * a_) / b.gamma(b_ - a_),
+                          gb * b.exp(pi_i * (a_ - b_)) / b.gamma(a_))
+            g['a_m1'], g['a_m2'], g['a_m4'] = c['alpha'], c['alpha1'], c['beta1']
+            g['c12'] = c['b12'] - c['alpha']                  # 1/2 - alpha
+            g['c1'] = c['b32'] - c['beta']                    # 1 - alpha
+        mz = -z
+        ez = b.exp(z)
+        u1 = b.hypu(g['a_m1'], c['b12'], z)
+        v1 = b.hypu(g['c12'], c['b12'], mz)
+        u3 = u1 / b.sqrt(z)                                   # U(beta, 3/2, z)
+        v3 = v1 / b.sqrt(mz)                                  # U(1 - alpha, 3/2, -z)
+        u2 = b.hypu(g['a_m2'], c['b32'], z)
+        v2 = b.hypu(g['c12'], c['b32'], mz)
+        u4 = b.hypu(g['a_m4'], c['b52'], z)
+        v4 = b.hypu(g['c1'], c['b52'], mz)
+        out = []
+        for key, u, v in (('m1', u1, v1), ('m2', u2, v2), ('m3', u3, v3), ('m4', u4, v4)):
+            g1, g2 = g[key]
+            out.append(g1 * u + g2 * ez * v)
+        return out
+
     def _fundamental(self, c, s):
         """(y_e, y_e', y_o, y_o') at s, derivatives in s."""
         b = self.backend
@@ -317,10 +386,13 @@ class HyperKernel:
         s2 = s * s
         phi = i * s2 / 2
         e = b.exp(-phi / 2)
-        m1 = b.hyp1f1(c['alpha'], c['b12'], phi)
-        m2 = b.hyp1f1(c['alpha1'], c['b32'], phi)
-        m3 = b.hyp1f1(c['beta'], c['b32'], phi)
-        m4 = b.hyp1f1(c['beta1'], c['b52'], phi)
+        if b.certified and self.FAR_Z is not None and b.far_ok(s2, self.FAR_Z):
+            m1, m2, m3, m4 = self._kummer_far(c, phi)
+        else:
+            m1 = b.hyp1f1(c['alpha'], c['b12'], phi)
+            m2 = b.hyp1f1(c['alpha1'], c['b32'], phi)
+            m3 = b.hyp1f1(c['beta'], c['b32'], phi)
+            m4 = b.hyp1f1(c['beta1'], c['b52'], phi)
         ye = e * m1
         yep = e * (i * s * (2 * c['alpha'] * m2 - m1 / 2))
         yo = s * e * m3
