@@ -7,18 +7,20 @@ boundaries are exact floats, so ``t - a`` is exact (Sterbenz), and a window is t
 whichever query builds it. Inside a window anchored at ``a`` (the end nearer t = 0) the
 exact solution's own Taylor series about ``a`` (the recurrence of :mod:`.taylor`, in
 float64) gives every sample by Horner's rule. The anchors are checkpoints kept in blocks
-of ``BLOCK`` consecutive windows at every horizon: a block starts from an exact
+of at most ``BLOCK`` consecutive windows at every horizon: a block starts from an exact
 evaluation (1F1, certified Taylor continuation or the adiabatic series; the identity at
-t = 0) and chains window to window (the next anchor is the window's own series at its
-end), re-anchored exactly where the chained bound would pass 0.9 of the kernel's tol. A
-block is chained the first time a query needs it, as far as its end or the next exact
-anchor nobody asked for yet (each anchor follows from the one before alone, so the values
-do not depend on where the chain stopped); blocks are kept in a bounded store
-(``CHECKPOINT_BYTES``). The arithmetic (series, Horner's rule, chain) is compiled
-(:mod:`.engine`, numba, no fused or reassociated operations) and shared by scalar calls,
-batches and chains. So a sample is a function of t alone: the same bits from a scalar
-call, from a batch of any size or order, and whatever was evaluated before (issue 18: the
-node and the offline generator agree byte for byte). No window's series is kept: a
+t = 0) in its middle and chains window to window outwards and inwards (the next anchor is
+the window's own series at its end), re-anchored exactly where the chained bound would
+pass 0.9 of the kernel's tol; a block is twice the windows a chain can go at that tol, so
+a query pays one exact evaluation. A block is chained the first time a query needs it,
+both ways as far as its ends or the next exact anchor nobody asked for yet (each anchor
+follows from the one before alone, so the values do not depend on where a chain
+stopped); blocks are kept in a bounded store (``CHECKPOINT_BYTES``). The arithmetic
+(series, Horner's rule, chain) is compiled (:mod:`.engine`, numba, no fused or
+reassociated operations) and shared by scalar calls, batches and chains. So a sample is
+a function of t alone: the same bits from a scalar call, from a batch of any size or
+order, and whatever was evaluated before (issue 18: the node and the offline generator
+agree byte for byte). No window's series is kept: a
 scalar call builds it (about 0.5 us compiled) and a batch builds it once per window.
 
 Bound for every sample of a window (2-norm of the spinor error), all terms a priori:
@@ -233,6 +235,9 @@ class DenseSpinor:
         blk = self._blocks.get(bk)
         if blk is None:
             blk = self._fill(sign, b0, g)
+            if len(blk.anc):                 # chained whole both ways (no exact asked yet)
+                self._chain(blk, blk.m + 1)
+                self._chain_back(blk, blk.m)
             self._blocks[bk] = blk
             self._block_bytes += blk.nbytes()
         else:
