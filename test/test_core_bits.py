@@ -198,9 +198,9 @@ def test_stepwise_chains_give_the_bits_of_whole_chains(name):
     steps = dense._fill(1, b0, g)
     for stop in np.random.default_rng(9).choice(np.arange(0, g), 12).tolist():
         if stop >= steps.hi:
-            dense._chain(steps, stop + 1)
+            dense._chain(steps, stop + 1, whole=False)       # stops at the query's window
         if stop < steps.lo:
-            dense._chain_back(steps, stop)
+            dense._chain_back(steps, stop, whole=False)
     dense._chain(steps, g)
     dense._chain_back(steps, 0)
     assert (whole.lo, whole.hi, steps.lo, steps.hi) == (0, g, 0, g)

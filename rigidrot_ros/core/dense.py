@@ -48,6 +48,7 @@ a perturbed anchor moves by no more than the perturbation (unitary). A window wh
 bound exceeds the kernel's tol is evaluated sample by sample (certified) instead.
 """
 
+import bisect
 from collections import OrderedDict
 import math
 
@@ -81,6 +82,11 @@ CHECKPOINT_BYTES = 40 * 65536
 #: The most bytes one block holds (its chain partial): the store can pass
 #: CHECKPOINT_BYTES by at most this (the block in use is never dropped).
 BLOCK_BYTES = 56 * BLOCK + 40
+#: A new block is chained whole at once while at least this share of recent queries fell
+#: in blocks already kept (a stream, random access over a short span); else only as far
+#: as the query (random access far and wide: each query a new block). The chained extent
+#: changes the cost, never the values.
+REVISITS = 0.25
 
 
 class _Block:
@@ -146,6 +152,7 @@ class DenseSpinor:
         self._octaves = {}
         self._offsets = {1: [0], -1: [0]}           # windows before octave e (index e + 1)
         self._blocks = OrderedDict()                # (sign, first index) -> _Block
+        self._revisits = 1.0                        # running share of queries in kept blocks
         self._block_bytes = 0
         self.exact_anchors = 0
         self.windows_built = 0
@@ -235,13 +242,17 @@ class DenseSpinor:
         blk = self._blocks.get(bk)
         if blk is None:
             blk = self._fill(sign, b0, g)
-            if len(blk.anc):                 # chained whole both ways (no exact asked yet)
+            if len(blk.anc) and self._revisits >= REVISITS:
+                # queries come back to blocks: chain this one whole both ways now (up to
+                # an exact anchor nobody asked for), so later queries in it cost no chain
                 self._chain(blk, blk.m + 1)
                 self._chain_back(blk, blk.m)
             self._blocks[bk] = blk
             self._block_bytes += blk.nbytes()
+            self._revisits *= 0.9
         else:
             self._blocks.move_to_end(bk)
+            self._revisits = 0.9 * self._revisits + 0.1
         g = len(blk.anc)
         if n - b0 >= g:
             return None
@@ -249,10 +260,11 @@ class DenseSpinor:
         j = min(g - 1, (n if last is None else last) - b0)
         if j >= blk.hi or i < blk.lo:
             before = blk.nbytes()
+            whole = self._revisits >= REVISITS
             if j >= blk.hi:
-                self._chain(blk, j + 1)
+                self._chain(blk, j + 1, whole)
             if i < blk.lo:
-                self._chain_back(blk, i)
+                self._chain_back(blk, i, whole)
             if blk.hi == g and blk.lo == 0:
                 blk.a = blk.hs = blk.fwd = blk.back = None
             self._block_bytes += blk.nbytes() - before
@@ -288,17 +300,25 @@ class DenseSpinor:
                 break
             offs.append(offs[-1] + int((hi - lo) / h))
         # the windows b0 .. end - 1: octave e and index j in it, anchor a, signed width
-        idx = np.arange(b0, max(b0, min(b0 + g, offs[-1])))
-        g = len(idx)
-        es = np.searchsorted(offs, idx, side='right') - 2
-        los, hsz, first = np.empty(g), np.empty(g), np.empty(g, dtype=np.int64)
-        for e in np.unique(es).tolist():
-            lo, hi, h = self._octave(sign, e)
-            at = es == e
-            los[at], hsz[at], first[at] = lo, h, offs[e + 1]
+        end = max(b0, min(b0 + g, offs[-1]))
+        g = end - b0
+        e0 = bisect.bisect_right(offs, b0) - 2
         blk = _Block()
-        blk.a = sign * (los + (idx - first) * hsz)
-        blk.hs = sign * hsz
+        if g and end <= offs[e0 + 2]:               # one octave (nearly always)
+            lo, hi, h = self._octave(sign, e0)
+            j = np.arange(b0 - offs[e0 + 1], end - offs[e0 + 1], dtype=float)
+            blk.a = sign * (lo + j * h)             # exact: h a power of two, j < 2^53
+            blk.hs = np.full(g, sign * h)
+        else:
+            idx = np.arange(b0, end)
+            es = np.searchsorted(offs, idx, side='right') - 2
+            los, hsz, first = np.empty(g), np.empty(g), np.empty(g, dtype=np.int64)
+            for e in np.unique(es).tolist():
+                lo, hi, h = self._octave(sign, e)
+                at = es == e
+                los[at], hsz[at], first[at] = lo, h, offs[e + 1]
+            blk.a = sign * (los + (idx - first) * hsz)
+            blk.hs = sign * hsz
         blk.anc = np.empty((g, 5))
         blk.m = 0 if b0 == 0 else min(self._half, g - 1)
         blk.lo = blk.hi = blk.m
@@ -339,18 +359,19 @@ class DenseSpinor:
         self.exact_anchors += 1
         return complex(w, z), complex(-y, x), max(float(err_a), cap)
 
-    def _chain(self, blk, upto):
+    def _chain(self, blk, upto, whole=True):
         """Chain a block's anchors outwards on to its window ``upto - 1`` at least.
 
         Compiled (:func:`.engine.chain`): each anchor is the window before evaluated at
-        its end, re-anchored exactly where the chained bound would pass 0.9 tol. Past
-        ``upto`` the chain goes on while it is cheap: up to the block's end or the next
-        window that needs an exact evaluation.
+        its end, re-anchored exactly where the chained bound would pass 0.9 tol. With
+        ``whole`` the chain goes on past ``upto`` while it is cheap: up to the block's end
+        or the next window that needs an exact evaluation.
         """
         chain = self._engine()[2]
         g = len(blk.anc)
-        while blk.hi < g:
-            k, need = chain(self._prm, blk.a, blk.hs, blk.hi, g, blk.fwd, blk.fresh,
+        stop = g if whole else min(g, upto)
+        while blk.hi < stop:
+            k, need = chain(self._prm, blk.a, blk.hs, blk.hi, stop, blk.fwd, blk.fresh,
                             blk.anc, self._co)
             self.windows_built += k - blk.hi
             blk.hi, blk.fresh = k, False
@@ -359,15 +380,17 @@ class DenseSpinor:
             blk.fwd[:] = self._exact_state(float(blk.a[k]))
             blk.fresh = True
 
-    def _chain_back(self, blk, down):
+    def _chain_back(self, blk, down, whole=True):
         """Chain a block's anchors inwards (towards t = 0) down to its window ``down``.
 
-        Compiled (:func:`.engine.chain_back`), as :meth:`_chain` the other way: on to the
-        block's first window or the next one that needs an exact evaluation.
+        Compiled (:func:`.engine.chain_back`), as :meth:`_chain` the other way: with
+        ``whole``, on to the block's first window or the next one that needs an exact
+        evaluation.
         """
         chain_back = self._engine()[3]
-        while blk.lo > 0:
-            k, need = chain_back(self._prm, blk.a, blk.hs, blk.lo, 0, blk.back, False,
+        stop = 0 if whole else down
+        while blk.lo > stop:
+            k, need = chain_back(self._prm, blk.a, blk.hs, blk.lo, stop, blk.back, False,
                                  blk.anc, self._co)
             self.windows_built += blk.lo - k
             blk.lo = k
