@@ -141,7 +141,8 @@ class DenseSpinor:
         self._prm = np.array([self.r0, self.u, self.p, self.q, dabs_up, self.d_r0, self.d_u,
                               self.d_d, self.tol, self.chain_limit])
         self._co = np.empty((engine.MAX_TERMS, 4))       # scratch: one window's series
-        self._k = None                                    # the engine, loaded at first use
+        self._k = None
+        self._engine()                 # numba loaded (once a process) here, not at a sample
         # block length: twice the windows a chain goes from its exact anchor before its
         # bound would pass the limit (windows of R h = RT; the chains still re-anchor
         # exactly where a bound would pass it)
