@@ -7,8 +7,9 @@
 - anchors chained outwards and inwards from a block's exact anchor, and samples in their
   windows, lie within their bounds of an mpmath Taylor integration at 30 digits (no shared
   code: mpmath's own ODE solver on the real form of the spinor equation);
-- the far route of the 1F1 kernel (Tricomi's U, cached gamma factors) gives balls that
-  overlap those of Arb's 1F1 at both signs of s and at several precisions.
+- the far routes of the 1F1 kernel (Tricomi's U, cached gamma factors: the four Kummer
+  functions, and the spinor itself) give balls that overlap those of Arb's 1F1 at both
+  signs of s and at several precisions, and are as narrow.
 """
 
 import json
@@ -168,3 +169,28 @@ def test_far_kummer_route_overlaps_arb_1f1(prec):
                 assert x.overlaps(y)
                 # and the ball is about as narrow (within 4x, plus the absolute floor)
                 assert float(abs(y).rad()) <= 4 * float(abs(x).rad()) + 2.0 ** -(prec - 8)
+
+
+@pytest.mark.parametrize('prec', [70, 128])
+def test_far_spinor_route_overlaps_the_1f1_route(prec):
+    sol = solve(SCENE, tol=1e-12)
+    kernel = sol._dense.kernel
+    if not kernel.backend.certified:
+        pytest.skip('python-flint absent')
+    c = kernel._constants(prec)
+    b = kernel.backend
+    seen = 0
+    with b.workprec(prec):
+        for tv in (-2e4, -300.0, 0.0, 10.0, 90.0, 311.5, 2.5e3, 9.9e4):
+            s = (c['r0'] + c['U'] * b.real(tv)) / c['sqrtU']
+            far = kernel._spinor_far(c, s)
+            if far is None:
+                assert float(abs(s * s).upper()) <= 2 * kernel.FAR_Z * (1 + 1e-9)
+                continue
+            seen += 1
+            ye, yep, yo, yop = kernel._fundamental(c, s)
+            for ref, got in ((c['C1'] * ye + c['C2'] * yo, far[0]),
+                             (c['C1'] * yep + c['C2'] * yop, far[1])):
+                assert ref.overlaps(got)
+                assert float(abs(got).rad()) <= 4 * float(abs(ref).rad()) + 2.0 ** -(prec - 8)
+    assert seen >= 5

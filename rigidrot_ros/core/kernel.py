@@ -237,7 +237,7 @@ class HyperKernel:
     FALLBACK_BITS = 1024
     #: With flint, Kummer's functions at ``|z| = s^2 / 2`` from this up are formed from
     #: Tricomi's U (:meth:`_kummer_far`); None: always 1F1.
-    FAR_Z = 512.0
+    FAR_Z = 100.0
     #: Bits added to the starting precision of a dense anchor away from t = 0
     #: (:meth:`prec_at`).
     PREC_MARGIN = 8
@@ -379,6 +379,56 @@ class HyperKernel:
             out.append(g1 * u + g2 * ez * v)
         return out
 
+    def _spinor_far(self, c, s):
+        """``(v1, dv1/ds)`` at s from four Tricomi U, or None where |z| < FAR_Z.
+
+        In the basis ``F1 = U(alpha, 1/2, z)``, ``F2 = e^z U(c, 1/2, -z)`` (``c = 1/2 -
+        alpha``) of Kummer's equation, :meth:`_kummer_far` and DLMF 13.2.40 give
+        ``v1 = e^{-z/2} (A F1 + B F2)`` with constants for each sign of s:
+
+            A = C1 G1(m1) + C2 sgn(s) k G1(m3),   B = C1 G2(m1) + C2 sgn(s) conj(k) G2(m3),
+
+        ``k = sqrt 2 e^{-i pi/4}`` (``s z^{-1/2}``; ``s (-z)^{-1/2} = sgn(s) conj(k)``).
+        With ``dz/ds = i s``, ``U'(a, b, z) = -a U(a + 1, b + 1, z)`` (DLMF 13.3.22):
+
+            dv1/ds = i s e^{-z/2} [A (-F1/2 - alpha U(alpha + 1, 3/2, z))
+                                   + B e^z (U(c, 1/2, -z)/2 + c U(c + 1, 3/2, -z))].
+
+        Four U in all (and one exponential), in Arb balls.
+        """
+        b = self.backend
+        s2 = s * s
+        if not b.far_ok(s2, self.FAR_Z):
+            return None
+        sign = 1 if s > 0 else -1 if s < 0 else 0
+        if not sign:
+            return None
+        key = ('spinor_far', sign)
+        ab = c.get(key)
+        if ab is None:
+            self._kummer_far(c, c['i'] * b.real(4 * self.FAR_Z) / 2)   # the G constants
+            g = c['far']
+            k = b.sqrt(b.real(2)) * b.exp(-b.pi_i() / 4)              # sqrt 2 e^{-i pi/4}
+            kc = b.sqrt(b.real(2)) * b.exp(b.pi_i() / 4)
+            ab = c[key] = (c['C1'] * g['m1'][0] + c['C2'] * sign * k * g['m3'][0],
+                           c['C1'] * g['m1'][1] + c['C2'] * sign * kc * g['m3'][1])
+        a_, b_ = ab
+        g = c['far']
+        i = c['i']
+        z = i * s2 / 2
+        mz = -z
+        e_half = b.exp(z / 2)
+        e_mhalf = 1 / e_half
+        f1 = b.hypu(c['alpha'], c['b12'], z)
+        f1d = b.hypu(c['alpha1'], c['b32'], z)              # U(alpha + 1, 3/2, z)
+        f2 = b.hypu(g['c12'], c['b12'], mz)                 # U(c, 1/2, -z)
+        f2d = b.hypu(g['c12'] + 1, c['b32'], mz)            # U(c + 1, 3/2, -z)
+        half = c['half']
+        v1 = e_mhalf * a_ * f1 + e_half * b_ * f2
+        v1s = i * s * (e_mhalf * a_ * (-half * f1 - c['alpha'] * f1d)
+                       + e_half * b_ * (half * f2 + g['c12'] * f2d))
+        return v1, v1s
+
     def _fundamental(self, c, s):
         """(y_e, y_e', y_o, y_o') at s, derivatives in s."""
         b = self.backend
@@ -405,9 +455,13 @@ class HyperKernel:
         with b.workprec(prec):
             c = self._constants(prec)
             s = (c['r0'] + c['U'] * b.real(t)) / c['sqrtU']
-            ye, yep, yo, yop = self._fundamental(c, s)
-            v1 = c['C1'] * ye + c['C2'] * yo
-            v1s = c['C1'] * yep + c['C2'] * yop
+            far = self._spinor_far(c, s) if b.certified and self.FAR_Z is not None else None
+            if far is not None:
+                v1, v1s = far
+            else:
+                ye, yep, yo, yop = self._fundamental(c, s)
+                v1 = c['C1'] * ye + c['C2'] * yo
+                v1s = c['C1'] * yep + c['C2'] * yop
             v2 = -(2 * c['i'] * v1s + s * v1) / c['dbar']
             w, z, r1 = b.parts(v1)
             my, x, r2 = b.parts(v2)
