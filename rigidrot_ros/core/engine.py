@@ -8,10 +8,14 @@ module works, slower, without numba; ``RIGIDROT_NO_JIT=1`` forces that, and the 
 compare both). Scalar calls, batches and chains all go through :func:`_series` and
 :func:`_horner`, so a sample's bits are a function of its window and t alone.
 
-numba is imported on first use (:func:`kernels`), not with the package, so that a
-command's ``--help`` or a node that never evaluates dense output pays nothing. Compiled
-code is cached on disk next to this file (``__pycache__``), or in ``NUMBA_CACHE_DIR``;
-where no cache location is writable it is compiled in memory at each start.
+numba is imported on first use (:func:`kernels`, called when a dense solution is made),
+not with the package, so that a command's ``--help`` or a process that never makes a
+dense solution pays nothing; every kernel is then called once (:func:`_warm`), so that
+compiling or loading the cached code happens there, not at a caller's first sample.
+Compiled code is cached in ``NUMBA_CACHE_DIR`` when set, else next to this file
+(``__pycache__``) or in the user's cache directory; where none is writable it is
+compiled in memory at each start. The tests check that the compiled kernels give the
+interpreted ones' bits (no fused multiply-add slipped in).
 
 Scene constants travel as one float64 array ``prm``:
 ``(r0, U, p, q, dabs, d_r0, d_u, d_d, tol, chain_limit)``; an anchor or a chain state as
