@@ -477,7 +477,8 @@ class HyperKernel:
                 gain = 1.0 + (2.0 + su) / b.abs(c['dbar'])
                 phase = 1.0 + 0.5 * (su * su + s0 * s0)
                 err = 64.0 * 2.0 ** -prec * ns * c['cond0'] * (1.0 + s0) * gain * phase
-        if not np.all(np.isfinite(q)):
+        if not (math.isfinite(x) and math.isfinite(my) and math.isfinite(z)
+                and math.isfinite(w)):
             err = math.inf
         # float64 rounding of the four components
         return q, err + 2.3e-16
