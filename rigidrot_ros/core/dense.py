@@ -57,6 +57,7 @@ from mpmath import mp
 import numpy as np
 
 from . import engine
+from .backends import PrecisionError
 
 __all__ = ['DenseSpinor', 'dense_spinor', 'RT']
 
@@ -274,6 +275,17 @@ class DenseSpinor:
             self._block_bytes -= old.nbytes()
         return blk
 
+    def _block_or_none(self, sign, n, last=None):
+        """:meth:`_block`, or None where an exact anchor cannot be had (PrecisionError).
+
+        The caller then evaluates the kernel at the sample's own t: it either succeeds
+        there or raises an error that names that t (not the anchor's).
+        """
+        try:
+            return self._block(sign, n, last)
+        except PrecisionError:
+            return None
+
     def anchor(self, key):
         """Return the spinor (c1, c2) and its bound at the anchor of a window; None: no grid.
 
@@ -419,7 +431,7 @@ class DenseSpinor:
         if h is not None:
             j = int((at_ - lo) // h)
             n = self._index((sign, e, j))
-            blk = self._block(sign, n) if n is not None else None
+            blk = self._block_or_none(sign, n) if n is not None else None
             if blk is not None:
                 a = sign * (lo + j * h)
                 x, y, z, w, bound, ok = self._engine()[0](
@@ -482,7 +494,7 @@ class DenseSpinor:
             for u0, u1 in zip(np.concatenate([[0], bcut]).tolist(),
                               np.concatenate([bcut, [len(nw)]]).tolist()):
                 b0 = int(b0s[u0])
-                blk = self._block(sign, int(nw[u0]), int(nw[u1 - 1]))
+                blk = self._block_or_none(sign, int(nw[u0]), int(nw[u1 - 1]))
                 if blk is None:                                # past the grid's end
                     slow.append((s0 + s + int(js[u0]), s0 + s + int(je[u1 - 1])))
                     continue
