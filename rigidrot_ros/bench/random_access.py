@@ -137,7 +137,7 @@ _COLUMNS = (
 
 
 def render_md(results):
-    """The scalar random-access table: latencies, anchors, memory, errors against bounds."""
+    """Return the random-access table: latencies, anchors, memory, errors and bounds."""
     res = results.get(NAME)
     if not res or not res.get('rows'):
         return None
@@ -161,7 +161,7 @@ def render_md(results):
 
 
 def failed(results):
-    """A sample outside its bound fails the command (the timing targets do not)."""
+    """Return why the command fails: a sample outside its bound (timings never fail)."""
     res = results.get(NAME) or {}
     return [f'random_access: {r["scene"]} T={r["horizon_s"]:g}: a sample outside its bound'
             for r in res.get('rows', []) if not r['bounds_hold']]

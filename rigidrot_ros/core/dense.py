@@ -233,7 +233,7 @@ class DenseSpinor:
         return n - n % self._blen, self._blen
 
     def _block(self, sign, n, last=None):
-        """The block holding window index n, chained at least through window ``last``.
+        """Return the block holding window index n, chained at least through ``last``.
 
         ``last`` (default n) is cut at the block's end; None where the grid ends before
         n. The chain runs on up to the block's end or the next exact anchor (which waits
@@ -466,7 +466,7 @@ class DenseSpinor:
                 out_err[i] = err
 
     def _many_sign(self, t, s0, s1, sign, out_q, out_err, slow):
-        """Samples ``s0 .. s1 - 1`` of the sorted t (all of one sign): window by window."""
+        """Fill samples ``s0 .. s1 - 1`` of the sorted t (all of one sign), by window."""
         at = np.abs(t[s0:s1])
         e_arr = np.where(at < 1.0, -1, np.frexp(at)[1] - 1)
         cuts = np.flatnonzero(np.diff(e_arr)) + 1

@@ -142,7 +142,7 @@ def eval_one(prm, a, tau, dt, anc, co):
 
 
 def eval_many(prm, a_w, tau_w, anc_w, lo_w, hi_w, t, out_q, out_err, ok_w, co):
-    """Samples of many windows: window i gives ``t[lo_w[i]:hi_w[i]]`` (as :func:`eval_one`).
+    """Fill the samples of many windows: window i gives ``t[lo_w[i]:hi_w[i]]``.
 
     The series of a window is built once and Horner's rule run for each of its samples:
     the very operations :func:`eval_one` makes for one sample. ``ok_w[i]`` is set False
@@ -239,7 +239,7 @@ def chain_back(prm, a_b, hs_b, k, stop, state, fresh, anc_b, co):
 
 
 def own_per_window(rt):
-    """A window's ``own`` bound at ``R h = rt`` (U h^2 = 0, no parameter error), padded."""
+    """Return a window's ``own`` bound at ``R h = rt`` (U h^2 = 0, no parameter error)."""
     prm = [0.0, 0.0, rt, 0.0, rt, 0.0, 0.0, 0.0, 1.0, 1.0]
     co = np.empty((MAX_TERMS, 4))
     prm = np.array(prm)
@@ -285,8 +285,11 @@ def _load():
 
 
 def _warm(k):
-    """Call every kernel once on a tiny case: numba compiles or loads its code now, at load
-    time, not at the first sample of the caller's (timed) work."""
+    """Call every kernel once on a tiny case.
+
+    numba compiles or loads its code now, at load time, not at the first sample of the
+    caller's (timed) work.
+    """
     prm = np.array([0.5, 0.05, 0.3, -0.2, 0.36, 0.0, 0.0, 0.0, 1e-12, 0.9e-12])
     co = np.empty((MAX_TERMS, 4))
     anc = np.array([[1.0, 0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0, 0.0]])

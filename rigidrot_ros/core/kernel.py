@@ -336,7 +336,7 @@ class HyperKernel:
         return c
 
     def _kummer_far(self, c, z):
-        """The four Kummer functions of :meth:`_fundamental` at ``z = i s^2 / 2``, |z| large.
+        """Return the four Kummer functions of :meth:`_fundamental` at large |z|.
 
         For Im z > 0 (principal branches; DLMF 13.2.41 and 13.7.2 with ``arg z = pi/2``):
 
