@@ -21,6 +21,7 @@ setup(
         'numpy>=1.24',
         'mpmath>=1.3',
         'python-flint>=0.6',
+        'numba>=0.60',
         'PyYAML>=6',
         'mcap>=1.2',
         'mcap-ros2-support>=0.5',

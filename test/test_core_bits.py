@@ -108,7 +108,6 @@ def test_evicted_checkpoints_come_back_with_the_same_bits(monkeypatch):
     """A block dropped from the bounded store and rebuilt gives the same bits."""
     from rigidrot_ros.core import dense
     monkeypatch.setattr(dense, 'CHECKPOINT_BYTES', 1)         # only the block in use kept
-    monkeypatch.setattr(dense, 'CACHE', 2)
     scene = SCENES['default']
     t = np.random.default_rng(5).uniform(0.0, 200.0, 300)
     ref = solve(scene).at(t)
@@ -119,7 +118,6 @@ def test_evicted_checkpoints_come_back_with_the_same_bits(monkeypatch):
     for i, s in enumerate(got[300:]):
         assert s.quaternion.tobytes() == ref.quaternion[299 - i].tobytes()
     assert sol._dense.checkpoint_bytes() <= dense.BLOCK_BYTES
-    assert len(sol._dense._scache) <= 2
 
 
 #: The scenes evaluated by dense output (the closed forms have none).
@@ -127,37 +125,83 @@ DENSE_SCENES = sorted(n for n in SCENES if solve(SCENES[n])._dense is not None)
 
 
 @pytest.mark.parametrize('name', DENSE_SCENES)
-def test_batch_series_and_stepwise_chains_give_the_same_bits(name):
-    """Batch series and stepwise chains give the bits of one-window series and whole chains.
+def test_compiled_engine_gives_the_bits_of_the_interpreted_one(name):
+    """numba's code makes the very float64 operations Python makes (no FMA, no reordering).
 
-    The numpy series of many windows equals the one-window series bit for bit, and a block
-    chained in steps (as queries reach it) equals the block chained in one go.
+    Every window of a stretch, negative times too: samples (:func:`engine.eval_one`),
+    batches (:func:`engine.eval_many`), chained anchors both ways (:func:`engine.chain`,
+    :func:`engine.chain_back`) from the compiled kernels and from the same functions
+    interpreted by Python, bit for bit.
     """
-    sol = solve(SCENES[name])
-    dense = sol._dense
-    keys = sorted({dense.key(float(x)) for x in np.linspace(-30.0, 400.0, 3000)} - {None})
-    args = []
-    for key in keys:
-        anchor = dense.anchor(key)
-        if anchor is not None:
-            sign, e, j = key
-            lo, _, h = dense._octave(sign, e)
-            args.append((sign * (lo + j * h), sign * h) + anchor)
-    assert len(args) >= 64
-    one = [dense._series(*a) for a in args]
-    many = dense._series_many(*zip(*args))
-    for w1, w2 in zip(one, many):
-        assert np.array(w1.c1).tobytes() == np.array(w2.c1).tobytes()
-        assert np.array(w1.c2).tobytes() == np.array(w2.c2).tobytes()
-        assert (w1.bound, w1.own, w1.ok) == (w2.bound, w2.own, w2.ok)
-    # one block chained whole, and again in random steps
-    whole = dense._fill(1, 0, 128)
-    dense._chain(whole, len(whole.errs))
-    steps = dense._fill(1, 0, 128)
-    for stop in sorted(np.random.default_rng(9).choice(np.arange(1, 129), 12).tolist()):
-        if stop > steps.done:
-            dense._chain(steps, stop)
-    if steps.done < len(steps.errs):
-        dense._chain(steps, len(steps.errs))
-    for x, y in ((whole.c1s, steps.c1s), (whole.c2s, steps.c2s), (whole.errs, steps.errs)):
-        assert x.tobytes() == y.tobytes()
+    from rigidrot_ros.core import engine
+    if not engine.jit_state()['compiled']:
+        pytest.skip('numba is not in use: ' + engine.jit_state()['reason'])
+    comp = engine.kernels()
+    py = {'eval_one': engine.eval_one, 'eval_many': engine.eval_many,
+          'chain': engine.chain, 'chain_back': engine.chain_back}
+    # the module's Python functions call its compiled _series/_horner: swap those too
+    glob = vars(engine)
+    dense = solve(SCENES[name])._dense
+    t = np.concatenate([np.linspace(-30.0, 400.0, 1500), [0.0, 1.0, 2.0, 1e-300]])
+    blocks = {}
+    for x in t.tolist():
+        key = dense.key(x)
+        if key is None:
+            continue
+        n = dense._index(key)
+        b0, g = dense.block_of(n)
+        blocks.setdefault((key[0], b0), (key[0], b0, g))
+    co = np.empty((engine.MAX_TERMS, 4))
+    saved = glob['_series'], glob['_horner'], glob['_own']
+    try:
+        for sign, b0, g in list(blocks.values())[:6]:
+            runs = {}
+            for mode in ('compiled', 'python'):
+                fns = comp if mode == 'compiled' else py
+                if mode == 'python':
+                    glob['_series'], glob['_horner'], glob['_own'] = (
+                        f.py_func for f in saved)
+                blk = dense._fill(sign, b0, g)
+                a, hs = blk.a.copy(), blk.hs.copy()
+                st = blk.fwd.copy()
+                k, _ = fns['chain'](dense._prm, a, hs, blk.m, len(a), st, True, blk.anc, co)
+                back = blk.anc[blk.m].copy()
+                k2, _ = fns['chain_back'](dense._prm, a, hs, blk.m, 0, back, False, blk.anc,
+                                          co)
+                lo, hi = k2, k
+                samples = [fns['eval_one'](dense._prm, float(a[i]), abs(float(hs[i])),
+                                           0.37 * float(hs[i]), blk.anc[i], co)
+                           for i in range(lo, hi)]
+                tt = a[lo:hi] + 0.61 * hs[lo:hi]
+                order = np.arange(hi - lo)
+                out_q, out_e = np.empty((hi - lo, 4)), np.empty(hi - lo)
+                ok = np.empty(hi - lo, dtype=np.bool_)
+                fns['eval_many'](dense._prm, a[lo:hi], np.abs(hs[lo:hi]), blk.anc[lo:hi],
+                                 order, order + 1, tt, out_q, out_e, ok, co)
+                runs[mode] = (blk.anc[lo:hi].tobytes(), np.array(samples).tobytes(),
+                              out_q.tobytes(), out_e.tobytes(), ok.tobytes(), st.tobytes())
+                glob['_series'], glob['_horner'], glob['_own'] = saved
+            assert runs['compiled'] == runs['python'], f'{name}: block {sign} {b0}'
+    finally:
+        glob['_series'], glob['_horner'], glob['_own'] = saved
+
+
+@pytest.mark.parametrize('name', DENSE_SCENES)
+def test_stepwise_chains_give_the_bits_of_whole_chains(name):
+    """A block chained in steps (as queries reach it, both ways) equals one chained whole."""
+    dense = solve(SCENES[name])._dense
+    b0 = 3 * dense._blen
+    g = dense._blen
+    whole = dense._fill(1, b0, g)
+    dense._chain(whole, g)
+    dense._chain_back(whole, 0)
+    steps = dense._fill(1, b0, g)
+    for stop in np.random.default_rng(9).choice(np.arange(0, g), 12).tolist():
+        if stop >= steps.hi:
+            dense._chain(steps, stop + 1, whole=False)       # stops at the query's window
+        if stop < steps.lo:
+            dense._chain_back(steps, stop, whole=False)
+    dense._chain(steps, g)
+    dense._chain_back(steps, 0)
+    assert (whole.lo, whole.hi, steps.lo, steps.hi) == (0, g, 0, g)
+    assert whole.anc.tobytes() == steps.anc.tobytes()

@@ -140,6 +140,8 @@ class _FlintBackend:
 
     def real(self, x):
         """Exact (or correctly rounded) conversion of an mpf/float to an arb ball."""
+        if type(x) is float:
+            return self.flint.arb(x)            # exact: a double is a binary fraction
         # mpmath.mpf(mpf) would round to the ambient precision: read the bits directly
         if not isinstance(x, mpmath.mpf):
             with mp.workprec(SETUP_PREC):
@@ -156,6 +158,26 @@ class _FlintBackend:
     @staticmethod
     def hyp1f1(a, b, z):
         return z.hypgeom_1f1(a, b)
+
+    @staticmethod
+    def hypu(a, b, z):
+        """Tricomi's U(a, b, z), principal branch."""
+        return z.hypgeom_u(a, b)
+
+    def gamma(self, z):
+        return z.gamma()
+
+    def pi_i(self):
+        return self.flint.acb(0, self.flint.arb.pi())
+
+    @staticmethod
+    def sqrt(z):
+        return z.sqrt()
+
+    @staticmethod
+    def far_ok(s2, far_z):
+        """Whether ``z = i s2 / 2`` (s2 = s^2 a real ball) lies at |z| >= far_z, Im z > 0."""
+        return bool(s2.real > 2.0 * far_z) and s2.imag == 0
 
     @staticmethod
     def exp(z):

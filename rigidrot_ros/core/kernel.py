@@ -235,6 +235,12 @@ class HyperKernel:
     #: With flint, a sample whose 1F1 would need more bits than this is continued by
     #: certified Taylor series instead (see :mod:`rigidrot_ros.core.taylor`).
     FALLBACK_BITS = 1024
+    #: With flint, Kummer's functions at ``|z| = s^2 / 2`` from this up are formed from
+    #: Tricomi's U (:meth:`_kummer_far`); None: always 1F1.
+    FAR_Z = 100.0
+    #: Bits added to the starting precision of a dense anchor away from t = 0
+    #: (:meth:`prec_at`).
+    PREC_MARGIN = 8
 
     def __init__(self, p, q, r0, U, backend, tol, max_prec=4096, fallback=None, check=True,
                  setup_prec=SETUP_PREC):
@@ -272,6 +278,8 @@ class HyperKernel:
         self.predicted = int(max(64, 24 + min(need, 1e9)))
         self.prec = min(self.predicted, self.max_prec)
         self.start_prec = self.prec              # dense anchors start here (determinism)
+        self._need0, self._ms0 = need - 2 * ms0, ms0
+        self._s_float = (float(self.r0), float(self.U), float(self.sqrtU))
         if not self.backend.certified and self.predicted > self.max_prec:
             # mpmath would grind through hopeless precisions: say so at once
             raise PrecisionError(
@@ -282,6 +290,23 @@ class HyperKernel:
                 f'max_prec.')
         if check:
             self.evaluate(0.0)                   # fail now, not at the first sample
+
+    def prec_at(self, t):
+        """Working precision to start from at t: a function of t alone (dense anchors).
+
+        As the starting precision, with the phase bits of ``s(t) = (r0 + U t) / sqrt U``
+        in place of those of ``s0`` (the phase ``s^2 / 4`` is formed at the working
+        precision), plus ``PREC_MARGIN``: far anchors then need one evaluation, not a
+        failed one at the start precision first. None past the float range.
+        """
+        r0, u, su = self._s_float
+        s = abs((r0 + u * t) / su) * (1 + 1e-9)
+        if not math.isfinite(s):
+            return None
+        ms = max(self._ms0, math.frexp(s)[1] if s else 0)
+        need = self._need0 + 2 * ms + (0 if ms == self._ms0 else self.PREC_MARGIN)
+        prec = -(-int(max(64, 24 + min(need, 1e9))) // 16) * 16      # few distinct precisions
+        return min(self.max_prec, max(self.start_prec, prec))
 
     # -- per-precision constants ----------------------------------------------------------
     def _constants(self, prec):
@@ -310,6 +335,100 @@ class HyperKernel:
         self._consts[prec] = c
         return c
 
+    def _kummer_far(self, c, z):
+        """Return the four Kummer functions of :meth:`_fundamental` at large |z|.
+
+        For Im z > 0 (principal branches; DLMF 13.2.41 and 13.7.2 with ``arg z = pi/2``):
+
+            M(a, b, z) = G1 U(a, b, z) + G2 e^z U(b - a, b, -z),
+            G1 = Gamma(b) e^{i pi a} / Gamma(b - a),  G2 = Gamma(b) e^{i pi (a - b)} / Gamma(a),
+
+        with Tricomi's U, whose asymptotic series Arb sums fast at large |z| (about a third
+        of a 1F1 there, which recomputes the gamma factors at every call; here they are
+        constants of the scene). ``U(a, b, z) = z^{1-b} U(a - b + 1, 2 - b, z)`` (DLMF
+        13.2.40) gives the pair of M(beta, 3/2) from that of M(alpha, 1/2): six U, not
+        eight. Ball arithmetic throughout: the result is certified as the 1F1 route's is.
+        """
+        b = self.backend
+        g = c.get('far')
+        if g is None:
+            g = c['far'] = {}
+            pi_i = b.pi_i()
+            for key, ak, bk in (('m1', 'alpha', 'b12'), ('m2', 'alpha1', 'b32'),
+                                ('m3', 'beta', 'b32'), ('m4', 'beta1', 'b52')):
+                a_, b_ = c[ak], c[bk]
+                gb = b.gamma(b_)
+                g[key] = (gb * b.exp(pi_i * a_) / b.gamma(b_ - a_),
+                          gb * b.exp(pi_i * (a_ - b_)) / b.gamma(a_))
+            g['a_m1'], g['a_m2'], g['a_m4'] = c['alpha'], c['alpha1'], c['beta1']
+            g['c12'] = c['b12'] - c['alpha']                  # 1/2 - alpha
+            g['c1'] = c['b32'] - c['beta']                    # 1 - alpha
+        mz = -z
+        ez = b.exp(z)
+        u1 = b.hypu(g['a_m1'], c['b12'], z)
+        v1 = b.hypu(g['c12'], c['b12'], mz)
+        u3 = u1 / b.sqrt(z)                                   # U(beta, 3/2, z)
+        v3 = v1 / b.sqrt(mz)                                  # U(1 - alpha, 3/2, -z)
+        u2 = b.hypu(g['a_m2'], c['b32'], z)
+        v2 = b.hypu(g['c12'], c['b32'], mz)
+        u4 = b.hypu(g['a_m4'], c['b52'], z)
+        v4 = b.hypu(g['c1'], c['b52'], mz)
+        out = []
+        for key, u, v in (('m1', u1, v1), ('m2', u2, v2), ('m3', u3, v3), ('m4', u4, v4)):
+            g1, g2 = g[key]
+            out.append(g1 * u + g2 * ez * v)
+        return out
+
+    def _spinor_far(self, c, s):
+        """``(v1, dv1/ds)`` at s from four Tricomi U, or None where |z| < FAR_Z.
+
+        In the basis ``F1 = U(alpha, 1/2, z)``, ``F2 = e^z U(c, 1/2, -z)`` (``c = 1/2 -
+        alpha``) of Kummer's equation, :meth:`_kummer_far` and DLMF 13.2.40 give
+        ``v1 = e^{-z/2} (A F1 + B F2)`` with constants for each sign of s:
+
+            A = C1 G1(m1) + C2 sgn(s) k G1(m3),   B = C1 G2(m1) + C2 sgn(s) conj(k) G2(m3),
+
+        ``k = sqrt 2 e^{-i pi/4}`` (``s z^{-1/2}``; ``s (-z)^{-1/2} = sgn(s) conj(k)``).
+        With ``dz/ds = i s``, ``U'(a, b, z) = -a U(a + 1, b + 1, z)`` (DLMF 13.3.22):
+
+            dv1/ds = i s e^{-z/2} [A (-F1/2 - alpha U(alpha + 1, 3/2, z))
+                                   + B e^z (U(c, 1/2, -z)/2 + c U(c + 1, 3/2, -z))].
+
+        Four U in all (and one exponential), in Arb balls.
+        """
+        b = self.backend
+        s2 = s * s
+        if not b.far_ok(s2, self.FAR_Z):
+            return None
+        sign = 1 if s > 0 else -1 if s < 0 else 0
+        if not sign:
+            return None
+        key = ('spinor_far', sign)
+        ab = c.get(key)
+        if ab is None:
+            self._kummer_far(c, c['i'] * b.real(4 * self.FAR_Z) / 2)   # the G constants
+            g = c['far']
+            k = b.sqrt(b.real(2)) * b.exp(-b.pi_i() / 4)              # sqrt 2 e^{-i pi/4}
+            kc = b.sqrt(b.real(2)) * b.exp(b.pi_i() / 4)
+            ab = c[key] = (c['C1'] * g['m1'][0] + c['C2'] * sign * k * g['m3'][0],
+                           c['C1'] * g['m1'][1] + c['C2'] * sign * kc * g['m3'][1])
+        a_, b_ = ab
+        g = c['far']
+        i = c['i']
+        z = i * s2 / 2
+        mz = -z
+        e_half = b.exp(z / 2)
+        e_mhalf = 1 / e_half
+        f1 = b.hypu(c['alpha'], c['b12'], z)
+        f1d = b.hypu(c['alpha1'], c['b32'], z)              # U(alpha + 1, 3/2, z)
+        f2 = b.hypu(g['c12'], c['b12'], mz)                 # U(c, 1/2, -z)
+        f2d = b.hypu(g['c12'] + 1, c['b32'], mz)            # U(c + 1, 3/2, -z)
+        half = c['half']
+        v1 = e_mhalf * a_ * f1 + e_half * b_ * f2
+        v1s = i * s * (e_mhalf * a_ * (-half * f1 - c['alpha'] * f1d)
+                       + e_half * b_ * (half * f2 + g['c12'] * f2d))
+        return v1, v1s
+
     def _fundamental(self, c, s):
         """(y_e, y_e', y_o, y_o') at s, derivatives in s."""
         b = self.backend
@@ -317,10 +436,13 @@ class HyperKernel:
         s2 = s * s
         phi = i * s2 / 2
         e = b.exp(-phi / 2)
-        m1 = b.hyp1f1(c['alpha'], c['b12'], phi)
-        m2 = b.hyp1f1(c['alpha1'], c['b32'], phi)
-        m3 = b.hyp1f1(c['beta'], c['b32'], phi)
-        m4 = b.hyp1f1(c['beta1'], c['b52'], phi)
+        if b.certified and self.FAR_Z is not None and b.far_ok(s2, self.FAR_Z):
+            m1, m2, m3, m4 = self._kummer_far(c, phi)
+        else:
+            m1 = b.hyp1f1(c['alpha'], c['b12'], phi)
+            m2 = b.hyp1f1(c['alpha1'], c['b32'], phi)
+            m3 = b.hyp1f1(c['beta'], c['b32'], phi)
+            m4 = b.hyp1f1(c['beta1'], c['b52'], phi)
         ye = e * m1
         yep = e * (i * s * (2 * c['alpha'] * m2 - m1 / 2))
         yo = s * e * m3
@@ -333,9 +455,13 @@ class HyperKernel:
         with b.workprec(prec):
             c = self._constants(prec)
             s = (c['r0'] + c['U'] * b.real(t)) / c['sqrtU']
-            ye, yep, yo, yop = self._fundamental(c, s)
-            v1 = c['C1'] * ye + c['C2'] * yo
-            v1s = c['C1'] * yep + c['C2'] * yop
+            far = self._spinor_far(c, s) if b.certified and self.FAR_Z is not None else None
+            if far is not None:
+                v1, v1s = far
+            else:
+                ye, yep, yo, yop = self._fundamental(c, s)
+                v1 = c['C1'] * ye + c['C2'] * yo
+                v1s = c['C1'] * yep + c['C2'] * yop
             v2 = -(2 * c['i'] * v1s + s * v1) / c['dbar']
             w, z, r1 = b.parts(v1)
             my, x, r2 = b.parts(v2)
@@ -351,7 +477,8 @@ class HyperKernel:
                 gain = 1.0 + (2.0 + su) / b.abs(c['dbar'])
                 phase = 1.0 + 0.5 * (su * su + s0 * s0)
                 err = 64.0 * 2.0 ** -prec * ns * c['cond0'] * (1.0 + s0) * gain * phase
-        if not np.all(np.isfinite(q)):
+        if not (math.isfinite(x) and math.isfinite(my) and math.isfinite(z)
+                and math.isfinite(w)):
             err = math.inf
         # float64 rounding of the four components
         return q, err + 2.3e-16

@@ -1,0 +1,321 @@
+"""Compiled arithmetic of dense output: window series, Horner's rule, block chains.
+
+Every function here is written in plain float64 scalar operations (products, sums,
+quotients, ``math.sqrt``, ``abs``, ``max``: each correctly rounded by IEEE 754) and
+compiled by numba with ``fastmath`` off: no contraction into fused multiply-adds, no
+reassociation. Interpreted by Python, the same functions give the same bits (so the
+module works, slower, without numba; ``RIGIDROT_NO_JIT=1`` forces that, and the tests
+compare both). Scalar calls, batches and chains all go through :func:`_series` and
+:func:`_horner`, so a sample's bits are a function of its window and t alone.
+
+numba is imported on first use (:func:`kernels`, called when a dense solution is made),
+not with the package, so that a command's ``--help`` or a process that never makes a
+dense solution pays nothing; every kernel is then called once (:func:`_warm`), so that
+compiling or loading the cached code happens there, not at a caller's first sample.
+Compiled code is cached in ``NUMBA_CACHE_DIR`` when set, else next to this file
+(``__pycache__``) or in the user's cache directory; where none is writable it is
+compiled in memory at each start. The tests check that the compiled kernels give the
+interpreted ones' bits (no fused multiply-add slipped in).
+
+Scene constants travel as one float64 array ``prm``:
+``(r0, U, p, q, dabs, d_r0, d_u, d_d, tol, chain_limit)``; an anchor or a chain state as
+``(c1.re, c1.im, c2.re, c2.im, bound)`` (the spinor ``v1 = w + i z``, ``v2 = -y + i x``).
+"""
+
+import math
+import os
+
+import numpy as np
+
+__all__ = ['kernels', 'jit_state', 'MAX_TERMS', 'EPS']
+
+EPS = 2.0 ** -52
+#: Coefficients of a window series at most (the recurrence stops by n = 201).
+MAX_TERMS = 203
+
+
+def _series(prm, a, tau, c1r, c1i, c2r, c2i, m0, co):
+    """Taylor coefficients about ``a`` of the spinor from (c1, c2) into ``co``; bound terms.
+
+    Fills ``co[0..n]`` (rows re v1, im v1, re v2, im v2) by the recurrence
+    ``(n + 1) c_(n+1) = (i/2) (H_a c_n + U J c_(n-1))`` and returns
+    ``(n, own_no_horner, s0, s1)``: the term count, the window's a-priori bound less
+    Horner's rounding, and the majorant sums (module docstring of :mod:`.dense`).
+    """
+    r0 = prm[0]
+    u = prm[1]
+    p = prm[2]
+    q = prm[3]
+    dabs = prm[4]
+    xa = r0 + u * a
+    ra = math.sqrt(xa * xa + dabs * dabs) * (1.0 + 4.0 * EPS)
+    co[0, 0] = c1r
+    co[0, 1] = c1i
+    co[0, 2] = c2r
+    co[0, 3] = c2i
+    ar, ai, br, bi = c1r, c1i, c2r, c2i
+    pr1 = 0.0
+    pi1 = 0.0
+    pr2 = 0.0
+    pi2 = 0.0
+    m_prev = 0.0
+    m_n = m0
+    mpow = m_n
+    s0 = mpow
+    s1 = 0.0
+    tpow = 1.0
+    half_r = 0.5 * ra
+    half_u = 0.5 * u
+    qnum = half_r * tau + half_u * tau * tau
+    prev_term = mpow
+    n = 0
+    while True:
+        k2 = 2.0 * (n + 1.0)
+        # S1 = X c1 + conj(D) c2 + U p1, S2 = D c1 - X c2 - U p2; c' = (i / 2) S / (n + 1)
+        s1r = xa * ar + (p * br + q * bi) + u * pr1
+        s1i = xa * ai + (p * bi - q * br) + u * pi1
+        s2r = (p * ar - q * ai) - xa * br - u * pr2
+        s2i = (p * ai + q * ar) - xa * bi - u * pi2
+        pr1 = ar
+        pi1 = ai
+        pr2 = br
+        pi2 = bi
+        ar = -s1i / k2
+        ai = s1r / k2
+        br = -s2i / k2
+        bi = s2r / k2
+        n += 1
+        co[n, 0] = ar
+        co[n, 1] = ai
+        co[n, 2] = br
+        co[n, 3] = bi
+        m_next = (half_r * m_n + half_u * m_prev) / n
+        m_prev = m_n
+        m_n = m_next
+        tpow = tpow * tau
+        prev_term = mpow
+        mpow = m_n * tpow
+        s0 = s0 + mpow
+        s1 = s1 + n * mpow
+        if qnum / (n + 1) <= 0.25 and max(mpow, prev_term) <= 1e-19:
+            break
+        if n > 200:
+            break
+    tail = 4.0 * max(mpow, prev_term)
+    d_x = prm[5] + prm[6] * abs(a) + 2.0 * EPS * (abs(r0) + 2.0 * abs(u * a))
+    pert = (d_x + prm[7]) * tau / 2.0 + prm[6] * tau * tau / 4.0
+    return n, tail + 8.1 * EPS * s1 + pert, s0, s1
+
+
+def _horner(co, n, dt):
+    """Horner's rule of ``co[0..n]`` at the real ``dt``: two roundings a step a component."""
+    s1r = co[n, 0]
+    s1i = co[n, 1]
+    s2r = co[n, 2]
+    s2i = co[n, 3]
+    for k in range(n - 1, -1, -1):
+        s1r = s1r * dt + co[k, 0]
+        s1i = s1i * dt + co[k, 1]
+        s2r = s2r * dt + co[k, 2]
+        s2i = s2i * dt + co[k, 3]
+    return s1r, s1i, s2r, s2i
+
+
+def _own(common, s0, s1):
+    """Window bound beyond its anchor's: ``common`` plus Horner's rounding, padded."""
+    return (common + 2.02 * EPS * (s0 + s1)) * (1.0 + 1e-9)
+
+
+def eval_one(prm, a, tau, dt, anc, co):
+    """One sample: ``(x, y, z, w, bound, ok)`` at ``a + dt`` of the window anchored at a.
+
+    ``anc`` is the window's anchor ``(c1.re, c1.im, c2.re, c2.im, bound)``; ``ok`` is
+    False where the window's bound passes tol or its series did not converge (the caller
+    then evaluates the kernel itself).
+    """
+    err = anc[4]
+    n, common, s0, s1 = _series(prm, a, tau, anc[0], anc[1], anc[2], anc[3], 1.0 + err, co)
+    bound = err + _own(common, s0, s1)
+    s1r, s1i, s2r, s2i = _horner(co, n, dt)
+    ok = bound <= prm[8] and n <= 200
+    return s2i, -s2r, s1i, s1r, bound, ok
+
+
+def eval_many(prm, a_w, tau_w, anc_w, lo_w, hi_w, t, out_q, out_err, ok_w, co):
+    """Fill the samples of many windows: window i gives ``t[lo_w[i]:hi_w[i]]``.
+
+    The series of a window is built once and Horner's rule run for each of its samples:
+    the very operations :func:`eval_one` makes for one sample. ``ok_w[i]`` is set False
+    where window i is not usable (its samples are then left untouched).
+    """
+    for i in range(len(a_w)):
+        err = anc_w[i, 4]
+        a = a_w[i]
+        n, common, s0, s1 = _series(prm, a, tau_w[i], anc_w[i, 0], anc_w[i, 1],
+                                    anc_w[i, 2], anc_w[i, 3], 1.0 + err, co)
+        bound = err + _own(common, s0, s1)
+        ok = bound <= prm[8] and n <= 200
+        ok_w[i] = ok
+        if not ok:
+            continue
+        for j in range(lo_w[i], hi_w[i]):
+            s1r, s1i, s2r, s2i = _horner(co, n, t[j] - a)
+            out_q[j, 0] = s2i
+            out_q[j, 1] = -s2r
+            out_q[j, 2] = s1i
+            out_q[j, 3] = s1r
+            out_err[j] = bound
+    return 0
+
+
+def chain(prm, a_b, hs_b, k, stop, state, fresh, anc_b, co):
+    """Chain a block's anchors from window k (state ``state``) up to window ``stop - 1``.
+
+    Window k's anchor is ``state``; the next anchor is the window's series at its end
+    (Horner's rule at ``hs``), with bound ``err + own`` (the window's own bound). Where
+    that bound would pass ``chain_limit`` and the state is not ``fresh`` (an exact
+    anchor), the chain stops and returns ``(k, True)``: the caller puts an exact value in
+    ``state`` and calls again with ``fresh``. Returns ``(next window, needs exact)``;
+    ``state`` is updated in place to the anchor of the next window. Each anchor follows
+    from the one before alone: the values do not depend on where a chain stopped.
+    """
+    limit = prm[9]
+    while k < stop:
+        err = state[4]
+        hs = hs_b[k]
+        n, common, s0, s1 = _series(prm, a_b[k], abs(hs), state[0], state[1], state[2],
+                                    state[3], 1.0 + err, co)
+        bound = err + _own(common, s0, s1)
+        if bound > limit and not fresh:
+            return k, True
+        anc_b[k, 0] = state[0]
+        anc_b[k, 1] = state[1]
+        anc_b[k, 2] = state[2]
+        anc_b[k, 3] = state[3]
+        anc_b[k, 4] = err
+        s1r, s1i, s2r, s2i = _horner(co, n, hs)
+        state[0] = s1r
+        state[1] = s1i
+        state[2] = s2r
+        state[3] = s2i
+        state[4] = bound
+        fresh = False
+        k += 1
+    return k, False
+
+
+def chain_back(prm, a_b, hs_b, k, stop, state, fresh, anc_b, co):
+    """Chain a block's anchors inwards: from the anchor of window k down to window ``stop``.
+
+    ``state`` is the anchor of window k (stored already); the anchor of window k - 1,
+    ``a_(k-1) = a_k - hs_(k-1)``, is the series about ``a_k`` (radius ``|hs_(k-1)|``)
+    at ``dt = -hs_(k-1)``, with bound ``err + own``, as :func:`chain` but towards t = 0.
+    Returns ``(lowest window chained, needs exact)``: with True, window ``k - 1`` needs an
+    exact anchor (its chained bound would pass ``chain_limit``): the caller puts it in
+    ``state`` and in ``anc_b[k - 1]`` and calls again from ``k - 1``.
+    """
+    limit = prm[9]
+    while k > stop:
+        err = state[4]
+        hs = hs_b[k - 1]
+        n, common, s0, s1 = _series(prm, a_b[k], abs(hs), state[0], state[1], state[2],
+                                    state[3], 1.0 + err, co)
+        bound = err + _own(common, s0, s1)
+        if bound > limit:
+            return k, True
+        s1r, s1i, s2r, s2i = _horner(co, n, -hs)
+        state[0] = s1r
+        state[1] = s1i
+        state[2] = s2r
+        state[3] = s2i
+        state[4] = bound
+        k -= 1
+        anc_b[k, 0] = s1r
+        anc_b[k, 1] = s1i
+        anc_b[k, 2] = s2r
+        anc_b[k, 3] = s2i
+        anc_b[k, 4] = bound
+    return k, False
+
+
+def own_per_window(rt):
+    """Return a window's ``own`` bound at ``R h = rt`` (U h^2 = 0, no parameter error)."""
+    prm = [0.0, 0.0, rt, 0.0, rt, 0.0, 0.0, 0.0, 1.0, 1.0]
+    co = np.empty((MAX_TERMS, 4))
+    prm = np.array(prm)
+    n, common, s0, s1 = _series(prm, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, co)
+    return _own(common, s0, s1)
+
+
+_KERNELS = None
+_STATE = {'compiled': False, 'cached': False, 'reason': 'not loaded yet'}
+
+
+def _jit(numba, fn, **kw):
+    """``numba.njit(fn)`` with the on-disk cache where it can be had, else without."""
+    try:
+        return numba.njit(cache=True, fastmath=False, **kw)(fn), True
+    except Exception:                     # no writable cache location: compile in memory
+        return numba.njit(cache=False, fastmath=False, **kw)(fn), False
+
+
+def _load():
+    py = {'eval_one': eval_one, 'eval_many': eval_many, 'chain': chain,
+          'chain_back': chain_back}
+    if os.environ.get('RIGIDROT_NO_JIT', '') not in ('', '0'):
+        _STATE.update(compiled=False, cached=False, reason='RIGIDROT_NO_JIT is set')
+        return py
+    try:
+        import numba
+    except ImportError as exc:
+        _STATE.update(compiled=False, cached=False, reason=f'numba not importable: {exc}')
+        return py
+    cached = True
+    g = globals()
+    for name in ('_series', '_horner', '_own'):
+        g[name], ok = _jit(numba, g[name])
+        cached = cached and ok
+    out = {}
+    for name, fn in py.items():
+        out[name], ok = _jit(numba, fn)
+        cached = cached and ok
+    _warm(out)
+    _STATE.update(compiled=True, cached=cached, reason='')
+    return out
+
+
+def _warm(k):
+    """Call every kernel once on a tiny case.
+
+    numba compiles or loads its code now, at load time, not at the first sample of the
+    caller's (timed) work.
+    """
+    prm = np.array([0.5, 0.05, 0.3, -0.2, 0.36, 0.0, 0.0, 0.0, 1e-12, 0.9e-12])
+    co = np.empty((MAX_TERMS, 4))
+    anc = np.array([[1.0, 0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0, 0.0]])
+    a, hs = np.array([0.0, 0.5]), np.array([0.5, 0.5])
+    k['eval_one'](prm, 0.0, 0.5, 0.25, anc[0], co)
+    state = anc[0].copy()
+    k['chain'](prm, a, hs, 0, 2, state, True, anc, co)
+    k['chain_back'](prm, a, hs, 1, 0, anc[1].copy(), False, anc, co)
+    t = np.array([0.1, 0.6])
+    idx = np.array([0, 1], dtype=np.int64)
+    k['eval_many'](prm, a, hs, anc, idx, idx + 1, t, np.empty((2, 4)), np.empty(2),
+                   np.empty(2, dtype=np.bool_), co)
+
+
+def kernels():
+    """Return the kernels ``eval_one``, ``eval_many``, ``chain``, ``chain_back`` by name.
+
+    Compiled by numba where it imports (else the Python functions: the same bits).
+    """
+    global _KERNELS
+    if _KERNELS is None:
+        _KERNELS = _load()
+    return _KERNELS
+
+
+def jit_state():
+    """Whether the kernels are compiled, and cached on disk (else why not)."""
+    kernels()
+    return dict(_STATE)

@@ -1,0 +1,196 @@
+"""The compiled dense engine: its cache and fallbacks, its chains and far anchors (issue 20).
+
+- numba's on-disk cache goes to ``NUMBA_CACHE_DIR`` when set, and a function numba cannot
+  cache (no file to cache it beside) is compiled in memory instead of failing;
+- without numba (``RIGIDROT_NO_JIT=1``) the interpreted engine gives the compiled one's
+  bits, sample for sample, in another process;
+- anchors chained outwards and inwards from a block's exact anchor, and samples in their
+  windows, lie within their bounds of an mpmath Taylor integration at 30 digits (no shared
+  code: mpmath's own ODE solver on the real form of the spinor equation);
+- the far routes of the 1F1 kernel (Tricomi's U, cached gamma factors: the four Kummer
+  functions, and the spinor itself) give balls that overlap those of Arb's 1F1 at both
+  signs of s and at several precisions, and are as narrow.
+"""
+
+import json
+import os
+import subprocess
+import sys
+
+import mpmath
+import numpy as np
+import pytest
+
+from rigidrot_ros.core import engine, Scene, solve
+
+SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
+#: Times on both sides of t = 0, in several octaves (windows of several blocks).
+TIMES = [-7.3, -0.4, 0.0, 0.3, 1.7, 5.2, 9.9, 33.3, 61.0, 130.7]
+
+_CHILD = r'''
+import json, sys
+from rigidrot_ros.core import engine, Scene, solve
+scene = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
+sol = solve(scene)
+out = [sol.at(t).quaternion.tolist() + [float(sol.at(t).error_bound)] for t in TIMES]
+print(json.dumps({'state': engine.jit_state(), 'samples': [[x.hex() for x in r] for r in out]}))
+'''
+
+
+def _child(env_extra, tmp_path):
+    env = dict(os.environ, **env_extra)
+    code = _CHILD.replace('TIMES', repr(TIMES))
+    out = subprocess.run([sys.executable, '-c', code], env=env, cwd=str(tmp_path),
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_interpreted_engine_gives_the_compiled_bits_in_another_process(tmp_path):
+    if not engine.jit_state()['compiled']:
+        pytest.skip('numba is not in use: ' + engine.jit_state()['reason'])
+    sol = solve(SCENE)
+    here = [[x.hex() for x in sol.at(t).quaternion.tolist() + [float(sol.at(t).error_bound)]]
+            for t in TIMES]
+    got = _child({'RIGIDROT_NO_JIT': '1'}, tmp_path)
+    assert got['state']['compiled'] is False
+    assert 'RIGIDROT_NO_JIT' in got['state']['reason']
+    assert got['samples'] == here
+
+
+def test_numba_cache_goes_to_numba_cache_dir(tmp_path):
+    pytest.importorskip('numba')
+    cache = tmp_path / 'numba-cache'
+    got = _child({'NUMBA_CACHE_DIR': str(cache), 'RIGIDROT_NO_JIT': ''}, tmp_path)
+    assert got['state']['compiled'] and got['state']['cached']
+    files = [f for _, _, fs in os.walk(cache) for f in fs]
+    assert any(f.endswith('.nbi') for f in files) and any(f.endswith('.nbc') for f in files)
+    # a second process loads from that cache and gives the same bits
+    again = _child({'NUMBA_CACHE_DIR': str(cache), 'RIGIDROT_NO_JIT': ''}, tmp_path)
+    assert again['samples'] == got['samples']
+
+
+def test_a_function_numba_cannot_cache_is_compiled_in_memory():
+    numba = pytest.importorskip('numba')
+    scope = {}
+    exec('def twice(x):\n    return 2.0 * x\n', scope)     # no source file: no cache locator
+    with pytest.raises(RuntimeError):
+        numba.njit(cache=True)(scope['twice'])
+    fn, cached = engine._jit(numba, scope['twice'])
+    assert cached is False
+    assert fn(1.5) == 3.0
+
+
+def _reference(dense, times, dps=30):
+    """Spinor (v1, v2) at sorted times by mpmath.odefun (Taylor) from v(0) = (1, 0)."""
+    with mpmath.workdps(dps):
+        p, q, r0, u = (mpmath.mpf(v) for v in dense.kernel._inputs)
+
+        def rhs(t, y):
+            a, b, c, d = y                       # v1 = a + i b, v2 = c + i d
+            x = r0 + u * t
+            # dv1/dt = (i/2)(X v1 + conj(D) v2), dv2/dt = (i/2)(D v1 - X v2), D = p + i q
+            s1r = x * a + p * c + q * d
+            s1i = x * b + p * d - q * c
+            s2r = p * a - q * b - x * c
+            s2i = p * b + q * a - x * d
+            return [-s1i / 2, s1r / 2, -s2i / 2, s2r / 2]
+
+        out = {}
+        for sign in (1, -1):
+            f = mpmath.odefun(lambda t, y: [sign * v for v in rhs(sign * t, y)], 0,
+                              [mpmath.mpf(1), 0, 0, 0])
+            for t in times:
+                if (t >= 0) == (sign > 0):
+                    y = f(abs(mpmath.mpf(t)))
+                    out[t] = (complex(float(y[0]), float(y[1])), complex(float(y[2]), float(y[3])))
+        return out
+
+
+def test_chained_anchors_both_ways_within_their_bounds_of_mpmath():
+    """Anchors chained outwards and inwards, and samples, against mpmath's own integrator."""
+    sol = solve(SCENE, tol=1e-12)
+    dense = sol._dense
+    dense._half, dense._blen = 6, 12               # short blocks: inward chains below 3 s
+    cases = []                                     # (t, c1, c2, bound, chained inwards)
+    for sign in (1, -1):
+        for n in list(range(0, 30, 3)) + [13, 17, 18]:
+            blk = dense._block(sign, n)
+            anc = blk.anc[n % dense._blen]
+            inward = n >= dense._blen and n % dense._blen < dense._half
+            cases.append((_anchor_time(dense, sign, n), complex(anc[0], anc[1]),
+                          complex(anc[2], anc[3]), anc[4], inward))
+    assert any(c[4] for c in cases), 'no anchor chained inwards'
+    ts = sorted({c[0] for c in cases} | {0.37, 1.91, -2.2})
+    ref = _reference(dense, ts)
+    for a, c1, c2, bound, _ in cases:
+        r1, r2 = ref[a]
+        err = float(np.hypot(abs(c1 - r1), abs(c2 - r2)))
+        assert err <= bound, (a, err, bound)
+        assert bound <= dense.tol
+    for t in (0.37, 1.91, -2.2):
+        (x, y, z, w), bound = dense.at(t)
+        r1, r2 = ref[t]
+        err = float(np.hypot(abs(complex(w, z) - r1), abs(complex(-y, x) - r2)))
+        assert err <= bound <= dense.tol, (t, err, bound)
+
+
+def _anchor_time(dense, sign, n):
+    """Anchor time of window index n (direction sign), from the grid's octaves."""
+    e = -1
+    while True:
+        lo, hi, h = dense._octave(sign, e)
+        count = int((hi - lo) / h)
+        if n < count:
+            return sign * (lo + n * h)
+        n -= count
+        e += 1
+
+
+@pytest.mark.parametrize('prec', [70, 128])
+def test_far_kummer_route_overlaps_arb_1f1(prec):
+    sol = solve(SCENE, tol=1e-12)
+    kernel = sol._dense.kernel
+    if not kernel.backend.certified:
+        pytest.skip('python-flint absent')
+    c = kernel._constants(prec)
+    b = kernel.backend
+    far_z = kernel.FAR_Z
+    with b.workprec(prec):
+        for sv in (40.0, -40.0, 311.5, -2.5e3, 1e5):
+            s = b.real(sv)
+            try:
+                kernel.FAR_Z = None
+                ref = kernel._fundamental(c, s)
+            finally:
+                kernel.FAR_Z = far_z
+            far = kernel._fundamental(c, s)
+            for x, y in zip(ref, far):
+                assert x.overlaps(y)
+                # and the ball is about as narrow (within 4x, plus the absolute floor)
+                assert float(abs(y).rad()) <= 4 * float(abs(x).rad()) + 2.0 ** -(prec - 8)
+
+
+@pytest.mark.parametrize('prec', [70, 128])
+def test_far_spinor_route_overlaps_the_1f1_route(prec):
+    sol = solve(SCENE, tol=1e-12)
+    kernel = sol._dense.kernel
+    if not kernel.backend.certified:
+        pytest.skip('python-flint absent')
+    c = kernel._constants(prec)
+    b = kernel.backend
+    seen = 0
+    with b.workprec(prec):
+        for tv in (-2e4, -300.0, 0.0, 10.0, 90.0, 311.5, 2.5e3, 9.9e4):
+            s = (c['r0'] + c['U'] * b.real(tv)) / c['sqrtU']
+            far = kernel._spinor_far(c, s)
+            if far is None:
+                assert float(abs(s * s).upper()) <= 2 * kernel.FAR_Z * (1 + 1e-9)
+                continue
+            seen += 1
+            ye, yep, yo, yop = kernel._fundamental(c, s)
+            for ref, got in ((c['C1'] * ye + c['C2'] * yo, far[0]),
+                             (c['C1'] * yep + c['C2'] * yop, far[1])):
+                assert ref.overlaps(got)
+                assert float(abs(got).rad()) <= 4 * float(abs(ref).rad()) + 2.0 ** -(prec - 8)
+    assert seen >= 5
