@@ -368,7 +368,8 @@ class DenseSpinor:
             kernel.prec = kernel.prec_at(a) or kernel.start_prec
         elif hasattr(kernel, 'start_prec'):
             kernel.prec = kernel.start_prec
-        (x, y, z, w), err_a = kernel.evaluate(a)
+        (x, y, z, w), err_a = (kernel.anchor if hasattr(kernel, 'anchor') else
+                               kernel.evaluate)(a)
         self.exact_anchors += 1
         return complex(w, z), complex(-y, x), max(float(err_a), cap)
 

@@ -213,6 +213,18 @@ class TaylorKernel:
                     i = -1
         return st
 
+    def anchor(self, t):
+        """Quaternion and bound at t for a dense anchor: the seeder's, else :meth:`evaluate`.
+
+        The seeder's certified 1F1 at t (about 0.25 ms) costs the same whatever was
+        evaluated before; stepping from the nearest checkpoint may cost more or less.
+        """
+        if self.seeder is not None and hasattr(self.seeder, 'anchor'):
+            got = self.seeder.anchor(float(t))
+            if got is not None:
+                return got
+        return self.evaluate(t)
+
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and a certified bound on its component error."""
         while True:
