@@ -144,14 +144,14 @@ class DenseSpinor:
         self._co = np.empty((engine.MAX_TERMS, 4))       # scratch: one window's series
         self._k = None
         self._engine()                 # numba loaded (once a process) here, not at a sample
+        self._octaves = {}
         # block length: twice the windows a chain goes from its exact anchor before its
-        # bound would pass the limit (windows of R h = RT; the chains still re-anchor
-        # exactly where a bound would pass it)
+        # bound would pass the limit, at the largest R h of this scene's grid (only a
+        # cost estimate: the chains still re-anchor exactly where a bound would pass it)
         cap = min(self.tol, max(ANCHOR_TOL * self.tol, ANCHOR_FLOOR))
-        reach = (self.chain_limit - cap) / engine.own_per_window(0.85 * RT)
+        reach = (self.chain_limit - cap) / (1.05 * engine.own_per_window(self._grid_rt()))
         self._half = int(min(BLOCK // 2, max(4, reach)))
         self._blen = 2 * self._half
-        self._octaves = {}
         self._offsets = {1: [0], -1: [0]}           # windows before octave e (index e + 1)
         self._blocks = OrderedDict()                # (sign, first index) -> _Block
         self._revisits = 1.0                        # running share of queries in kept blocks
@@ -167,6 +167,22 @@ class DenseSpinor:
         return self._k
 
     # -- the grid -------------------------------------------------------------------------
+    def _grid_rt(self):
+        """Typical largest ``R h`` of a window: the median over the octaves up to 2^20 s.
+
+        A function of the scene alone (t >= 0; octaves of fewer than 128 windows, near
+        t = 0 where ``R`` changes fast, left out). Only a cost estimate: a block in an
+        octave of larger ``R h`` re-anchors exactly where its bound would pass the limit,
+        so a query there may pay a second exact evaluation. ``0.85 RT`` where no octave
+        qualifies.
+        """
+        rts = []
+        for e in range(-1, 21):
+            lo, hi, h = self._octave(1, e)
+            if h is not None and (hi - lo) / h >= 128:
+                rts.append(max(self._rate(lo), self._rate(hi)) * h)
+        return min(RT, sorted(rts)[len(rts) // 2]) if rts else 0.85 * RT
+
     def _rate(self, t):
         return math.hypot(abs(self.r0 + self.u * t), self.dabs)
 
