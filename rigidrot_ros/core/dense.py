@@ -336,8 +336,11 @@ class DenseSpinor:
         if g and end <= offs[e0 + 2]:               # one octave (nearly always)
             lo, hi, h = self._octave(sign, e0)
             j = np.arange(b0 - offs[e0 + 1], end - offs[e0 + 1], dtype=float)
-            blk.a = sign * (lo + j * h)             # exact: h a power of two, j < 2^53
-            blk.hs = np.full(g, sign * h)
+            j *= sign * h                           # exact: h a power of two, j < 2^53
+            j += sign * lo
+            blk.a = j
+            blk.hs = np.empty(g)
+            blk.hs.fill(sign * h)
         else:
             idx = np.arange(b0, end)
             es = np.searchsorted(offs, idx, side='right') - 2
