@@ -376,7 +376,8 @@ class DenseSpinor:
         The kernel adapts its working precision to what earlier calls needed, so the bound
         it states (and, rarely, the last bit of a value) could depend on history. Here the
         1F1 kernel starts from a precision that is a function of the anchor's time alone
-        (:meth:`.HyperKernel.prec_at`), and the anchor's bound is
+        (:meth:`.HyperKernel.prec_at`), the Taylor kernel takes its seeder's 1F1 at a
+        fixed precision (:meth:`.TaylorKernel.anchor`), and the anchor's bound is
         ``max(stated, cap)`` with ``cap = max(ANCHOR_TOL tol, ANCHOR_FLOOR)`` (at most tol):
         the stated bound is nearly always far below cap, so the bound is the same for
         every anchor whatever came before.
