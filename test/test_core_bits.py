@@ -120,6 +120,26 @@ def test_evicted_checkpoints_come_back_with_the_same_bits(monkeypatch):
     assert sol._dense.checkpoint_bytes() <= dense.BLOCK_BYTES
 
 
+def test_taylor_anchors_do_not_depend_on_what_was_stepped_before():
+    """Spacecraft (Taylor kernel): an anchor is the seeder's 1F1 at t, not a stepped state.
+
+    Before, a far anchor stepped from whichever checkpoint was nearest, so its cost (and
+    the rounding of its value) depended on the queries before it.
+    """
+    scene = SCENES['spacecraft']
+    t = np.random.default_rng(7).uniform(0.0, 1e3, 40)
+    cold = [solve(scene).at(float(x)) for x in t]              # every query in a fresh solve
+    sol = solve(scene)
+    kern = sol._kernel
+    assert kern.method == 'taylor-series-flint'
+    got = [sol.at(float(x)) for x in t]
+    for i, s in enumerate(got):
+        assert s.quaternion.tobytes() == cold[i].quaternion.tobytes(), f't={t[i]}'
+        assert float(s.error_bound) == float(cold[i].error_bound)
+    assert sol._dense.exact_anchors > 5
+    assert all(len(times) == 1 for times, _ in kern._ck.values())      # nothing stepped
+
+
 #: The scenes evaluated by dense output (the closed forms have none).
 DENSE_SCENES = sorted(n for n in SCENES if solve(SCENES[n])._dense is not None)
 

@@ -144,14 +144,14 @@ class DenseSpinor:
         self._co = np.empty((engine.MAX_TERMS, 4))       # scratch: one window's series
         self._k = None
         self._engine()                 # numba loaded (once a process) here, not at a sample
+        self._octaves = {}
         # block length: twice the windows a chain goes from its exact anchor before its
-        # bound would pass the limit (windows of R h = RT; the chains still re-anchor
-        # exactly where a bound would pass it)
+        # bound would pass the limit, at the largest R h of this scene's grid (only a
+        # cost estimate: the chains still re-anchor exactly where a bound would pass it)
         cap = min(self.tol, max(ANCHOR_TOL * self.tol, ANCHOR_FLOOR))
-        reach = (self.chain_limit - cap) / engine.own_per_window(0.85 * RT)
+        reach = (self.chain_limit - cap) / (1.05 * engine.own_per_window(self._grid_rt()))
         self._half = int(min(BLOCK // 2, max(4, reach)))
         self._blen = 2 * self._half
-        self._octaves = {}
         self._offsets = {1: [0], -1: [0]}           # windows before octave e (index e + 1)
         self._blocks = OrderedDict()                # (sign, first index) -> _Block
         self._revisits = 1.0                        # running share of queries in kept blocks
@@ -167,6 +167,22 @@ class DenseSpinor:
         return self._k
 
     # -- the grid -------------------------------------------------------------------------
+    def _grid_rt(self):
+        """Typical largest ``R h`` of a window: the median over the octaves up to 2^20 s.
+
+        A function of the scene alone (t >= 0; octaves of fewer than 128 windows, near
+        t = 0 where ``R`` changes fast, left out). Only a cost estimate: a block in an
+        octave of larger ``R h`` re-anchors exactly where its bound would pass the limit,
+        so a query there may pay a second exact evaluation. ``0.85 RT`` where no octave
+        qualifies.
+        """
+        rts = []
+        for e in range(-1, 21):
+            lo, hi, h = self._octave(1, e)
+            if h is not None and (hi - lo) / h >= 128:
+                rts.append(max(self._rate(lo), self._rate(hi)) * h)
+        return min(RT, sorted(rts)[len(rts) // 2]) if rts else 0.85 * RT
+
     def _rate(self, t):
         return math.hypot(abs(self.r0 + self.u * t), self.dabs)
 
@@ -320,8 +336,11 @@ class DenseSpinor:
         if g and end <= offs[e0 + 2]:               # one octave (nearly always)
             lo, hi, h = self._octave(sign, e0)
             j = np.arange(b0 - offs[e0 + 1], end - offs[e0 + 1], dtype=float)
-            blk.a = sign * (lo + j * h)             # exact: h a power of two, j < 2^53
-            blk.hs = np.full(g, sign * h)
+            j *= sign * h                           # exact: h a power of two, j < 2^53
+            j += sign * lo
+            blk.a = j
+            blk.hs = np.empty(g)
+            blk.hs.fill(sign * h)
         else:
             idx = np.arange(b0, end)
             es = np.searchsorted(offs, idx, side='right') - 2
@@ -357,7 +376,8 @@ class DenseSpinor:
         The kernel adapts its working precision to what earlier calls needed, so the bound
         it states (and, rarely, the last bit of a value) could depend on history. Here the
         1F1 kernel starts from a precision that is a function of the anchor's time alone
-        (:meth:`.HyperKernel.prec_at`), and the anchor's bound is
+        (:meth:`.HyperKernel.prec_at`), the Taylor kernel takes its seeder's 1F1 at a
+        fixed precision (:meth:`.TaylorKernel.anchor`), and the anchor's bound is
         ``max(stated, cap)`` with ``cap = max(ANCHOR_TOL tol, ANCHOR_FLOOR)`` (at most tol):
         the stated bound is nearly always far below cap, so the bound is the same for
         every anchor whatever came before.
@@ -368,7 +388,8 @@ class DenseSpinor:
             kernel.prec = kernel.prec_at(a) or kernel.start_prec
         elif hasattr(kernel, 'start_prec'):
             kernel.prec = kernel.start_prec
-        (x, y, z, w), err_a = kernel.evaluate(a)
+        (x, y, z, w), err_a = (kernel.anchor if hasattr(kernel, 'anchor') else
+                               kernel.evaluate)(a)
         self.exact_anchors += 1
         return complex(w, z), complex(-y, x), max(float(err_a), cap)
 
