@@ -327,6 +327,11 @@ class Recorder:
         self._write_published(now_ns, published)
 
     def _write_published(self, now_ns, published):
+        if getattr(self._writer, 'BATCHED', False):     # a writer process: one frame
+            msgs = ([], [], [])
+            self._collect_published(msgs, now_ns, published)
+            self._write_collected(msgs)
+            return
         try:
             for topic, msg, raw in published:
                 self._register_own(topic, msg)
