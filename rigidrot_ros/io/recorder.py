@@ -327,7 +327,10 @@ class Recorder:
         self._write_published(now_ns, published)
 
     def _write_published(self, now_ns, published):
-        if getattr(self._writer, 'BATCHED', False):     # a writer process: one frame
+        if getattr(self._writer, 'BATCHED', False) and all(
+                self._writer.has_topic(topic) for topic, _, _ in published):
+            # a writer process: one frame (a new channel: registered message by message
+            # below, so its record lands in the chunk where the inline recorder puts it)
             msgs = ([], [], [])
             self._collect_published(msgs, now_ns, published)
             self._write_collected(msgs)
