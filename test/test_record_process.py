@@ -91,10 +91,11 @@ def test_the_writer_process_writes_the_bytes_the_inline_recorder_writes(tmp_path
 
 
 def test_a_child_that_falls_behind_blocks_the_caller_and_loses_nothing(tmp_path):
-    calls = _calls(3000, pad=600)           # about 2 MiB: more than the pipe holds
+    calls = _calls(3000, pad=600)           # about 2 MiB: more than the ring holds
     ref = BagWriter(None, '', flush_period=0.05, path=str(tmp_path / 'a' / 'bag'))
     _, ref, _ = _record(ref, calls, 'rec_ref')
-    child = ProcessBagWriter(None, '', flush_period=0.05, path=str(tmp_path / 'b' / 'bag'))
+    child = ProcessBagWriter(None, '', flush_period=0.05, path=str(tmp_path / 'b' / 'bag'),
+                             ring_bytes=1 << 16)
     os.kill(child.pid, signal.SIGSTOP)      # a child that does not read at all
     done = threading.Event()
     result = {}
@@ -105,7 +106,7 @@ def test_a_child_that_falls_behind_blocks_the_caller_and_loses_nothing(tmp_path)
     thread = threading.Thread(target=feed)
     thread.start()
     try:
-        assert not done.wait(1.0)           # the caller waits on the full pipe ...
+        assert not done.wait(1.0)           # the caller waits on the full ring ...
     finally:
         os.kill(child.pid, signal.SIGCONT)  # ... and goes on when the child reads again
     thread.join(60)
@@ -129,7 +130,10 @@ def test_a_killed_child_is_one_error_and_the_bag_keeps_what_was_flushed(tmp_path
                     pass
                 time.sleep(0.05)
             os.kill(child.pid, signal.SIGKILL)
-            child._proc.wait()
+            while os.path.exists(f'/proc/{child.pid}/exe'):     # until it is a zombie
+                time.sleep(0.01)
+        if i in (1001, 1002):
+            rec._flush()                    # as the flush timer would: the death is seen
     rec, path, counts = _record(child, _calls(2000), 'rec_killed',
                                 on_event=lambda lv, text: events.append((lv, text)),
                                 between=kill_after_half)

@@ -3,46 +3,58 @@
 :class:`ProcessBagWriter` has the writing interface of ``BagWriter`` (``add_topic``,
 ``write``, ``write_many``, ``add_run``, ``add_metadata``, ``maybe_flush``, ``flush``,
 ``close``, ``has_topic``, ``counts``, ``closed``, ``path``). Each call is pickled into one
-length-prefixed frame and written to the stdin pipe of a child process
-(``python -m rigidrot_ros.io.bag_process``), which makes the very same ``BagWriter`` calls
-in the same order: MCAP records, chunking, zstd compression and file writes happen there,
-outside the caller's interpreter (no GIL shared with the publishing thread).
+length-prefixed frame and copied into a ring buffer shared with a child process
+(``python -m rigidrot_ros.io.bag_process``, a ``memfd`` mapped by both), which makes the
+very same ``BagWriter`` calls in the same order: MCAP records, chunking, zstd compression
+and file writes happen there, outside the caller's interpreter.
+
+Why a shared ring and not a pipe: handing a frame over must not release the caller's
+interpreter lock. Every system call does (a pipe ``write`` included), and a publishing
+thread that releases it while another Python thread of the node (the look-ahead worker)
+runs waits up to the switch interval (5 ms) to get it back: measured with a pipe, the
+node's record phase reached 3.9-5.0 ms and late gyro samples rose (doc/recording.md).
+Copying into the ring is a memory copy; the child polls the ring (5 ms when idle).
 
 What it guarantees:
 
 - Same bag: the child calls the same methods with the same arguments in the same order,
   so the files are the bytes an in-process ``BagWriter`` writes (chunks closed by the
   time-driven ``maybe_flush`` close at the child's clock, as they would at the caller's).
-- Nothing lost or reordered when the child falls behind: the pipe is a FIFO and a write
-  to a full pipe *blocks* the caller until the child has read. Memory is bounded by the
-  pipe's buffer (raised to :data:`PIPE_BYTES`, 1 MiB, where Linux allows; 64 KiB
-  otherwise) plus one frame in the child.
-- Shutdown: :meth:`close` sends ``close``, closes the pipe and waits for the child, which
-  writes everything before it and finishes the bag (summary, metadata.yaml). If the caller
-  dies without closing, the child reads end-of-file and finishes the bag all the same.
+- Nothing lost or reordered when the child falls behind: the ring is a FIFO and a frame
+  that does not fit *blocks* the caller (1 ms sleeps) until the child has read. Memory is
+  bounded by the ring (``ring_bytes``, default :data:`RING_BYTES`, 4 MiB, about 10 s of
+  the node at 4 kHz) plus one frame in the child.
+- Shutdown: :meth:`close` sends ``close``, closes the child's stdin and waits for the
+  child, which writes everything before it and finishes the bag (summary, metadata.yaml).
+  If the caller dies without closing, the child sees end-of-file on its stdin, writes what
+  the ring holds and finishes the bag all the same.
 - The child runs in a process group of its own and ignores SIGINT (a terminal's Ctrl-C
-  goes to the caller's group; the caller stops the child by closing the pipe).
-- A child that dies (killed, disk full): the next call raises :class:`OSError` naming the
-  process and its exit status (a recorder then stops recording with one error); the bag
-  keeps every chunk flushed before (``rigidrot_bag reindex`` finishes a killed one).
+  goes to the caller's group; the caller stops the child by closing its stdin).
+- A child that dies (killed, disk full): :meth:`maybe_flush` (the recorder's flush timer)
+  notices when the child's heartbeat has stood still since the last call and the process
+  has ended, and raises :class:`OSError` naming the process and its exit status (a
+  recorder then stops recording with one error); so does a call that finds the ring full.
+  The bag keeps every chunk flushed before (``rigidrot_reindex`` finishes a killed one).
 """
 
-import fcntl
+import mmap
 import os
 import pickle
+import select
 import signal
 import struct
 import subprocess
 import sys
+import time
 
 from rigidrot_ros.io.bag import _exact_dir, _unique_dir, BagWriter
 
-__all__ = ['ProcessBagWriter', 'PIPE_BYTES']
+__all__ = ['ProcessBagWriter', 'RING_BYTES']
 
-#: Bytes the pipe to the child may hold before a write blocks (Linux F_SETPIPE_SZ).
-PIPE_BYTES = 1 << 20
+#: Bytes of the shared ring the caller writes frames into; a full ring blocks the caller.
+RING_BYTES = 4 << 20
 _HEAD = struct.Struct('<I')
-_F_SETPIPE_SZ = getattr(fcntl, 'F_SETPIPE_SZ', 1031)
+_DATA = 64                          # header: write index, read index, heartbeat (u64 each)
 _CALLS = frozenset({'add_topic', 'write', 'write_many', 'add_run', 'add_metadata',
                     'maybe_flush', 'flush', 'close'})
 
@@ -57,13 +69,16 @@ class ProcessBagWriter:
         :attr:`path` is known at once and a bad path fails in the caller).
     timeout : float
         Seconds :meth:`close` waits for the child to finish the bag before killing it.
+    ring_bytes : int
+        Size of the shared ring (default :data:`RING_BYTES`, 4 MiB): the most memory
+        messages wait in when the child falls behind.
     """
 
     #: A recorder hands each call's messages over with one :meth:`write_many` (one frame).
     BATCHED = True
 
     def __init__(self, root, name, flush_period=0.5, path=None, split_seconds=3600.0,
-                 timeout=60.0):
+                 timeout=60.0, ring_bytes=RING_BYTES):
         if path is not None:
             self.path = _exact_dir(os.path.abspath(path))
         else:
@@ -74,15 +89,21 @@ class ProcessBagWriter:
         self._counts = {}
         self._closed = False
         self._dead = None
-        self._proc = subprocess.Popen(
-            [sys.executable, '-m', 'rigidrot_ros.io.bag_process', self.path,
-             repr(float(flush_period)), repr(float(split_seconds))],
-            stdin=subprocess.PIPE, process_group=0, close_fds=True)
-        self._fd = self._proc.stdin.fileno()
+        self._size = int(ring_bytes)
+        fd = os.memfd_create('rigidrot-bag-ring', 0)
         try:
-            fcntl.fcntl(self._fd, _F_SETPIPE_SZ, PIPE_BYTES)
-        except OSError:
-            pass                                # a smaller limit: the default 64 KiB
+            os.ftruncate(fd, _DATA + self._size)
+            self._map = mmap.mmap(fd, _DATA + self._size)
+            self._proc = subprocess.Popen(
+                [sys.executable, '-m', 'rigidrot_ros.io.bag_process', self.path,
+                 repr(float(flush_period)), repr(float(split_seconds)), str(fd),
+                 str(self._size)],
+                stdin=subprocess.PIPE, process_group=0, pass_fds=(fd,))
+        finally:
+            os.close(fd)
+        self._head = memoryview(self._map)[:_DATA].cast('Q')
+        self._written = 0
+        self._beat = -1
 
     @property
     def pid(self):
@@ -90,16 +111,35 @@ class ProcessBagWriter:
         return self._proc.pid
 
     def _send(self, name, *args):
+        """Copy one frame into the ring (no system call: the GIL is never released)."""
         if self._dead is not None:
             raise OSError(self._dead)
         body = pickle.dumps((name, args), protocol=pickle.HIGHEST_PROTOCOL)
         data = memoryview(_HEAD.pack(len(body)) + body)
-        try:
-            while data:
-                data = data[os.write(self._fd, data):]     # blocks while the pipe is full
-        except OSError:
+        size, ring = self._size, self._map
+        while data:
+            free = size - (self._written - self._head[1])
+            if free == 0:                       # the child is behind: wait for it
+                if self._proc.poll() is not None:
+                    self._dead = self._death()
+                    raise OSError(self._dead)
+                time.sleep(0.001)
+                continue
+            at = self._written % size
+            n = min(len(data), free, size - at)
+            ring[_DATA + at:_DATA + at + n] = data[:n]
+            data = data[n:]
+            self._written += n
+            self._head[0] = self._written       # one aligned 8-byte store, after the bytes
+
+    def _check(self):
+        """Raise OSError if the child has died (looked at when its heartbeat stood still)."""
+        beat = self._head[2]
+        if beat == self._beat and self._dead is None and self._proc.poll() is not None:
             self._dead = self._death()
-            raise OSError(self._dead) from None
+        self._beat = beat
+        if self._dead is not None:
+            raise OSError(self._dead)
 
     def _death(self):
         try:
@@ -154,7 +194,8 @@ class ProcessBagWriter:
         self._send('add_metadata', name, dict(data))
 
     def maybe_flush(self):
-        """Let the child flush if its flush period has passed."""
+        """Let the child flush if its flush period has passed; OSError if it has died."""
+        self._check()
         self._send('maybe_flush')
 
     def flush(self):
@@ -187,7 +228,7 @@ class ProcessBagWriter:
             except OSError as exc:
                 error = str(exc)
         try:
-            self._proc.stdin.close()
+            self._proc.stdin.close()            # end-of-file: the child ends after the ring
         except OSError:
             pass
         try:
@@ -199,28 +240,63 @@ class ProcessBagWriter:
                               f'finish the bag in {self._timeout:g} s: killed')
         if error is None and code != 0:
             error = self._death()
+        self._head.release()
+        self._map.close()
         if error is not None:
             raise OSError(error)
 
 
-def _read_exact(stream, n):
-    buf = stream.read(n)
-    return buf if buf is not None and len(buf) == n else None
+class _Ring:
+    """The child's end of the ring: bytes in order, then end-of-file when the caller closes."""
+
+    def __init__(self, fd, size, alive):
+        self._map = mmap.mmap(fd, _DATA + size)
+        os.close(fd)
+        self._head = memoryview(self._map)[:_DATA].cast('Q')
+        self._size, self._alive, self._buf, self._eof = size, alive, bytearray(), False
+
+    def _take(self):
+        written, read = self._head[0], self._head[1]
+        if written == read:
+            return False
+        size = self._size
+        at, n = read % size, written - read
+        first = min(n, size - at)
+        self._buf += self._map[_DATA + at:_DATA + at + first]
+        if n > first:
+            self._buf += self._map[_DATA:_DATA + n - first]
+        self._head[1] = written                 # the caller may reuse those bytes now
+        return True
+
+    def read(self, n):
+        """``n`` bytes, waiting for them; None at end-of-file (the caller closed or died)."""
+        while len(self._buf) < n:
+            self._head[2] += 1                  # heartbeat
+            if self._take():
+                continue
+            if self._eof:
+                return None
+            ready, _, _ = select.select([self._alive], [], [], 0.005)
+            if ready and not os.read(self._alive, 4096):
+                self._eof = True                # one more look: bytes sent before the close
+        out = bytes(self._buf[:n])
+        del self._buf[:n]
+        return out
 
 
 def serve(path, flush_period, split_seconds, stream):
     """Run the calls framed on ``stream`` against a new ``BagWriter`` at ``path``; 0 on success.
 
-    On end-of-file (the caller closed the pipe or died) the bag is finished.
+    ``stream.read(n)`` returns ``n`` bytes or None at end-of-file, where the bag is finished.
     """
     writer = BagWriter(None, '', flush_period=flush_period, path=path,
                        split_seconds=split_seconds)
     try:
         while True:
-            head = _read_exact(stream, _HEAD.size)
+            head = stream.read(_HEAD.size)
             if head is None:
                 break
-            body = _read_exact(stream, _HEAD.unpack(head)[0])
+            body = stream.read(_HEAD.unpack(head)[0])
             if body is None:
                 break
             name, args = pickle.loads(body)
@@ -235,12 +311,17 @@ def serve(path, flush_period, split_seconds, stream):
 
 
 def main(argv=None):
-    """``python -m rigidrot_ros.io.bag_process PATH FLUSH_PERIOD SPLIT_SECONDS`` (frames on stdin)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)    # the parent stops us (closes the pipe)
+    """``python -m rigidrot_ros.io.bag_process PATH FLUSH_S SPLIT_S RING_FD RING_BYTES``.
+
+    Frames come through the shared ring ``RING_FD``; stdin only tells when the caller
+    has closed (end-of-file).
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)    # the parent stops us (closes stdin)
     argv = sys.argv[1:] if argv is None else argv
     path, flush_period, split_seconds = argv[0], float(argv[1]), float(argv[2])
     try:
-        return serve(path, flush_period, split_seconds, sys.stdin.buffer)
+        ring = _Ring(int(argv[3]), int(argv[4]), sys.stdin.fileno())
+        return serve(path, flush_period, split_seconds, ring)
     except Exception as exc:  # noqa: B902 - one line naming the problem, then exit 1
         print(f'rigidrot bag writer ({path}): {type(exc).__name__}: {exc}', file=sys.stderr)
         return 1
