@@ -268,43 +268,62 @@ class _Ring:
         self._head[1] = written                 # the caller may reuse those bytes now
         return True
 
-    def read(self, n):
-        """``n`` bytes, waiting for them; None at end-of-file (the caller closed or died)."""
-        while len(self._buf) < n:
+    def frames(self):
+        """The calls available now, waiting until there is one; None at end-of-file."""
+        while True:
             self._head[2] += 1                  # heartbeat
-            if self._take():
-                continue
+            self._take()
+            out = []
+            at = 0
+            while len(self._buf) - at >= _HEAD.size:
+                n = _HEAD.unpack_from(self._buf, at)[0]
+                if len(self._buf) - at - _HEAD.size < n:
+                    break
+                out.append(pickle.loads(self._buf[at + _HEAD.size:at + _HEAD.size + n]))
+                at += _HEAD.size + n
+            del self._buf[:at]
+            if out:
+                return out
             if self._eof:
                 return None
             ready, _, _ = select.select([self._alive], [], [], 0.005)
             if ready and not os.read(self._alive, 4096):
                 self._eof = True                # one more look: bytes sent before the close
-        out = bytes(self._buf[:n])
-        del self._buf[:n]
-        return out
 
 
 def serve(path, flush_period, split_seconds, stream):
-    """Run the calls framed on ``stream`` against a new ``BagWriter`` at ``path``; 0 on success.
+    """Run the calls from ``stream`` against a new ``BagWriter`` at ``path``; 0 on success.
 
-    ``stream.read(n)`` returns ``n`` bytes or None at end-of-file, where the bag is finished.
+    ``stream.frames()`` returns the ``(name, args)`` calls available (waiting for one), or
+    None at end-of-file, where the bag is finished. Consecutive ``write_many`` calls are
+    made as one (the bytes :meth:`BagWriter.write` one by one writes, fewer numpy passes).
     """
     writer = BagWriter(None, '', flush_period=flush_period, path=path,
                        split_seconds=split_seconds)
+    msgs = ([], [], [])
     try:
         while True:
-            head = stream.read(_HEAD.size)
-            if head is None:
+            calls = stream.frames()
+            if calls is None:
                 break
-            body = stream.read(_HEAD.unpack(head)[0])
-            if body is None:
-                break
-            name, args = pickle.loads(body)
-            if name not in _CALLS:
-                raise ValueError(f'unknown call {name!r}')
-            getattr(writer, name)(*args)
-            if name == 'close':
-                break
+            for name, args in calls:
+                if name == 'write_many':
+                    for lst, more in zip(msgs, args):
+                        lst.extend(more)
+                    continue
+                if msgs[0]:
+                    writer.write_many(*msgs)
+                    for lst in msgs:
+                        lst.clear()
+                if name not in _CALLS:
+                    raise ValueError(f'unknown call {name!r}')
+                getattr(writer, name)(*args)
+                if name == 'close':
+                    return 0
+            if msgs[0]:
+                writer.write_many(*msgs)
+                for lst in msgs:
+                    lst.clear()
     finally:
         writer.close()
     return 0
