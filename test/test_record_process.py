@@ -18,7 +18,8 @@ from rosbags.highlevel import AnyReader
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from ros_helpers import node_and_listener, spin_until, stamp_ns
+from ros_helpers import (next_domain_id, node_and_listener, ros_env, script, spin_until,
+                         stamp_ns, start, stop, wait_for)
 from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter, read_bag
 from rigidrot_ros.io.bag_process import ProcessBagWriter
@@ -219,3 +220,29 @@ def test_the_node_records_through_a_writer_process_over_resets(tmp_path, monkeyp
     assert logs == sorted(logs)
     assert all(b > a for a, b in zip(imu, imu[1:]))
     assert runs == 3                                # start-up and two resets
+
+
+@pytest.mark.parametrize('sig', ['group-SIGINT', 'SIGTERM'])
+def test_ctrl_c_or_sigterm_of_the_node_finishes_the_bag_of_its_writer_process(tmp_path, sig):
+    env = dict(ros_env(next_domain_id()), RIGIDROT_RECORD_PROCESS='1')
+    proc = start([script('attitude_node'), '--ros-args', '-p', 'publish_rate:=200.0',
+                  '-p', 'record:=true', '-p', f'record_path:={tmp_path}'], env,
+                 start_new_session=True)            # its own group, as a terminal's job
+    try:
+        assert wait_for(lambda: list(tmp_path.glob('*/*.mcap'))
+                        and list(tmp_path.glob('*/*.mcap'))[0].stat().st_size > 4096,
+                        timeout=60)
+    finally:
+        if sig == 'group-SIGINT':
+            os.killpg(proc.pid, signal.SIGINT)      # Ctrl-C: node and writer both get it
+            code, out, err = stop(proc, signal.SIGINT)
+        else:
+            code, out, err = stop(proc, signal.SIGTERM)
+    assert code == 0, err
+    assert 'bag finished' in err and 'Traceback' not in err, err
+    pid = int(err.split('(writer process ')[1].split(')')[0])
+    assert wait_for(lambda: not os.path.exists(f'/proc/{pid}'), timeout=10)
+    bag = next(tmp_path.iterdir())
+    rows = _read(bag)                               # rosbags: the summary is there
+    ticks = int(err.split('published ')[1].split(' ticks')[0])
+    assert sum(t == '/attitude' for t, _, _ in rows) == ticks > 0

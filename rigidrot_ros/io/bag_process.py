@@ -9,11 +9,13 @@ very same ``BagWriter`` calls in the same order: MCAP records, chunking, zstd co
 and file writes happen there, outside the caller's interpreter.
 
 Why a shared ring and not a pipe: handing a frame over must not release the caller's
-interpreter lock. Every system call does (a pipe ``write`` included), and a publishing
-thread that releases it while another Python thread of the node (the look-ahead worker)
-runs waits up to the switch interval (5 ms) to get it back: measured with a pipe, the
-node's record phase reached 3.9-5.0 ms and late gyro samples rose (doc/recording.md).
-Copying into the ring is a memory copy; the child polls the ring (5 ms when idle).
+interpreter lock. Every blocking system call does (a pipe ``write`` included), and the
+node's publishing thread that releases it must get it back from the look-ahead worker
+thread, which runs niced: when the OS has descheduled the worker while it holds the lock,
+the publishing thread waits for it. Measured with a pipe, the node's record phase reached
+3.9-5.0 ms and late gyro samples rose (doc/recording.md). Copying into the ring is a
+memory copy; the child drains the ring every :data:`DRAIN_S` (50 ms), niced by 10
+(``RIGIDROT_RECORD_NICE``) so that the OS runs the node's threads first.
 
 What it guarantees:
 
@@ -53,6 +55,8 @@ __all__ = ['ProcessBagWriter', 'RING_BYTES']
 
 #: Bytes of the shared ring the caller writes frames into; a full ring blocks the caller.
 RING_BYTES = 4 << 20
+#: Seconds the child sleeps between drains of the ring (fewer wake-ups, bigger batches).
+DRAIN_S = 0.05
 _HEAD = struct.Struct('<I')
 _DATA = 64                          # header: write index, read index, heartbeat (u64 each)
 _CALLS = frozenset({'add_topic', 'write', 'write_many', 'add_run', 'add_metadata',
@@ -269,7 +273,13 @@ class _Ring:
         return True
 
     def frames(self):
-        """The calls available now, waiting until there is one; None at end-of-file."""
+        """The calls come since the last drain, waiting until there is one; None at end-of-file.
+
+        Every call first sleeps one drain period (:data:`DRAIN_S`): the child wakes 20
+        times a second, not at every frame, and writes what came meanwhile in one go.
+        """
+        if not self._eof:
+            self._wait()
         while True:
             self._head[2] += 1                  # heartbeat
             self._take()
@@ -286,9 +296,13 @@ class _Ring:
                 return out
             if self._eof:
                 return None
-            ready, _, _ = select.select([self._alive], [], [], 0.005)
-            if ready and not os.read(self._alive, 4096):
-                self._eof = True                # one more look: bytes sent before the close
+            self._wait()
+
+    def _wait(self):
+        """Sleep one drain period, or until the caller closes (end-of-file on stdin)."""
+        ready, _, _ = select.select([self._alive], [], [], DRAIN_S)
+        if ready and not os.read(self._alive, 4096):
+            self._eof = True                    # one more look: bytes sent before the close
 
 
 def serve(path, flush_period, split_seconds, stream):
@@ -336,6 +350,10 @@ def main(argv=None):
     has closed (end-of-file).
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # the parent stops us (closes stdin)
+    try:
+        os.nice(int(os.environ.get('RIGIDROT_RECORD_NICE', '10')))  # the node's threads first
+    except (OSError, ValueError):
+        pass
     argv = sys.argv[1:] if argv is None else argv
     path, flush_period, split_seconds = argv[0], float(argv[1]), float(argv[2])
     try:
