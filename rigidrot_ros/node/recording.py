@@ -39,7 +39,9 @@ def _in_process():
     """Whether the bag is written by a child process (``RIGIDROT_RECORD_PROCESS=1``: it is).
 
     The node then only pickles each call's CDR bytes into a pipe; MCAP records, chunks,
-    zstd and file writes run in the child, outside the node's interpreter lock.
+    zstd and file writes run in the child, outside the node's interpreter lock. Off by
+    default: at 1 kHz under load the child's CPU time on two shared cores cost about what
+    it saved (late gyro samples no better over 9 pairs, doc/recording.md).
     """
     return os.environ.get('RIGIDROT_RECORD_PROCESS', '0').strip() == '1'
 
