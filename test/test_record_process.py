@@ -1,4 +1,4 @@
-"""The recorder's writer process: the same bag, nothing lost, shut down cleanly, a death survived."""
+"""The recorder's writer process: the same bag, nothing lost, clean shutdowns, a death survived."""
 
 import functools
 import os
@@ -18,12 +18,12 @@ from rosbags.highlevel import AnyReader
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from ros_helpers import (next_domain_id, node_and_listener, ros_env, script, spin_until,
-                         stamp_ns, start, stop, wait_for)
 from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter, read_bag
 from rigidrot_ros.io.bag_process import ProcessBagWriter
 from rigidrot_ros.io.recorder import Recorder
+from ros_helpers import (next_domain_id, node_and_listener, ros_env, script, spin_until,
+                         stamp_ns, start, stop, wait_for)
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 

@@ -273,7 +273,7 @@ class _Ring:
         return True
 
     def frames(self):
-        """The calls come since the last drain, waiting until there is one; None at end-of-file.
+        """Return the calls come since the last drain (waiting for one); None at end-of-file.
 
         Every call first sleeps one drain period (:data:`DRAIN_S`): the child wakes 20
         times a second, not at every frame, and writes what came meanwhile in one go.
