@@ -315,7 +315,9 @@ class Recorder:
         ``raw`` is the message serialized (CDR) if the node made those bytes to publish
         them, else None (serialized here, or in the writer thread: the message must not
         change after this call). The log time is ``now_ns``; each topic's channel is
-        registered on first use with the QoS of the node's publisher of that topic.
+        registered on first use with the QoS of the node's publisher of that topic. A
+        writer with ``BATCHED`` set (:class:`rigidrot_ros.io.bag_process.ProcessBagWriter`)
+        gets the call's messages in one ``write_many`` once their channels exist.
         """
         if not self.active:
             return
