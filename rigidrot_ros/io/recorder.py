@@ -315,7 +315,9 @@ class Recorder:
         ``raw`` is the message serialized (CDR) if the node made those bytes to publish
         them, else None (serialized here, or in the writer thread: the message must not
         change after this call). The log time is ``now_ns``; each topic's channel is
-        registered on first use with the QoS of the node's publisher of that topic.
+        registered on first use with the QoS of the node's publisher of that topic. A
+        writer with ``BATCHED`` set (:class:`rigidrot_ros.io.bag_process.ProcessBagWriter`)
+        gets the call's messages in one ``write_many`` once their channels exist.
         """
         if not self.active:
             return
@@ -327,6 +329,14 @@ class Recorder:
         self._write_published(now_ns, published)
 
     def _write_published(self, now_ns, published):
+        if getattr(self._writer, 'BATCHED', False) and all(
+                self._writer.has_topic(topic) for topic, _, _ in published):
+            # a writer process: one frame (a new channel: registered message by message
+            # below, so its record lands in the chunk where the inline recorder puts it)
+            msgs = ([], [], [])
+            self._collect_published(msgs, now_ns, published)
+            self._write_collected(msgs)
+            return
         try:
             for topic, msg, raw in published:
                 self._register_own(topic, msg)

@@ -4,13 +4,16 @@
 publication, and hands what the node published to the recorder
 (:class:`rigidrot_ros.io.recorder.Recorder`, which writes the same bytes); the recorder is
 opened by :func:`open_recorder` from the parameters; it writes inline, or with
-``RIGIDROT_RECORD_THREAD=1`` in a thread of its own (``Recorder(threaded=True)``).
+``RIGIDROT_RECORD_THREAD=1`` in a thread of its own (``Recorder(threaded=True)``), or with
+``RIGIDROT_RECORD_PROCESS=1`` through a child process that does all the file work
+(:class:`rigidrot_ros.io.bag_process.ProcessBagWriter`: the node only hands CDR bytes over).
 """
 
 import os
 import sys
 
 from rigidrot_ros.io.bag import BagWriter
+from rigidrot_ros.io.bag_process import ProcessBagWriter
 from rigidrot_ros.io.recorder import Recorder, type_name_of
 from rigidrot_ros.node import outputs
 from rigidrot_ros.node.cli import SceneError
@@ -32,6 +35,17 @@ def _threaded():
     return os.environ.get('RIGIDROT_RECORD_THREAD', '0').strip() == '1'
 
 
+def _in_process():
+    """Whether the bag is written by a child process (``RIGIDROT_RECORD_PROCESS=1``: it is).
+
+    The node then only pickles each call's CDR bytes into a pipe; MCAP records, chunks,
+    zstd and file writes run in the child, outside the node's interpreter lock. Off by
+    default: at 1 kHz under load the child's CPU time on two shared cores cost about what
+    it saved (late gyro samples no better over 9 pairs, doc/recording.md).
+    """
+    return os.environ.get('RIGIDROT_RECORD_PROCESS', '0').strip() == '1'
+
+
 def open_recorder(node, values):
     """Return a :class:`Recorder` of ``node`` into a new bag (``record_path``, ``record_topics``).
 
@@ -40,7 +54,8 @@ def open_recorder(node, values):
     path = values['record_path'] or 'runs'
     topics = [t for t in (values['record_topics'] or []) if t]
     try:
-        writer = BagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S)
+        kind = ProcessBagWriter if _in_process() else BagWriter
+        writer = kind(path, node.get_name(), flush_period=RECORD_FLUSH_S)
     except OSError as exc:
         raise SceneError(f'cannot record to {path!r}: {exc}') from None
     try:
@@ -49,7 +64,8 @@ def open_recorder(node, values):
     except Exception as exc:  # noqa: B902 - ValueError, or rclpy's invalid-name errors
         writer.close()
         raise SceneError(f'parameter record_topics: {exc}') from None
-    node.get_logger().info(f'recording to {writer.path}')
+    node.get_logger().info(f'recording to {writer.path}' + (
+        f' (writer process {writer.pid})' if isinstance(writer, ProcessBagWriter) else ''))
     return recorder
 
 
