@@ -180,6 +180,17 @@ def spin_until(executor, cond, timeout=20.0):
     assert cond(), 'timed out'
 
 
+def reset_twice(node, executor, ticks=100, timeout=30.0):
+    """Let ``node`` publish ``ticks`` ticks, then ``~/reset``, twice; then 2 ``ticks`` more."""
+    from std_srvs.srv import Trigger
+    for _ in range(2):
+        published = node._counters.published
+        spin_until(executor, lambda: node._counters.published >= published + ticks, timeout)
+        resp = node._on_reset(Trigger.Request(), Trigger.Response())
+        assert resp.success, resp.message
+    spin_until(executor, lambda: node._counters.published >= published + 2 * ticks, timeout)
+
+
 def stamp_ns(msg):
     """Stamp as integer nanoseconds (a float64 of ~1.8e9 s resolves only ~2e-7 s)."""
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec

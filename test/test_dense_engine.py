@@ -47,8 +47,8 @@ def _child(env_extra, tmp_path):
 
 
 def test_interpreted_engine_gives_the_compiled_bits_in_another_process(tmp_path):
-    if not engine.jit_state()['compiled']:
-        pytest.skip('numba is not in use: ' + engine.jit_state()['reason'])
+    # numba is an install requirement: the compiled engine must be in use here
+    assert engine.jit_state()['compiled'], engine.jit_state()['reason']
     sol = solve(SCENE)
     here = [[x.hex() for x in sol.at(t).quaternion.tolist() + [float(sol.at(t).error_bound)]]
             for t in TIMES]
@@ -59,7 +59,6 @@ def test_interpreted_engine_gives_the_compiled_bits_in_another_process(tmp_path)
 
 
 def test_numba_cache_goes_to_numba_cache_dir(tmp_path):
-    pytest.importorskip('numba')
     cache = tmp_path / 'numba-cache'
     got = _child({'NUMBA_CACHE_DIR': str(cache), 'RIGIDROT_NO_JIT': ''}, tmp_path)
     assert got['state']['compiled'] and got['state']['cached']
@@ -71,7 +70,7 @@ def test_numba_cache_goes_to_numba_cache_dir(tmp_path):
 
 
 def test_a_function_numba_cannot_cache_is_compiled_in_memory():
-    numba = pytest.importorskip('numba')
+    import numba
     scope = {}
     exec('def twice(x):\n    return 2.0 * x\n', scope)     # no source file: no cache locator
     with pytest.raises(RuntimeError):
@@ -147,14 +146,17 @@ def _anchor_time(dense, sign, n):
         e += 1
 
 
+def _flint_kernel(prec):
+    """Return (kernel, constants at prec, backend) of SCENE's 1F1 kernel (Arb: certified)."""
+    kernel = solve(SCENE, tol=1e-12)._dense.kernel
+    # python-flint is an install requirement: the scene's kernel is Arb's
+    assert kernel.backend.certified, kernel.backend.name
+    return kernel, kernel._constants(prec), kernel.backend
+
+
 @pytest.mark.parametrize('prec', [70, 128])
 def test_far_kummer_route_overlaps_arb_1f1(prec):
-    sol = solve(SCENE, tol=1e-12)
-    kernel = sol._dense.kernel
-    if not kernel.backend.certified:
-        pytest.skip('python-flint absent')
-    c = kernel._constants(prec)
-    b = kernel.backend
+    kernel, c, b = _flint_kernel(prec)
     far_z = kernel.FAR_Z
     with b.workprec(prec):
         for sv in (40.0, -40.0, 311.5, -2.5e3, 1e5):
@@ -173,12 +175,7 @@ def test_far_kummer_route_overlaps_arb_1f1(prec):
 
 @pytest.mark.parametrize('prec', [70, 128])
 def test_far_spinor_route_overlaps_the_1f1_route(prec):
-    sol = solve(SCENE, tol=1e-12)
-    kernel = sol._dense.kernel
-    if not kernel.backend.certified:
-        pytest.skip('python-flint absent')
-    c = kernel._constants(prec)
-    b = kernel.backend
+    kernel, c, b = _flint_kernel(prec)
     seen = 0
     with b.workprec(prec):
         for tv in (-2e4, -300.0, 0.0, 10.0, 90.0, 311.5, 2.5e3, 9.9e4):

@@ -9,9 +9,8 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
 from rosbags.highlevel import AnyReader
-from std_srvs.srv import Trigger
 
-from ros_helpers import node_and_listener, spin_until, stamp_ns
+from ros_helpers import node_and_listener, reset_twice, spin_until, stamp_ns
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
@@ -61,12 +60,7 @@ def test_threads_serve_resets_and_stop_with_the_node(tmp_path, monkeypatch, reco
         worker = node._worker
         for name in _THREADS:
             assert len(_alive(name)) == (name in threads), name
-        for _ in range(2):
-            published = node._counters.published
-            _spin_until(ex, lambda: node._counters.published >= published + 100)
-            resp = node._on_reset(Trigger.Request(), Trigger.Response())
-            assert resp.success, resp.message
-        _spin_until(ex, lambda: node._counters.published >= published + 200)
+        reset_twice(node, ex)
         assert node._worker is worker and worker.alive      # one worker for every run
         counts = node._runs.recorder.counts
     finally:

@@ -1,6 +1,5 @@
 """The recorder's writer process: the same bag, nothing lost, clean shutdowns, a death survived."""
 
-import functools
 import os
 from pathlib import Path
 import signal
@@ -16,18 +15,16 @@ import rclpy
 from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import String
-from std_srvs.srv import Trigger
 
 from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter, read_bag
 from rigidrot_ros.io.bag_process import ProcessBagWriter
 from rigidrot_ros.io.recorder import Recorder
-from ros_helpers import (next_domain_id, node_and_listener, ros_env, script, spin_until,
+from ros_helpers import (next_domain_id, node_and_listener, reset_twice, ros_env, script,
                          stamp_ns, start, stop, wait_for)
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
-_spin_until = functools.partial(spin_until, timeout=30.0)
 _NEVER = 1e9                    # no flush by the clock: chunks close by size and by flush()
 
 
@@ -197,12 +194,7 @@ def test_the_node_records_through_a_writer_process_over_resets(tmp_path, monkeyp
     try:
         writer = node._runs.recorder._writer
         assert isinstance(writer, ProcessBagWriter)
-        for _ in range(2):
-            published = node._counters.published
-            _spin_until(ex, lambda: node._counters.published >= published + 100)
-            resp = node._on_reset(Trigger.Request(), Trigger.Response())
-            assert resp.success, resp.message
-        _spin_until(ex, lambda: node._counters.published >= published + 200)
+        reset_twice(node, ex)
         counts = node._runs.recorder.counts
     finally:
         node.destroy_node()
