@@ -289,13 +289,14 @@ class AttitudeNode(Node):
             self._publish_diagnostics()
         c_end = time.perf_counter_ns()
         wake = max(now_ns - due_ns, 0)
-        self._counters.call(wake + c_end - c_tick, [
+        gc_ns = self._gc.total_ns - gc0
+        self._counters.call(wake + c_end - c_tick, lambda: [
             ('wake', wake),
             ('collect', (c_collect - c_tick, ', '.join(
                 f'{name} {n} owed/{m} now' for name, n, m in owed if n or m))),
             ('publish', c_publish - c_collect), ('record', c_record - c_publish),
             ('batch', (c_batch - c_record, batch)), ('diag', c_end - c_batch),
-            ('gc', self._gc.total_ns - gc0)])
+            ('gc', gc_ns)])
 
     def _grid_due_ns(self, now_ns):
         """Return the scheduler grid time this call was due at (the last one at or before now)."""

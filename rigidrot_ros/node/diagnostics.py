@@ -139,12 +139,14 @@ class Counters:
     slowest: tuple = None   # (ns, phases) of the longest scheduler call of this window
 
     def call(self, total_ns, phases):
-        """Note one scheduler call of ``total_ns``; keep its ``phases`` if the window's longest.
+        """Note one scheduler call of ``total_ns``; keep its phases if the window's longest.
 
-        ``phases`` is a list of ``(name, ns or (ns, detail text))`` in the order they ran.
+        ``phases()`` returns a list of ``(name, ns or (ns, detail text))`` in the order they
+        ran; it is called only for a call that is the window's longest so far (every call
+        passes here, at up to some kHz: its detail text is built only when kept).
         """
         if self.slowest is None or total_ns > self.slowest[0]:
-            self.slowest = (total_ns, phases)
+            self.slowest = (total_ns, phases())
 
     def sampled(self, name, seconds):
         """Count one sample of stream ``name`` that took ``seconds`` to build."""
