@@ -220,18 +220,6 @@ class DenseSpinor:
             return None
         return sign, e, int((at - lo) // h)
 
-    def _prev(self, key):
-        sign, e, j = key
-        if j > 0:
-            return sign, e, j - 1
-        if e < 0:
-            return None
-        pe = e - 1
-        lo, hi, h = self._octave(sign, pe)
-        if h is None:
-            return None
-        return sign, pe, int((hi - lo) / h) - 1
-
     # -- checkpoints for random access ----------------------------------------------------
     def _index(self, key):
         """Return the window index (per direction, from t = 0 outwards) of a key."""
