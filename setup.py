@@ -36,7 +36,6 @@ setup(
         'bench': ['scipy>=1.10', 'matplotlib>=3.7', 'rosbags>=0.10'],
         'test': [
             'pytest>=7',
-            'pytest-rerunfailures>=12',
             'rosbags>=0.10',
             'ahrs>=0.3',
             'allantools>=2019.9',

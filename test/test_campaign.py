@@ -126,6 +126,8 @@ def test_aggregate_on_chi_square_nees():
     (lambda d: d['estimator'].update(factory='no_such_module_xyz:make'), 'no_such_module'),
     (lambda d: d.update(estimator={'command': 'no_such_estimator_xyz --x'}),
      'no_such_estimator_xyz'),
+    (lambda d: d.update(estimator={'command': sys.executable, 'inputs': [3]}),
+     'estimator.inputs must be a list of topic names, got [3]'),
 ])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, capsys, change, word):
     doc = json.loads(json.dumps(SPEC))

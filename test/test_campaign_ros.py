@@ -19,10 +19,6 @@ from test_campaign import _write, SPEC  # noqa: I100, I201 - a test module besid
 pytestmark = pytest.mark.ros
 
 
-# DDS discovery race, not yet fixed: the recorder's subscription can match the
-# estimator's publisher after its first messages (see the stop-22 note); rerun, the
-# assertions unchanged
-@pytest.mark.flaky(reruns=2)
 def test_ros_program_matches_in_process(tmp_path, monkeypatch):
     monkeypatch.setenv('PATH', os.path.dirname(sys.executable) + os.pathsep
                        + os.environ['PATH'])

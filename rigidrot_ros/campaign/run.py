@@ -205,11 +205,13 @@ def _ros(spec, values, work):
                 raise RunFailed(f'the estimator command {est["command"][0]} did not start: '
                                 f'{exc.strerror or exc}') from None
             _wait_for_line(os.path.join(work, 'recorder.log'),
-                           f'recording {est["topics"][0]} ', procs['estimator'],
+                           f'matched {est["topics"][0]} ', procs['estimator'],
                            min(30.0, spec['timeout']))
+            inputs = est.get('inputs') or [t for t in names if not t.endswith('/run')]
             procs['replay'] = subprocess.Popen(
                 _script('rigidrot_replay') + [bag, '--clock', '--rate', repr(est['rate']),
-                                              '--quiet', '--wait', '10', '--topics'] + names,
+                                              '--quiet', '--wait', '10', '--topics'] + names
+                + ['--wait-for'] + inputs,
                 env=env, stdout=logs['replay'], stderr=subprocess.STDOUT)
             while procs['replay'].poll() is None:
                 if procs['estimator'].poll() is not None:
@@ -219,7 +221,9 @@ def _ros(spec, values, work):
                     raise RunFailed(f'timeout: the run took longer than {spec["timeout"]:g} s')
                 time.sleep(0.05)
             if procs['replay'].returncode != 0:
-                raise RunFailed(f'the replay failed with status {procs["replay"].returncode}')
+                said = _tail(os.path.join(work, 'replay.log'), 5).strip().splitlines()
+                raise RunFailed(f'the replay failed with status {procs["replay"].returncode}'
+                                + (f': {said[-1]}' if said else ''))
             time.sleep(est['settle'])
             if procs['estimator'].poll() is not None:
                 raise RunFailed(f'the estimator exited with status '
@@ -242,9 +246,11 @@ def _ros(spec, values, work):
 def _wait_for_line(path, text, proc, limit):
     """Wait (``limit`` s at most) until the log at ``path`` shows ``text``, or proc ends.
 
-    The recorder logs ``recording <topic>`` once the estimator's publisher is in the
-    graph: the estimator is up, and the replay (which waits for its subscribers to match)
-    does not start before it.
+    The runner waits for the recorder's ``matched <topic>``: the recorder's subscription
+    has matched the estimator's publisher, so the estimator's answers to the replay (which
+    itself waits for the estimator's subscriptions to match) are all recorded. Seeing the
+    publisher in the graph (``recording <topic>``) is not enough: on a loaded machine the
+    two ends matched seconds later, after a short replay had ended.
     """
     end = time.monotonic() + limit
     while time.monotonic() < end and proc.poll() is None:

@@ -23,6 +23,8 @@ A spec is a YAML mapping (every key is checked; an unknown one is an error)::
     # estimator:                     # ... or as a ROS program
     #   command: rigidrot_mekf --sigma-v 1.7e-4 --ros-args -p use_sim_time:=true
     #   topics: [/estimator/odom]    # recorded; the first is scored
+    #   inputs: [/imu, /star_tracker]  # replayed once these have subscribers (default:
+    #                                # every sensor topic of the run)
     #   rate: 5.0                    # replay speed, multiple of real time
     #   settle: 1.0                  # s to wait after the replay before stopping it
     #   domain_base: 100             # each run claims a free ROS_DOMAIN_ID in
@@ -60,7 +62,7 @@ TOP_KEYS = ('name', 'seed', 'runs', 'duration', 'timeout', 'base', 'dispersions'
 BASE_KEYS = ('params_file', 'overrides')
 DISPERSIONS = ('attitude0', 'omega0', 'imu.gyro_bias', 'inertia', 'torque')
 INPROC_KEYS = ('factory', 'params', 'topic')
-ROS_KEYS = ('command', 'topics', 'rate', 'settle', 'domain_base', 'domain_span')
+ROS_KEYS = ('command', 'topics', 'inputs', 'rate', 'settle', 'domain_base', 'domain_span')
 
 
 class SpecError(ValueError):
@@ -224,7 +226,13 @@ def _estimator(est):
     if not topics or not all(isinstance(t, str) and t for t in topics):
         raise SpecError(f'estimator.topics must be a list of topic names, got {topics!r}')
     topics = [t if t.startswith('/') else '/' + t for t in topics]
-    return {'kind': 'ros', 'command': cmd, 'topics': topics,
+    inputs = est.get('inputs')
+    if inputs is not None:
+        inputs = [inputs] if isinstance(inputs, str) else inputs
+        if not isinstance(inputs, list) or not all(isinstance(t, str) and t for t in inputs):
+            raise SpecError(f'estimator.inputs must be a list of topic names, got {inputs!r}')
+        inputs = [t if t.startswith('/') else '/' + t for t in inputs]
+    return {'kind': 'ros', 'command': cmd, 'topics': topics, 'inputs': inputs,
             'rate': float(_num('estimator.rate', est.get('rate', 1.0), 0, 1e3,
                                strict_lo=True)),
             'settle': float(_num('estimator.settle', est.get('settle', 1.0), 0, 600)),

@@ -21,16 +21,20 @@ Discovery and what it guarantees:
   history (its ``depth`` last messages). The node's ``~/run`` description is published
   that way, and so is the demo estimator's output.
 - A topic given with its type, ``NAME:pkg/msg/Type``, is subscribed at once (reliable,
-  volatile), before any publisher exists. A publisher that starts later then discovers
-  the subscription together with everything else of this node, so a reliable volatile
-  publisher that answers this node's messages (an estimator fed by the node) is recorded
-  from its first message. If the publisher turns out to be best-effort, the subscription
-  is remade best-effort when the graph shows it.
+  volatile), before any publisher exists. A publisher that starts later discovers the
+  subscription while it discovers the rest of this node, so an estimator fed by the node
+  usually has it matched before its first answer. If the publisher turns out to be
+  best-effort, the subscription is remade best-effort when the graph shows it.
 - A topic given by name only is subscribed when a publisher of it appears in the graph
-  (its type is needed first). A volatile publisher is then recorded from the moment the
-  subscription matches, about one poll period plus DDS endpoint matching (tens of ms
-  here) after the publisher appears; whatever it published before that cannot be had by
-  any recorder (volatile samples are not kept).
+  (its type is needed first), about one poll period after it appears.
+- What is guaranteed for a volatile publisher: every message it publishes once its end
+  has matched this subscription (reliable QoS then redelivers what is still in its
+  history). What it published before that cannot be had by any recorder (volatile
+  samples are not kept). DDS matches the two ends some time after the publisher shows in
+  the graph: tens of ms here, up to seconds on a loaded machine. The recorder says
+  ``recording <topic>`` when it subscribes and ``matched <topic> (N publishers)`` when
+  its subscription has matched; a program that must not lose a publisher's first
+  messages starts feeding it after the second line (the campaign runner does).
 - The bag is flushed at least every ``flush_period`` (0.4 s; a timer flushes even when no
   message arrives), so a SIGKILL loses at most about 0.5 s; :meth:`Recorder.close`
   finishes the file (summary, index, metadata.yaml).
@@ -203,6 +207,7 @@ class Recorder:
         self._runs = bool(runs)
         self._exclude_own = bool(exclude_own)
         self._subs = {}           # topic -> subscription, or None when it cannot be recorded
+        self._matched = set()     # subscribed topics with a matched publisher (reported once)
         self._direct = set()      # topics the node writes through record_published
         self._on_event = on_event or self._log
         self._failed = None
@@ -427,13 +432,34 @@ class Recorder:
                 if any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
                        for i in infos) and self._subs.get(topic) is not None:
                     self._node.destroy_subscription(self._subs.pop(topic))
+                    self._matched.discard(topic)
                     self._subscribe(topic, infos, self._typed[topic])
+        self._report_matches()
         if self.pending and not self._warned_waiting and time.monotonic() - self._started > 5:
             self._warned_waiting = True
             self._on_event('warn', f'still waiting for a publisher of {self.pending}')
         if (not self.pending and not self._all and not self._runs
-                and len(self._verified) == len(self._typed)):
+                and len(self._verified) == len(self._typed)
+                and all(t in self._matched for t, s in self._subs.items() if s is not None)):
             self._poll_timer.cancel()
+
+    def _report_matches(self):
+        """Say ``matched <topic>`` once a subscription has matched a publisher.
+
+        Being in the graph is not being matched: DDS matches the two endpoints some time
+        after the publisher is seen (tens of ms here, seconds on a loaded machine), and a
+        volatile publisher's messages sent before that are not delivered to this
+        subscription. A program that must not lose a publisher's first messages (the
+        campaign's runner) waits for this line, not for ``recording <topic>``.
+        """
+        for topic, sub in self._subs.items():
+            if sub is None or topic in self._matched:
+                continue
+            count = sub.get_publisher_count()
+            if count:
+                self._matched.add(topic)
+                self._on_event('info', f'matched {topic} ({count} publisher'
+                                       f'{"s" if count > 1 else ""})')
 
     def _subscribe(self, topic, infos, type_name=None):
         """Subscribe raw to ``topic``; QoS adapted to ``infos`` (the publishers) if any."""

@@ -23,14 +23,19 @@ from rigidrot_ros.tools.cli import OneLineParser
 SETTLE = 0.5
 
 
-def _wait_for_matching(node, pubs, limit, settle=SETTLE):
+def _wait_for_matching(node, pubs, limit, settle=SETTLE, required=()):
     """Wait until subscribers have matched and stopped arriving; ``limit`` seconds at most.
 
     Discovery on a loaded machine takes up to seconds (1.4 s measured here), and the
     first subscriber to match may be a recorder, not the node under test: a subscriber not
     yet matched would miss the first messages. Playing starts once some subscriber has
-    matched, every subscriber the graph shows has matched, and these counts have not
-    changed for ``settle`` seconds. Returns whether that happened within ``limit``.
+    matched, every subscriber the graph shows has matched, each publisher in ``required``
+    has a matched subscriber, and these counts have not changed for ``settle`` seconds.
+    Returns whether that happened within ``limit``.
+
+    Without ``required`` this cannot tell a subscriber that has not been discovered yet
+    from one that does not exist: a filter whose process is discovered after a recorder's
+    has settled misses the start. ``required`` (``--wait-for``) names what must be there.
     """
     t0 = time.monotonic()
     state, since = None, t0
@@ -42,6 +47,7 @@ def _wait_for_matching(node, pubs, limit, settle=SETTLE):
         if (matched, graph) != state:
             state, since = (matched, graph), now
         if (any(matched) and all(m >= g for m, g in zip(matched, graph))
+                and all(p.get_subscription_count() for p in required)
                 and now - since >= settle):
             return True
     return False
@@ -63,6 +69,9 @@ def main(argv=None):
                     help='wait at most this many seconds for subscribers to match before '
                          'playing (default 5; playing starts once one has and no other has '
                          f'matched for {SETTLE:g} s)')
+    ap.add_argument('--wait-for', nargs='+', default=[], metavar='TOPIC',
+                    help='do not play before each of these replayed topics (or /clock) has '
+                         'a matched subscriber; exit 2 if one has none within --wait')
     opts = ap.parse_args(argv)
     if not (opts.rate > 0 and opts.rate < float('inf')):
         print('rigidrot_replay: --rate must be a positive finite number', file=sys.stderr)
@@ -87,6 +96,11 @@ def main(argv=None):
         if missing:
             raise BagError(f'{bag.path}: no topic(s) {missing}; it has {sorted(bag.topics)}')
         classes = {t: msg_class(bag.topics[t][0], BagError) for t in topics}
+        unplayed = [t for t in opts.wait_for
+                    if t not in classes and not (t == '/clock' and opts.clock)]
+        if unplayed:
+            raise BagError(f'--wait-for {unplayed}: not replayed (the replayed topics are '
+                           f'{sorted(classes) + (["/clock"] if opts.clock else [])})')
     except (BagError, OSError) as exc:
         print(f'rigidrot_replay: {exc}', file=sys.stderr)
         return 2
@@ -110,8 +124,17 @@ def main(argv=None):
     pubs = {t: node.create_publisher(classes[t], t, qos_from_yaml(bag.topics[t][1]))
             for t in classes}
     clock_pub = node.create_publisher(Clock, '/clock', 10) if opts.clock else None
-    _wait_for_matching(node, list(pubs.values()) + ([clock_pub] if clock_pub else []),
-                       opts.wait)
+    every = dict(pubs, **({'/clock': clock_pub} if clock_pub else {}))
+    if (not _wait_for_matching(node, list(every.values()), opts.wait,
+                               required=[every[t] for t in opts.wait_for])
+            and opts.wait_for):
+        alone = [t for t in opts.wait_for if not every[t].get_subscription_count()]
+        if alone:
+            print(f'rigidrot_replay: no subscriber of {", ".join(alone)} matched within '
+                  f'--wait {opts.wait:g} s; nothing was played', file=sys.stderr)
+            node.destroy_node()
+            rclpy.try_shutdown()
+            return 2
     total = (msgs[-1][2] - msgs[0][2]) * 1e-9 if msgs else 0.0
 
     def play(_node):
