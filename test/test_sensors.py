@@ -92,7 +92,7 @@ def test_rate_integrating_discretisation_moments():
     (dict(random_walk='big'), 'gyro_random_walk must be a number'),
     (dict(bias=(0.0, math.inf, 0.0)), 'gyro_bias[1] must be finite'),
     (dict(bias=(1e300, 0.0, 0.0)), 'gyro_bias[0] must be finite'),
-    (dict(bias=(0.0, 0.0)), 'gyro_bias must be a list of 3'),
+    (dict(bias=(0.0, 0.0)), 'gyro_bias must have 3 components, got 2'),
     (dict(seed=-1), 'seed must be an integer'),
     (dict(seed=1.5), 'seed must be an integer'),
     (dict(seed=True), 'seed must be an integer'),

@@ -200,7 +200,7 @@ def test_noise_statistics_match_the_stated_variance():
     (dict(lever_arm=(1e300, 0.0, 0.0)), 'accel.lever_arm[0] must be finite'),
     (dict(lever_arm=(0.0, math.nan, 0.0)), 'accel.lever_arm[1] must be finite'),
     (dict(gravity=(0.0, 0.0, math.inf)), 'accel.gravity[2] must be finite'),
-    (dict(gravity=(0.0, 9.8)), 'accel.gravity must be a list of 3'),
+    (dict(gravity=(0.0, 9.8)), 'accel.gravity must have 3 components, got 2'),
     (dict(noise=ImuNoise()), "needs ImuNoise(kind='accel')"),
 ])
 def test_bad_values_are_refused_naming_the_parameter(kwargs, words):

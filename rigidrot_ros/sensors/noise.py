@@ -14,6 +14,7 @@ import numbers
 import numpy as np
 
 from rigidrot_ros.core import quaternion as quat
+from rigidrot_ros.core.scene import float_vector
 
 __all__ = ['GyroNoise', 'AttitudeNoise', 'ARCSEC', 'check_seed', 'check_nonnegative',
            'check_vector']
@@ -34,10 +35,13 @@ def check_nonnegative(name, value, upper):
 
 
 def check_vector(name, value, limit):
-    """Return a float 3-vector with finite components of magnitude <= limit."""
-    if isinstance(value, (str, bytes)) or not hasattr(value, '__len__') or len(value) != 3:
-        raise ValueError(f'{name} must be a list of 3 numbers, got {value!r}')
-    return check_components(name, value, limit)
+    """Return a float 3-vector with finite components of magnitude <= limit.
+
+    The sequence, its length and its elements are checked by
+    :func:`rigidrot_ros.core.scene.float_vector` (the one check of a list of numbers);
+    this adds the magnitude limit.
+    """
+    return _within(name, float_vector(name, value, 3, 'list', finite=False), limit)
 
 
 def check_components(name, values, limit):
@@ -45,15 +49,17 @@ def check_components(name, values, limit):
 
     An error names the first bad one as ``name[i]`` (its index in ``values``).
     """
-    out = []
+    values = list(values)
+    return _within(name, float_vector(name, values, len(values), 'list', finite=False),
+                   limit)
+
+
+def _within(name, values, limit):
     for i, v in enumerate(values):
-        if isinstance(v, bool) or not isinstance(v, numbers.Real):
-            raise ValueError(f'{name}[{i}] must be a number, got {v!r}')
-        if not math.isfinite(float(v)) or abs(float(v)) > limit:
+        if not math.isfinite(v) or abs(v) > limit:
             raise ValueError(f'{name}[{i}] must be finite with magnitude <= {limit:g}, '
                              f'got {v!r}')
-        out.append(float(v))
-    return np.array(out)
+    return np.array(values)
 
 
 def check_seed(name, value):
