@@ -22,23 +22,40 @@ def _alive(name):
     return [t for t in threading.enumerate() if t.name == name and t.is_alive()]
 
 
+def _step(node, clock, ns):
+    """One scheduler call at ``clock[0] + ns`` of the node's clock; then the worker's done."""
+    clock[0] += ns
+    node._on_timer()
+    assert node._worker.drain(30.0)
+
+
 def test_a_stall_is_caught_up_from_one_batch_nothing_missed_nothing_alone():
     """0.4 s without a call at 1 kHz owes 400 ticks, past the largest batch (256).
 
     Each owed truth tick and gyro sample comes from one catch-up batch (``fill_to``), none
     is evaluated alone (which costs more than a period at 2 kHz: the stall spiral), and
-    none is skipped.
+    none is skipped; after the catch-up every stream's next batch is queued, so none
+    evaluates its next sample alone either. The scheduler is called by hand on a clock
+    the test moves (1 ms a call, then a 0.4 s jump), and the worker's batches are waited
+    for after each call: the same calls every run, whatever the machine's load.
     """
     node, ex, lis = node_and_listener(publish_rate=1000.0, **{'imu.enable': True,
                                                               'imu.rate': 1000.0})
+    clock = [time.time_ns()]
+    node._now_ns = lambda: clock[0]
     try:
-        _spin_until(ex, lambda: node._counters.published >= 400)
+        assert node._worker is not None
+        for _ in range(400):
+            _step(node, clock, 1_000_000)
         imu = node._sensors[0].ahead
         truth_misses, imu_misses = node._ahead.misses, imu.misses
         catch_ups = node._ahead.catch_ups + imu.catch_ups
         published = node._counters.published
-        time.sleep(0.4)                                 # the process is held
-        _spin_until(ex, lambda: node._counters.published >= published + 800)
+        _step(node, clock, 400_000_000)                 # the process was held 0.4 s
+        assert node._counters.published == published + 400
+        for _ in range(400):
+            _step(node, clock, 1_000_000)
+        assert node._counters.published == published + 800
         assert node._counters.missed == 0 and node._counters.skipped == 0
         assert node._ahead.catch_ups + imu.catch_ups >= catch_ups + 2
         assert (node._ahead.misses, imu.misses) == (truth_misses, imu_misses)

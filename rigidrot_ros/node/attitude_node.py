@@ -312,24 +312,36 @@ class AttitudeNode(Node):
         return now_ns - (now_ns - self._grid0) % self._timer_ns
 
     def _refill(self, behind=False):
-        """Run at most one look-ahead batch (:func:`scheduler.next_batch` chooses it).
+        """Start the look-ahead batches this call owes (:func:`scheduler.next_batch` chooses).
 
-        Returns what ran, for the diagnostics: ``'<stream> <samples>'``, ``'deferred'`` or ''.
+        Inline (no worker) at most one: a batch holds the executor. With the worker every
+        stream that needs one gets its batch queued there (each stream at most one at a
+        time): after a catch-up every buffer is empty, and a stream left for a later call
+        would evaluate its next sample alone. Returns what ran, for the diagnostics:
+        ``'<stream> <samples>'`` (comma-separated), ``'deferred'`` or ''.
         """
         streams = [(s.ahead, s.track.last, s.track.rate) for s in self._sensors]
         names = [s.stream.name for s in self._sensors]
         if self._ahead is not None:
             streams.insert(0, (self._ahead, self._tick_k, self._period_hz))
             names.insert(0, 'truth')
-        best = scheduler.next_batch(streams, behind)
-        if best is scheduler.DEFERRED:
-            self._counters.deferred += 1
-            return 'deferred'
-        if best is None:
-            return ''
-        n = best[0].refill(best[1])
-        name = next(nm for (a, _, _), nm in zip(streams, names) if a is best[0])
-        return f'{name} {n}' if n else ''
+        ran = []
+        while streams:
+            best = scheduler.next_batch(streams, behind)
+            if best is scheduler.DEFERRED:
+                self._counters.deferred += 1
+                ran.append('deferred')
+                break
+            if best is None:
+                break
+            n = best[0].refill(best[1])
+            i = next(i for i, (a, _, _) in enumerate(streams) if a is best[0])
+            if n:
+                ran.append(f'{names[i]} {n}')
+            if self._worker is None:
+                break
+            del streams[i], names[i]
+        return ', '.join(ran)
 
     # -- the truth ---------------------------------------------------------------------------
     def _anchor(self, now_ns):
