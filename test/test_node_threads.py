@@ -10,6 +10,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 import pytest
 from rosbags.highlevel import AnyReader
 
+from rigidrot_ros.node import realtime
 from ros_helpers import node_and_listener, reset_twice, spin_until, stamp_ns
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
@@ -119,3 +120,4 @@ def test_diagnostics_name_the_longest_call_by_phase_and_the_gc():
     assert total == pytest.approx(float(values['call_max_us']), rel=1e-3, abs=1.0)
     assert re.fullmatch(r'\d+/\d+/\d+', values['gc_collections'])
     assert float(values['gc_max_us']) >= 0
+    assert values['scheduling'] == realtime.describe()      # this process's policy

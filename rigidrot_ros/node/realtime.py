@@ -2,22 +2,25 @@
 
 What the late gyro samples at 1 kHz were (traced per scheduler call, under load from other
 processes on the 2 cores; doc/node.md): calls that began more than a period after their
-due time while the process did no work at all in the wait, or while the look-ahead worker
-held the interpreter for far longer than its batch costs (5 to 10 ms against 1 to 2 ms):
-the operating system had given both cores to other processes. No scheduling inside the
-process can help there; a real-time policy can: a ``SCHED_FIFO`` thread that wakes up
-preempts every ordinary (``SCHED_OTHER``) thread. Measured, same conditions, back to back:
-229 late samples of 13 001 as an ordinary process, 0 with ``SCHED_FIFO``.
+due time while the process did next to no work in the wait, or while the look-ahead
+worker held the interpreter for far longer than its batch costs (5 to 10 ms against 1 to
+2 ms): the operating system had given both cores to other processes. No scheduling inside
+the process helps there; a real-time policy does: a ``SCHED_FIFO`` thread that becomes
+runnable preempts every ordinary (``SCHED_OTHER``) thread. Measured in the same
+conditions, back to back: 229 late samples of 13 001 as an ordinary process, 0 with
+``SCHED_FIFO``; through the benchmark, 362 and 432 of 20 000 against 1 and 4 (doc/node.md).
 
-:func:`request` (called by ``attitude_node``'s ``main`` before ROS starts, so every thread
-the process makes afterwards, ROS's and the look-ahead worker, inherits it) asks for
-``SCHED_FIFO`` at :data:`PRIORITY` with ``SCHED_RESET_ON_FORK`` (a child process, such as
-the recorder's writer, starts as an ordinary one). It needs the right to (root,
-``CAP_SYS_NICE``, or an ``rtprio`` limit in ``/etc/security/limits.conf``: the set-up ROS
-documents for real-time nodes); without it the node runs as before and says so in one
-line. The kernel's real-time throttling (``sched_rt_runtime_us``: 95 % by default) keeps a
-run-away real-time thread from taking a core whole. ``RIGIDROT_RT_PRIORITY`` sets the
-priority (1 to 99), or ``0`` to keep the ordinary policy.
+:func:`request` (called by ``attitude_node``'s ``main`` before ROS starts) asks for
+``SCHED_FIFO`` at :data:`PRIORITY` for the main thread; every thread made afterwards
+inherits it: ROS's, the look-ahead worker (it holds the interpreter lock while it runs: an
+ordinary worker preempted with the lock held stalls the publishing thread; measured: 61
+and 9 late against 1 and 4 with the publishing thread alone on ``SCHED_FIFO``), and a
+recorder child process. It needs the right to (root, ``CAP_SYS_NICE``, or an ``rtprio``
+limit in ``/etc/security/limits.conf``: the set-up ROS documents for real-time nodes);
+without it the node runs as before and says so in one line. The kernel's real-time
+throttling (``sched_rt_runtime_us``: 95 % by default) keeps a run-away real-time thread
+from taking a core whole. ``RIGIDROT_RT_PRIORITY`` sets the priority (1 to 99), or ``0``
+keeps the ordinary policy.
 """
 
 import os
@@ -70,9 +73,8 @@ def request(priority=None, environ=None):
         return False, 'ordinary scheduling (RIGIDROT_RT_PRIORITY=0)'
     if not hasattr(os, 'sched_setscheduler'):
         return False, 'ordinary scheduling (no sched_setscheduler on this system)'
-    policy = os.SCHED_FIFO | getattr(os, 'SCHED_RESET_ON_FORK', 0)
     try:
-        os.sched_setscheduler(0, policy, os.sched_param(int(priority)))
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
     except OSError as exc:
         return False, (f'ordinary scheduling: SCHED_FIFO {priority} not permitted '
                        f'({exc.strerror}); samples may be late on a loaded machine')
