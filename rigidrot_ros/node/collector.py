@@ -59,7 +59,7 @@ class Freezer:
         self._freeze()
 
     def arm(self):
-        """A run started: freeze once more :data:`FREEZE_AFTER_S` s from now."""
+        """Freeze once more :data:`FREEZE_AFTER_S` s from now (a run started)."""
         if self.on:
             self._due = self._clock() + FREEZE_AFTER_S
 
