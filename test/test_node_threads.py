@@ -11,6 +11,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from rigidrot_ros.node import realtime
+from rigidrot_ros.node.lookahead import AHEAD_MAX
 from ros_helpers import node_and_listener, reset_twice, spin_until, stamp_ns
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
@@ -31,13 +32,16 @@ def _step(node, clock, ns):
 
 
 def test_a_stall_is_caught_up_from_one_batch_nothing_missed_nothing_alone():
-    """0.4 s without a call at 1 kHz owes 400 ticks, past the largest batch (256).
+    """0.9 s without a call at 1 kHz owes 900 ticks, past what a buffer can hold ahead.
+
+    (With the worker a buffer holds at most two batches of ``AHEAD_MAX`` = 256 ahead; a
+    backlog beyond a second would be skipped.)
 
     Each owed truth tick and gyro sample comes from one catch-up batch (``fill_to``), none
     is evaluated alone (which costs more than a period at 2 kHz: the stall spiral), and
     none is skipped; after the catch-up every stream's next batch is queued, so none
     evaluates its next sample alone either. The scheduler is called by hand on a clock
-    the test moves (1 ms a call, then a 0.4 s jump), and the worker's batches are waited
+    the test moves (1 ms a call, then a 0.9 s jump), and the worker's batches are waited
     for after each call: the same calls every run, whatever the machine's load.
     """
     node, ex, lis = node_and_listener(publish_rate=1000.0, **{'imu.enable': True,
@@ -52,11 +56,13 @@ def test_a_stall_is_caught_up_from_one_batch_nothing_missed_nothing_alone():
         truth_misses, imu_misses = node._ahead.misses, imu.misses
         catch_ups = node._ahead.catch_ups + imu.catch_ups
         published = node._counters.published
-        _step(node, clock, 400_000_000)                 # the process was held 0.4 s
-        assert node._counters.published == published + 400
+        assert max(node._ahead.ahead_of(node._tick_k), imu.ahead_of(imu._last)) <= \
+            2 * AHEAD_MAX < 900
+        _step(node, clock, 900_000_000)                 # the process was held 0.9 s
+        assert node._counters.published == published + 900
         for _ in range(400):
             _step(node, clock, 1_000_000)
-        assert node._counters.published == published + 800
+        assert node._counters.published == published + 1300
         assert node._counters.missed == 0 and node._counters.skipped == 0
         assert node._ahead.catch_ups + imu.catch_ups >= catch_ups + 2
         assert (node._ahead.misses, imu.misses) == (truth_misses, imu_misses)
