@@ -10,6 +10,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 import pytest
 from rosbags.highlevel import AnyReader
 
+from rigidrot_ros.node import realtime
+from rigidrot_ros.node.lookahead import AHEAD_MAX
 from ros_helpers import node_and_listener, reset_twice, spin_until, stamp_ns
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
@@ -22,23 +24,45 @@ def _alive(name):
     return [t for t in threading.enumerate() if t.name == name and t.is_alive()]
 
 
+def _step(node, clock, ns):
+    """One scheduler call at ``clock[0] + ns`` of the node's clock; then the worker's done."""
+    clock[0] += ns
+    node._on_timer()
+    assert node._worker.drain(30.0)
+
+
 def test_a_stall_is_caught_up_from_one_batch_nothing_missed_nothing_alone():
-    """0.4 s without a call at 1 kHz owes 400 ticks, past the largest batch (256).
+    """0.9 s without a call at 1 kHz owes 900 ticks, past what a buffer can hold ahead.
+
+    (With the worker a buffer holds at most two batches of ``AHEAD_MAX`` = 256 ahead; a
+    backlog beyond a second would be skipped.)
 
     Each owed truth tick and gyro sample comes from one catch-up batch (``fill_to``), none
     is evaluated alone (which costs more than a period at 2 kHz: the stall spiral), and
-    none is skipped.
+    none is skipped; after the catch-up every stream's next batch is queued, so none
+    evaluates its next sample alone either. The scheduler is called by hand on a clock
+    the test moves (1 ms a call, then a 0.9 s jump), and the worker's batches are waited
+    for after each call: the same calls every run, whatever the machine's load.
     """
     node, ex, lis = node_and_listener(publish_rate=1000.0, **{'imu.enable': True,
                                                               'imu.rate': 1000.0})
+    clock = [time.time_ns()]
+    node._now_ns = lambda: clock[0]
     try:
-        _spin_until(ex, lambda: node._counters.published >= 400)
+        assert node._worker is not None
+        for _ in range(400):
+            _step(node, clock, 1_000_000)
         imu = node._sensors[0].ahead
         truth_misses, imu_misses = node._ahead.misses, imu.misses
         catch_ups = node._ahead.catch_ups + imu.catch_ups
         published = node._counters.published
-        time.sleep(0.4)                                 # the process is held
-        _spin_until(ex, lambda: node._counters.published >= published + 800)
+        assert max(node._ahead.ahead_of(node._tick_k), imu.ahead_of(imu._last)) <= \
+            2 * AHEAD_MAX < 900
+        _step(node, clock, 900_000_000)                 # the process was held 0.9 s
+        assert node._counters.published == published + 900
+        for _ in range(400):
+            _step(node, clock, 1_000_000)
+        assert node._counters.published == published + 1300
         assert node._counters.missed == 0 and node._counters.skipped == 0
         assert node._ahead.catch_ups + imu.catch_ups >= catch_ups + 2
         assert (node._ahead.misses, imu.misses) == (truth_misses, imu_misses)
@@ -102,3 +126,4 @@ def test_diagnostics_name_the_longest_call_by_phase_and_the_gc():
     assert total == pytest.approx(float(values['call_max_us']), rel=1e-3, abs=1.0)
     assert re.fullmatch(r'\d+/\d+/\d+', values['gc_collections'])
     assert float(values['gc_max_us']) >= 0
+    assert values['scheduling'] == realtime.describe()      # this process's policy

@@ -26,8 +26,10 @@ off); where the time went: ``call_max_us`` (median and worst window of the longe
 scheduler call, from its due time to its end) with the worst window's phases
 (``call_max_phases``: wake-up, collect, publish, record, batch, diag, gc; see
 :mod:`rigidrot_ros.node.diagnostics`), and the garbage collector's passes
-(``gc_collections``, summed per generation) and longest pass (``gc_max_us``). A key the
-installed node does not report reads "n/a".
+(``gc_collections``, summed per generation) and longest pass (``gc_max_us``); the node's
+scheduling policy (``scheduling``: ``SCHED_FIFO <priority>`` where the system let it have
+one, else ``SCHED_OTHER``; see :mod:`rigidrot_ros.node.realtime`). A key the installed node
+does not report reads "n/a".
 
 Targets (issue 20): at 1 kHz 0 missed ticks and 0 late gyro samples after warm-up with
 the look-ahead on throughout; at 2 kHz at least 99 % of the ticks delivered; 4 kHz
@@ -283,6 +285,9 @@ def diag_figures(diags, rate, warmup, seconds, t0_ns=None):
     out['gc_collections'] = gens if any('gc_collections' in d['values'] for d in after) \
         else None
     out['gc_max_us'] = _windows(after, 'gc_max_us')
+    policies = sorted({str(d['values']['scheduling']) for d in ticked
+                       if 'scheduling' in d['values']})
+    out['scheduling'] = ', '.join(policies) or None
     before = [d for d in ticked if d['stamp_ns'] <= w_ns]
     base = before[-1] if before else None
     last = next((d for d in ticked if d['stamp_ns'] >= end_ns), ticked[-1])
@@ -370,7 +375,8 @@ def _log_rate(r, log):
         f'{_look(d.get("lookahead"))}; node exit {r["exit_code"]}; target '
         f'{r["target"]}: {r["verdict"]}')
     log(f'    longest call median/worst {_w(d.get("call_max_us"))} us (worst: '
-        f'{d.get("call_max_phases") or "n/a"}); gc passes {_gc(d)}')
+        f'{d.get("call_max_phases") or "n/a"}); gc passes {_gc(d)}; scheduling '
+        f'{d.get("scheduling") or "n/a"}')
 
 
 def _gc(d):
@@ -421,7 +427,7 @@ def render_md(results):
                       (d.get('sensor_latency_p99_us') or {}).items()) or 'n/a',
             _look(d.get('lookahead')), f'{r["target"]}: **{r["verdict"]}**'])
         slow.append([f'{r["rate_hz"]:g}', _w(d.get('call_max_us')),
-                     d.get('call_max_phases') or 'n/a', _gc(d)])
+                     d.get('call_max_phases') or 'n/a', _gc(d), d.get('scheduling') or 'n/a'])
     return common.md_fragment(
         f'The node at IMU rates: truth and gyro at the same rate, recording, '
         f'{common.fmt(res["warmup_s"])} s warm-up then {common.fmt(res["seconds"])} s '
@@ -435,7 +441,7 @@ def render_md(results):
         '(from its due time to its end), and the phases of the worst one (µs; '
         '"owed": samples the call published, "now": of those evaluated then):\n\n'
         + common.md_table(['rate [Hz]', 'longest call [µs]', 'its phases (worst window)',
-                           'gc passes'], slow))
+                           'gc passes', 'scheduling'], slow))
 
 
 def main(argv=None):

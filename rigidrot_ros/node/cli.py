@@ -4,12 +4,12 @@ The node itself is :class:`rigidrot_ros.node.attitude_node.AttitudeNode`; its mo
 ``main`` (the console script's entry point) forwards here with the node class.
 """
 
-import gc
 import sys
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 
+from rigidrot_ros.node import realtime
 from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.params import help_text
 
@@ -59,6 +59,11 @@ def usage():
         '',
         'An invalid scene or argument exits with status 2 and one line saying why; '
         'Ctrl-C or SIGTERM end the node (and finish a recording) with status 0.',
+        'Where the system allows it (root, CAP_SYS_NICE or an rtprio limit) the node runs '
+        'on SCHED_FIFO',
+        f'priority {realtime.PRIORITY} (RIGIDROT_RT_PRIORITY: 1-99, or 0 for the ordinary '
+        'policy), else as an',
+        'ordinary process; /diagnostics reports which (key scheduling).',
     ]
     return '\n'.join(lines)
 
@@ -79,6 +84,11 @@ def main(args=None, node_class=None):
         print(f'{PROG}: unrecognized arguments: {" ".join(own)} (ROS arguments go '
               f'after --ros-args; see {PROG} --help)', file=sys.stderr)
         return 2
+    try:        # before ROS starts: its threads and the look-ahead worker inherit the policy
+        _, sched = realtime.request()
+    except ValueError as exc:
+        print(f'{PROG}: {exc}', file=sys.stderr)
+        return 2
     reason = init_ros(PROG, ros_args)
     if reason is not None:
         print(f'{PROG}: {reason}', file=sys.stderr)
@@ -97,9 +107,7 @@ def main(args=None, node_class=None):
               file=sys.stderr)
         rclpy.try_shutdown()
         return 2
-    # what start-up made (modules, the solution, rclpy's objects) is never garbage: keep it
-    # out of the collector, whose full passes over it held the executor for ~20 ms
-    gc.freeze()
+    node.get_logger().info(sched)
     spin_until_shutdown(node)
     return 0
 
