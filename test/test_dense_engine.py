@@ -174,20 +174,53 @@ def test_far_kummer_route_overlaps_arb_1f1(prec):
 
 
 @pytest.mark.parametrize('prec', [70, 128])
-def test_far_spinor_route_overlaps_the_1f1_route(prec):
+@pytest.mark.parametrize('uprec', [None, 'auto'])
+def test_far_spinor_route_overlaps_the_1f1_route(prec, uprec):
+    # (v1, v2) from three Tricomi U and the Wronskian (DLMF 13.2.42), the U summed at the
+    # working precision or at the cheaper _u_prec, against Arb's four 1F1 (no U at all)
     kernel, c, b = _flint_kernel(prec)
     seen = 0
     with b.workprec(prec):
         for tv in (-2e4, -300.0, 0.0, 10.0, 90.0, 311.5, 2.5e3, 9.9e4):
             s = (c['r0'] + c['U'] * b.real(tv)) / c['sqrtU']
-            far = kernel._spinor_far(c, s)
+            up = None if uprec is None else \
+                kernel._u_prec(float((s * s).real.mid()), prec)
+            far = kernel._spinor_far(c, s, up)
             if far is None:
                 assert float(abs(s * s).upper()) <= 2 * kernel.FAR_Z * (1 + 1e-9)
                 continue
             seen += 1
-            ye, yep, yo, yop = kernel._fundamental(c, s)
-            for ref, got in ((c['C1'] * ye + c['C2'] * yo, far[0]),
-                             (c['C1'] * yep + c['C2'] * yop, far[1])):
+            far_z = kernel.FAR_Z
+            try:
+                kernel.FAR_Z = None                       # Arb's 1F1 itself, no U
+                ye, yep, yo, yop = kernel._fundamental(c, s)
+            finally:
+                kernel.FAR_Z = far_z
+            v1 = c['C1'] * ye + c['C2'] * yo
+            v1s = c['C1'] * yep + c['C2'] * yop
+            v2 = -(2 * c['i'] * v1s + s * v1) / c['dbar']
+            for ref, got in ((v1, far[0]), (v2, far[1])):
                 assert ref.overlaps(got)
-                assert float(abs(got).rad()) <= 4 * float(abs(ref).rad()) + 2.0 ** -(prec - 8)
+                # and the ball is narrow: about as the reference's, or far below the
+                # anchors' floor (dense.ANCHOR_FLOOR 4e-15) where the U are summed cheaper
+                floor = 2.0 ** -(prec - 8) if up is None or up >= prec else 1e-17
+                assert b.radius(got) <= 4 * b.radius(ref) + floor, (tv, up)
     assert seen >= 5
+
+
+def test_far_route_repeats_its_u_at_the_working_precision_where_the_bound_misses():
+    # a U precision far too low for tol: _at_prec repeats the U at prec (the same value
+    # as asking for prec outright) rather than returning the wide ball
+    kernel, c, b = _flint_kernel(96)
+    t = 311.5
+    full = kernel._at_prec(t, 96, 96)
+    low = kernel._spinor_far(c, (c['r0'] + c['U'] * b.real(t)) / c['sqrtU'], 24)
+    assert b.radius(low[1]) > kernel.FAR_RETRY * kernel.tol       # the cheap try misses
+    bits = kernel.U_BITS
+    try:
+        kernel.U_BITS = -100                                     # _u_prec gives 16 bits
+        again = kernel._at_prec(t, 96)
+    finally:
+        kernel.U_BITS = bits
+    assert np.array_equal(again[0], full[0]) and again[1] == full[1]
+    assert full[1] <= 2.3e-16 + kernel.FAR_RETRY * kernel.tol

@@ -138,6 +138,10 @@ class _FlintBackend:
     def workprec(self, p):
         return self.flint.ctx.workprec(p)
 
+    def prec(self):
+        """Return the working precision, bits."""
+        return self.flint.ctx.prec
+
     def real(self, x):
         """Exact (or correctly rounded) conversion of an mpf/float to an arb ball."""
         if type(x) is float:
@@ -186,6 +190,11 @@ class _FlintBackend:
     @staticmethod
     def abs(z):
         return float(abs(z).upper())
+
+    @staticmethod
+    def radius(z):
+        """Radius of a complex ball (2-norm of its parts' radii), float."""
+        return math.hypot(float(z.real.rad()), float(z.imag.rad()))
 
     @staticmethod
     def parts(z):

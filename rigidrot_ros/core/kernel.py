@@ -238,6 +238,13 @@ class HyperKernel:
     #: With flint, Kummer's functions at ``|z| = s^2 / 2`` from this up are formed from
     #: Tricomi's U (:meth:`_kummer_far`); None: always 1F1.
     FAR_Z = 100.0
+    #: With flint, the far route's Tricomi U are summed at this many bits plus those of
+    #: |z| and of their phase (:meth:`_u_prec`), not at the working precision (whose bits
+    #: go to the phase s^2 / 4 and the constants).
+    U_BITS = 60
+    #: ... and again at the working precision where their bound passes this share of tol
+    #: (at 1e-3 an anchor's bound stays at its floor, see :mod:`.dense`).
+    FAR_RETRY = 1e-3
     #: Bits added to the starting precision of a dense anchor away from t = 0
     #: (:meth:`prec_at`).
     PREC_MARGIN = 8
@@ -280,6 +287,7 @@ class HyperKernel:
         self.start_prec = self.prec              # dense anchors start here (determinism)
         self._need0, self._ms0 = need - 2 * ms0, ms0
         self._s_float = (float(self.r0), float(self.U), float(self.sqrtU))
+        self._alpha_abs = math.hypot(0.5, float(self.half_delta))
         if not self.backend.certified and self.predicted > self.max_prec:
             # mpmath would grind through hopeless precisions: say so at once
             raise PrecisionError(
@@ -379,22 +387,66 @@ class HyperKernel:
             out.append(g1 * u + g2 * ez * v)
         return out
 
-    def _spinor_far(self, c, s):
-        """``(v1, dv1/ds)`` at s from four Tricomi U, or None where |z| < FAR_Z.
+    def _far_constants(self, c, sign):
+        """Per-precision constants of :meth:`_spinor_far` for one sign of s (cached in c).
 
-        In the basis ``F1 = U(alpha, 1/2, z)``, ``F2 = e^z U(c, 1/2, -z)`` (``c = 1/2 -
-        alpha``) of Kummer's equation, :meth:`_kummer_far` and DLMF 13.2.40 give
-        ``v1 = e^{-z/2} (A F1 + B F2)`` with constants for each sign of s:
+        ``A``, ``B`` (below), ``K = e^{i pi c} sqrt 2 e^{-i pi/4}`` (so that ``e^{i pi c}
+        z^{-1/2} = K / |s|``) and ``2 / conj(Delta)`` (over sqrt U).
+        """
+        b = self.backend
+        key = ('spinor_far', sign)
+        k = c.get(key)
+        if k is None:
+            self._kummer_far(c, c['i'] * b.real(4 * self.FAR_Z) / 2)   # the G constants
+            g = c['far']
+            pi_i = b.pi_i()
+            sqrt2 = b.sqrt(b.real(2))
+            kk = sqrt2 * b.exp(-pi_i / 4)                            # sqrt 2 e^{-i pi/4}
+            kc = sqrt2 * b.exp(pi_i / 4)
+            k = c[key] = {
+                'A': c['C1'] * g['m1'][0] + c['C2'] * sign * kk * g['m3'][0],
+                'B': c['C1'] * g['m1'][1] + c['C2'] * sign * kc * g['m3'][1],
+                'K': b.exp(pi_i * g['c12']) * kk,
+                'two_dbar': c['two'] / c['dbar'],
+            }
+        return k
+
+    def _u_prec(self, s2, prec):
+        """Bits at which :meth:`_spinor_far` sums its Tricomi U: a function of s^2 and prec.
+
+        ``U_BITS`` plus the bits of |z| (the Wronskian step below cancels about that many)
+        and of the phase ``|alpha| log |z|`` of ``z^{-alpha}``, rounded up to 16; at most
+        ``prec``. Only a cost choice: the balls say what came out, and :meth:`_at_prec`
+        repeats the U at ``prec`` where the bound missed tol.
+        """
+        z = 0.5 * s2
+        if not 1.0 < z < math.inf:
+            return prec
+        bits = (self.U_BITS + math.frexp(z)[1]
+                + math.frexp(self._alpha_abs * (math.log(z) + 4.0) + 1.0)[1])
+        return min(prec, max(16, -(-bits // 16) * 16))
+
+    def _spinor_far(self, c, s, uprec=None):
+        """``(v1, v2)`` at s from three Tricomi U, or None where |z| < FAR_Z.
+
+        In the basis ``F1 = U(alpha, 1/2, z)``, ``e^z F2``, ``F2 = U(c, 1/2, -z)`` (``c =
+        1/2 - alpha``) of Kummer's equation, :meth:`_kummer_far` and DLMF 13.2.40 give
+        ``v1 = e^{-z/2} (A F1 + B e^z F2)`` with constants for each sign of s:
 
             A = C1 G1(m1) + C2 sgn(s) k G1(m3),   B = C1 G2(m1) + C2 sgn(s) conj(k) G2(m3),
 
         ``k = sqrt 2 e^{-i pi/4}`` (``s z^{-1/2}``; ``s (-z)^{-1/2} = sgn(s) conj(k)``).
-        With ``dz/ds = i s``, ``U'(a, b, z) = -a U(a + 1, b + 1, z)`` (DLMF 13.3.22):
+        With ``dz/ds = i s`` and ``U'(a, b, z) = -a U(a + 1, b + 1, z)`` (DLMF 13.3.22),
+        ``v2 = -(2 i dv1/ds + s v1) / conj(Delta)`` (in units of sqrt U) is
 
-            dv1/ds = i s e^{-z/2} [A (-F1/2 - alpha U(alpha + 1, 3/2, z))
-                                   + B e^z (U(c, 1/2, -z)/2 + c U(c + 1, 3/2, -z))].
+            v2 = (2 s / conj(Delta)) [B e^{z/2} c F2d - A e^{-z/2} G],
+            G = F1 + alpha F1d,   F1d = U(alpha + 1, 3/2, z),   F2d = U(c + 1, 3/2, -z),
 
-        Four U in all (and one exponential), in Arb balls.
+        and the Wronskian ``W{U(a, b, z), e^z U(b - a, b, e^{-i pi} z)} = e^{i pi (b - a)}
+        z^{-b} e^z`` (DLMF 13.2.42, Im z > 0) gives ``c F2d = (e^{i pi c} z^{-1/2} - F2 G)
+        / F1``: three U, not four (and one exponential, its conjugate the other). The U
+        are summed at ``uprec`` bits (:meth:`_u_prec`; None: the working precision), the
+        rest at the working precision, all in Arb balls: certified as the 1F1 route is.
         """
         b = self.backend
         s2 = s * s
@@ -403,31 +455,21 @@ class HyperKernel:
         sign = 1 if s > 0 else -1 if s < 0 else 0
         if not sign:
             return None
-        key = ('spinor_far', sign)
-        ab = c.get(key)
-        if ab is None:
-            self._kummer_far(c, c['i'] * b.real(4 * self.FAR_Z) / 2)   # the G constants
-            g = c['far']
-            k = b.sqrt(b.real(2)) * b.exp(-b.pi_i() / 4)              # sqrt 2 e^{-i pi/4}
-            kc = b.sqrt(b.real(2)) * b.exp(b.pi_i() / 4)
-            ab = c[key] = (c['C1'] * g['m1'][0] + c['C2'] * sign * k * g['m3'][0],
-                           c['C1'] * g['m1'][1] + c['C2'] * sign * kc * g['m3'][1])
-        a_, b_ = ab
-        g = c['far']
-        i = c['i']
-        z = i * s2 / 2
-        mz = -z
+        k = self._far_constants(c, sign)
+        z = c['i'] * s2 / 2
         e_half = b.exp(z / 2)
-        e_mhalf = 1 / e_half
-        f1 = b.hypu(c['alpha'], c['b12'], z)
-        f1d = b.hypu(c['alpha1'], c['b32'], z)              # U(alpha + 1, 3/2, z)
-        f2 = b.hypu(g['c12'], c['b12'], mz)                 # U(c, 1/2, -z)
-        f2d = b.hypu(g['c12'] + 1, c['b32'], mz)            # U(c + 1, 3/2, -z)
-        half = c['half']
-        v1 = e_mhalf * a_ * f1 + e_half * b_ * f2
-        v1s = i * s * (e_mhalf * a_ * (-half * f1 - c['alpha'] * f1d)
-                       + e_half * b_ * (half * f2 + g['c12'] * f2d))
-        return v1, v1s
+        e_mhalf = e_half.conjugate()                # z / 2 is imaginary (real part exactly 0)
+        alpha = c['alpha']
+        with b.workprec(uprec or b.prec()):
+            f1 = b.hypu(alpha, c['b12'], z)
+            f1d = b.hypu(c['alpha1'], c['b32'], z)               # U(alpha + 1, 3/2, z)
+            f2 = b.hypu(c['far']['c12'], c['b12'], -z)            # U(c, 1/2, -z)
+        g = f1 + alpha * f1d
+        a_f1 = e_mhalf * k['A']
+        b_f2 = e_half * k['B']
+        v1 = a_f1 * f1 + b_f2 * f2
+        v2 = (k['two_dbar'] * s) * (b_f2 * ((k['K'] / (sign * s) - f2 * g) / f1) - a_f1 * g)
+        return v1, v2
 
     def _fundamental(self, c, s):
         """(y_e, y_e', y_o, y_o') at s, derivatives in s."""
@@ -450,19 +492,30 @@ class HyperKernel:
         return ye, yep, yo, yop
 
     # -- evaluation -----------------------------------------------------------------------
-    def _at_prec(self, t, prec):
+    def _at_prec(self, t, prec, uprec=None):
+        """Quaternion and bound at t with ``prec`` working bits (the far route's U at uprec).
+
+        ``uprec`` None: :meth:`_u_prec`; where the far route's bound then passes
+        ``FAR_RETRY`` of tol, the U are summed again at ``prec`` (a function of t and
+        prec alone, as the first try is).
+        """
         b = self.backend
+        far = None
         with b.workprec(prec):
             c = self._constants(prec)
             s = (c['r0'] + c['U'] * b.real(t)) / c['sqrtU']
-            far = self._spinor_far(c, s) if b.certified and self.FAR_Z is not None else None
+            if b.certified and self.FAR_Z is not None:
+                if uprec is None:
+                    r0, u, su = self._s_float
+                    uprec = self._u_prec(((r0 + u * t) / su) ** 2, prec)
+                far = self._spinor_far(c, s, uprec)
             if far is not None:
-                v1, v1s = far
+                v1, v2 = far
             else:
                 ye, yep, yo, yop = self._fundamental(c, s)
                 v1 = c['C1'] * ye + c['C2'] * yo
                 v1s = c['C1'] * yep + c['C2'] * yop
-            v2 = -(2 * c['i'] * v1s + s * v1) / c['dbar']
+                v2 = -(2 * c['i'] * v1s + s * v1) / c['dbar']
             w, z, r1 = b.parts(v1)
             my, x, r2 = b.parts(v2)
             q = np.array([x, -my, z, w])
@@ -480,6 +533,8 @@ class HyperKernel:
         if not (math.isfinite(x) and math.isfinite(my) and math.isfinite(z)
                 and math.isfinite(w)):
             err = math.inf
+        if far is not None and uprec < prec and not err <= self.FAR_RETRY * self.tol:
+            return self._at_prec(t, prec, prec)
         # float64 rounding of the four components
         return q, err + 2.3e-16
 
