@@ -164,9 +164,15 @@ class _FlintBackend:
         return z.hypgeom_1f1(a, b)
 
     @staticmethod
-    def hypu(a, b, z):
-        """Tricomi's U(a, b, z), principal branch."""
-        return z.hypgeom_u(a, b)
+    def hypu(a, b, z, n=-1):
+        """Tricomi's U(a, b, z), principal branch.
+
+        ``n >= 0``: Arb's asymptotic series with n terms (its error bound is rigorous
+        whatever n; a poor n only widens the ball); -1: Arb chooses the method and terms.
+        """
+        if n < 0:
+            return z.hypgeom_u(a, b)
+        return z.hypgeom_u(a, b, n=n, asymp=True)
 
     def gamma(self, z):
         return z.gamma()

@@ -168,20 +168,21 @@ class DenseSpinor:
 
     # -- the grid -------------------------------------------------------------------------
     def _grid_rt(self):
-        """Typical largest ``R h`` of a window: the median over the octaves up to 2^20 s.
+        """Largest ``R h`` of a window over the octaves up to 2^20 s: the block's reach.
 
         A function of the scene alone (t >= 0; octaves of fewer than 128 windows, near
-        t = 0 where ``R`` changes fast, left out). Only a cost estimate: a block in an
-        octave of larger ``R h`` re-anchors exactly where its bound would pass the limit,
-        so a query there may pay a second exact evaluation. ``0.85 RT`` where no octave
-        qualifies.
+        t = 0 where ``R`` changes fast, left out). Only a cost estimate: a block whose
+        chains would pass the limit before its ends re-anchors exactly there, so a query
+        there may pay a second exact evaluation; sized from the largest ``R h`` (not the
+        median), a block reaches its ends from its middle at every horizon. ``0.85 RT``
+        where no octave qualifies.
         """
         rts = []
         for e in range(-1, 21):
             lo, hi, h = self._octave(1, e)
             if h is not None and (hi - lo) / h >= 128:
                 rts.append(max(self._rate(lo), self._rate(hi)) * h)
-        return min(RT, sorted(rts)[len(rts) // 2]) if rts else 0.85 * RT
+        return min(RT, max(rts)) if rts else 0.85 * RT
 
     def _rate(self, t):
         return math.hypot(abs(self.r0 + self.u * t), self.dabs)

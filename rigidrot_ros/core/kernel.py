@@ -288,6 +288,7 @@ class HyperKernel:
         self._need0, self._ms0 = need - 2 * ms0, ms0
         self._s_float = (float(self.r0), float(self.U), float(self.sqrtU))
         self._alpha_abs = math.hypot(0.5, float(self.half_delta))
+        self._nterms = {}                        # exponent of |z| -> terms of the far U
         if not self.backend.certified and self.predicted > self.max_prec:
             # mpmath would grind through hopeless precisions: say so at once
             raise PrecisionError(
@@ -426,6 +427,34 @@ class HyperKernel:
                 + math.frexp(self._alpha_abs * (math.log(z) + 4.0) + 1.0)[1])
         return min(prec, max(16, -(-bits // 16) * 16))
 
+    def _u_terms(self, s2):
+        """Terms of the asymptotic series of the far route's U at ``|z| = s2 / 2`` (or -1).
+
+        The terms of ``U(a, b, z) ~ z^{-a} sum (a)_k (a - b + 1)_k / (k! (-z)^k)`` (DLMF
+        13.7.3) have ratios at most ``(|alpha| + 1.5 + k)^2 / ((k + 1) |z|)`` for the three
+        U of :meth:`_spinor_far`; n is the first k where their product falls below
+        ``2^-(U_BITS + bits of |z|)`` (cached by the exponent of |z|, with |z| rounded
+        down to a power of two). -1 where the terms stop falling first (Arb then chooses):
+        only a cost choice, since Arb bounds the remainder rigorously whatever n.
+        """
+        e = math.frexp(0.5 * s2)[1]
+        n = self._nterms.get(e)
+        if n is None:
+            z = math.ldexp(1.0, e - 1)                      # <= |z|
+            a = self._alpha_abs + 1.5
+            target = math.ldexp(1.0, -(self.U_BITS + e))
+            term, n = 1.0, -1
+            for k in range(400):
+                ratio = (a + k) ** 2 / ((k + 1) * z)
+                term *= ratio
+                if term <= target:
+                    n = k + 1
+                    break
+                if ratio >= 1.0 and k > a:                # diverging before the target
+                    break
+            self._nterms[e] = n
+        return n
+
     def _spinor_far(self, c, s, uprec=None):
         """``(v1, v2)`` at s from three Tricomi U, or None where |z| < FAR_Z.
 
@@ -445,8 +474,10 @@ class HyperKernel:
         and the Wronskian ``W{U(a, b, z), e^z U(b - a, b, e^{-i pi} z)} = e^{i pi (b - a)}
         z^{-b} e^z`` (DLMF 13.2.42, Im z > 0) gives ``c F2d = (e^{i pi c} z^{-1/2} - F2 G)
         / F1``: three U, not four (and one exponential, its conjugate the other). The U
-        are summed at ``uprec`` bits (:meth:`_u_prec`; None: the working precision), the
-        rest at the working precision, all in Arb balls: certified as the 1F1 route is.
+        are summed at ``uprec`` bits (:meth:`_u_prec`) with :meth:`_u_terms` terms of their
+        asymptotic series (None or the working precision: Arb's own choice of method and
+        terms), the rest at the working precision, all in Arb balls: certified as the 1F1
+        route is.
         """
         b = self.backend
         s2 = s * s
@@ -460,10 +491,13 @@ class HyperKernel:
         e_half = b.exp(z / 2)
         e_mhalf = e_half.conjugate()                # z / 2 is imaginary (real part exactly 0)
         alpha = c['alpha']
-        with b.workprec(uprec or b.prec()):
-            f1 = b.hypu(alpha, c['b12'], z)
-            f1d = b.hypu(c['alpha1'], c['b32'], z)               # U(alpha + 1, 3/2, z)
-            f2 = b.hypu(c['far']['c12'], c['b12'], -z)            # U(c, 1/2, -z)
+        prec = b.prec()
+        uprec = uprec or prec
+        n = self._u_terms(float(s2.real.mid())) if uprec < prec else -1
+        with b.workprec(uprec):
+            f1 = b.hypu(alpha, c['b12'], z, n)
+            f1d = b.hypu(c['alpha1'], c['b32'], z, n)            # U(alpha + 1, 3/2, z)
+            f2 = b.hypu(c['far']['c12'], c['b12'], -z, n)         # U(c, 1/2, -z)
         g = f1 + alpha * f1d
         a_f1 = e_mhalf * k['A']
         b_f2 = e_half * k['B']
