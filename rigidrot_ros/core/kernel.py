@@ -239,9 +239,9 @@ class HyperKernel:
     #: Tricomi's U (:meth:`_kummer_far`); None: always 1F1.
     FAR_Z = 100.0
     #: With flint, the far route's Tricomi U are summed at this many bits plus those of
-    #: |z| and of their phase (:meth:`_u_prec`), not at the working precision (whose bits
-    #: go to the phase s^2 / 4 and the constants).
-    U_BITS = 60
+    #: their phase (:meth:`_u_prec`), not at the working precision (whose bits go to the
+    #: phase s^2 / 4 and the constants).
+    U_BITS = 64
     #: ... and again at the working precision where their bound passes this share of tol
     #: (at 1e-3 an anchor's bound stays at its floor, see :mod:`.dense`).
     FAR_RETRY = 1e-3
@@ -391,8 +391,8 @@ class HyperKernel:
     def _far_constants(self, c, sign):
         """Per-precision constants of :meth:`_spinor_far` for one sign of s (cached in c).
 
-        ``A``, ``B`` (below), ``K = e^{i pi c} sqrt 2 e^{-i pi/4}`` (so that ``e^{i pi c}
-        z^{-1/2} = K / |s|``) and ``2 / conj(Delta)`` (over sqrt U).
+        ``A``, ``Bp = sgn(s) B e^{-i pi/4} / sqrt 2``, ``Bq = sgn(s) B c sqrt 2 e^{i pi/4}``
+        (see there) and ``2 / conj(Delta)`` (in units of sqrt U).
         """
         b = self.backend
         key = ('spinor_far', sign)
@@ -401,13 +401,14 @@ class HyperKernel:
             self._kummer_far(c, c['i'] * b.real(4 * self.FAR_Z) / 2)   # the G constants
             g = c['far']
             pi_i = b.pi_i()
-            sqrt2 = b.sqrt(b.real(2))
+            sqrt2 = b.sqrt(c['two'])
             kk = sqrt2 * b.exp(-pi_i / 4)                            # sqrt 2 e^{-i pi/4}
             kc = sqrt2 * b.exp(pi_i / 4)
+            bb = c['C1'] * g['m1'][1] + c['C2'] * sign * kc * g['m3'][1]
             k = c[key] = {
                 'A': c['C1'] * g['m1'][0] + c['C2'] * sign * kk * g['m3'][0],
-                'B': c['C1'] * g['m1'][1] + c['C2'] * sign * kc * g['m3'][1],
-                'K': b.exp(pi_i * g['c12']) * kk,
+                'Bp': sign * bb * kk / 2,
+                'Bq': sign * bb * g['c12'] * kc,
                 'two_dbar': c['two'] / c['dbar'],
             }
         return k
@@ -415,36 +416,36 @@ class HyperKernel:
     def _u_prec(self, s2, prec):
         """Bits at which :meth:`_spinor_far` sums its Tricomi U: a function of s^2 and prec.
 
-        ``U_BITS`` plus the bits of |z| (the Wronskian step below cancels about that many)
-        and of the phase ``|alpha| log |z|`` of ``z^{-alpha}``, rounded up to 16; at most
-        ``prec``. Only a cost choice: the balls say what came out, and :meth:`_at_prec`
-        repeats the U at ``prec`` where the bound missed tol.
+        ``U_BITS`` plus the bits of the phase ``|alpha| log |z|`` of ``z^{-alpha}``,
+        rounded up to 16; at most ``prec``. Only a cost choice: the balls say what came
+        out, and :meth:`_at_prec` repeats the U at ``prec`` where the bound missed tol.
         """
         z = 0.5 * s2
         if not 1.0 < z < math.inf:
             return prec
-        bits = (self.U_BITS + math.frexp(z)[1]
-                + math.frexp(self._alpha_abs * (math.log(z) + 4.0) + 1.0)[1])
+        bits = self.U_BITS + math.frexp(self._alpha_abs * (math.log(z) + 4.0) + 1.0)[1]
         return min(prec, max(16, -(-bits // 16) * 16))
 
     def _u_terms(self, s2):
         """Terms of the asymptotic series of the far route's U at ``|z| = s2 / 2`` (or -1).
 
         The terms of ``U(a, b, z) ~ z^{-a} sum (a)_k (a - b + 1)_k / (k! (-z)^k)`` (DLMF
-        13.7.3) have ratios at most ``(|alpha| + 1.5 + k)^2 / ((k + 1) |z|)`` for the three
+        13.7.3) have ratios at most ``(|alpha| + 1.5 + k)^2 / ((k + 1) |z|)`` for the two
         U of :meth:`_spinor_far`; n is the first k where their product falls below
-        ``2^-(U_BITS + bits of |z|)`` (cached by the exponent of |z|, with |z| rounded
-        down to a power of two). -1 where the terms stop falling first (Arb then chooses):
-        only a cost choice, since Arb bounds the remainder rigorously whatever n.
+        ``2^-U_BITS`` (cached by the exponent of |z|, with |z| rounded down to a power of
+        two). -1 where the terms stop falling first, or grow at first (``(|alpha| + 1.5)^2
+        > |z| / 2``: there Arb's remainder bound is far above the first term left out), and
+        Arb then chooses: only a cost choice, since Arb bounds the remainder rigorously
+        whatever n.
         """
         e = math.frexp(0.5 * s2)[1]
         n = self._nterms.get(e)
         if n is None:
             z = math.ldexp(1.0, e - 1)                      # <= |z|
             a = self._alpha_abs + 1.5
-            target = math.ldexp(1.0, -(self.U_BITS + e))
+            target = math.ldexp(1.0, -self.U_BITS)
             term, n = 1.0, -1
-            for k in range(400):
+            for k in range(400 if a * a <= 0.5 * z else 0):
                 ratio = (a + k) ** 2 / ((k + 1) * z)
                 term *= ratio
                 if term <= target:
@@ -456,7 +457,7 @@ class HyperKernel:
         return n
 
     def _spinor_far(self, c, s, uprec=None):
-        """``(v1, v2)`` at s from three Tricomi U, or None where |z| < FAR_Z.
+        """``(v1, v2)`` at s from two Tricomi U, or None where |z| < FAR_Z.
 
         In the basis ``F1 = U(alpha, 1/2, z)``, ``e^z F2``, ``F2 = U(c, 1/2, -z)`` (``c =
         1/2 - alpha``) of Kummer's equation, :meth:`_kummer_far` and DLMF 13.2.40 give
@@ -469,15 +470,25 @@ class HyperKernel:
         ``v2 = -(2 i dv1/ds + s v1) / conj(Delta)`` (in units of sqrt U) is
 
             v2 = (2 s / conj(Delta)) [B e^{z/2} c F2d - A e^{-z/2} G],
-            G = F1 + alpha F1d,   F1d = U(alpha + 1, 3/2, z),   F2d = U(c + 1, 3/2, -z),
+            G = F1 + alpha F1d,   F1d = U(alpha + 1, 3/2, z),   F2d = U(c + 1, 3/2, -z).
 
-        and the Wronskian ``W{U(a, b, z), e^z U(b - a, b, e^{-i pi} z)} = e^{i pi (b - a)}
-        z^{-b} e^z`` (DLMF 13.2.42, Im z > 0) gives ``c F2d = (e^{i pi c} z^{-1/2} - F2 G)
-        / F1``: three U, not four (and one exponential, its conjugate the other). The U
-        are summed at ``uprec`` bits (:meth:`_u_prec`) with :meth:`_u_terms` terms of their
-        asymptotic series (None or the working precision: Arb's own choice of method and
-        terms), the rest at the working precision, all in Arb balls: certified as the 1F1
-        route is.
+        Here z = i s^2 / 2 is imaginary, so ``-z = conj(z)``, and ``conj(alpha) = c + 1/2``:
+        with ``conj U(a, b, z) = U(conj a, b, conj z)`` (b real), Kummer's transformation
+        ``U(a, b, z) = z^{1-b} U(a - b + 1, 2 - b, z)`` (DLMF 13.2.40) and the contiguous
+        relation ``U(a, b, z) = a U(a + 1, b, z) + U(a, b - 1, z)`` (DLMF 13.3.10),
+
+            F2 = (-z)^{1/2} conj(G),   F2d = (-z)^{-1/2} conj(F1),
+
+        ``(-z)^{1/2} = |s| e^{-i pi/4} / sqrt 2``. So
+
+            v1 = e^{-z/2} A F1 + e^{z/2} Bp s conj(G),
+            v2 = (2 / conj(Delta)) [e^{z/2} Bq conj(F1) - s e^{-z/2} A G]
+
+        (:meth:`_far_constants`): two U (and one exponential, its conjugate the other).
+        The U are summed at ``uprec`` bits (:meth:`_u_prec`) with :meth:`_u_terms` terms
+        of their asymptotic series (None or the working precision: Arb's own choice of
+        method and terms), the rest at the working precision, all in Arb balls: certified
+        as the 1F1 route is.
         """
         b = self.backend
         s2 = s * s
@@ -490,19 +501,16 @@ class HyperKernel:
         z = c['i'] * s2 / 2
         e_half = b.exp(z / 2)
         e_mhalf = e_half.conjugate()                # z / 2 is imaginary (real part exactly 0)
-        alpha = c['alpha']
         prec = b.prec()
         uprec = uprec or prec
         n = self._u_terms(float(s2.real.mid())) if uprec < prec else -1
         with b.workprec(uprec):
-            f1 = b.hypu(alpha, c['b12'], z, n)
+            f1 = b.hypu(c['alpha'], c['b12'], z, n)
             f1d = b.hypu(c['alpha1'], c['b32'], z, n)            # U(alpha + 1, 3/2, z)
-            f2 = b.hypu(c['far']['c12'], c['b12'], -z, n)         # U(c, 1/2, -z)
-        g = f1 + alpha * f1d
-        a_f1 = e_mhalf * k['A']
-        b_f2 = e_half * k['B']
-        v1 = a_f1 * f1 + b_f2 * f2
-        v2 = (k['two_dbar'] * s) * (b_f2 * ((k['K'] / (sign * s) - f2 * g) / f1) - a_f1 * g)
+        g = f1 + c['alpha'] * f1d
+        a_ = k['A']
+        v1 = e_mhalf * (a_ * f1) + e_half * ((k['Bp'] * s) * g.conjugate())
+        v2 = k['two_dbar'] * (e_half * (k['Bq'] * f1.conjugate()) - (s * e_mhalf) * (a_ * g))
         return v1, v2
 
     def _fundamental(self, c, s):
