@@ -36,12 +36,12 @@ with the majorant ``(n + 1) m_(n+1) = (R_a/2) m_n + (U/2) m_(n-1)``, ``m_0 = 1 +
 ``sqrt(X_a^2 + |D|^2) (1 + 4 eps)``, above the exact norm of the float generator). A
 rounding error made at coefficient n propagates under the same majorant, so the computed
 coefficients are off by at most ``m_n sum_(k<=n) rho_k / m_k`` with ``rho_k <= 8 eps
-m_k``: per component, each step forms ``X a + (p b + q b') + U c`` (three products, three
-sums, as Python's complex arithmetic did: 7.5 eps) and one product by ``fl(1 / (n + 1)) /
-2`` (the factor ``i / 2`` and the halving are exact; the rounded reciprocal, common to the
-four components, and the product add at most 2 u = eps relative, of which the quotient
-``/ (2 (n + 1))`` this replaced, for speed, was counted as half: 8.1 eps was the padded
-7.5 eps, 8.7 eps is 8 eps padded alike). Horner's rule with real ``dt`` makes two roundings per step (a
+m_k``: per component, each step forms ``X a + (p b + q b') + U c`` (three products,
+three sums, as Python's complex arithmetic did: 7.5 eps) and one product by
+``fl(1 / (n + 1)) / 2`` (the factor ``i / 2`` and the halving are exact). The rounded
+reciprocal, common to the four components, and the product add at most 2 u = eps
+relative; the quotient by ``2 (n + 1)`` they replaced (for speed) was counted as u =
+eps / 2. So 8.1 eps (7.5 eps padded) became 8.7 eps (8 eps padded alike). Horner's rule with real ``dt`` makes two roundings per step (a
 product, a sum: never fused), each relative to a partial sum bounded by
 ``sum_(j>=k) m_j h^(j-k)``. The last line is Duhamel's bound for a generator off by at
 most ``dX + dU |dt| + dD`` (the float inputs and the float ``X_a = r0 + U a`` against the
