@@ -37,18 +37,19 @@ with the majorant ``(n + 1) m_(n+1) = (R_a/2) m_n + (U/2) m_(n-1)``, ``m_0 = 1 +
 rounding error made at coefficient n propagates under the same majorant, so the computed
 coefficients are off by at most ``m_n sum_(k<=n) rho_k / m_k`` with ``rho_k <= 8 eps
 m_k``: per component, each step forms ``X a + (p b + q b') + U c`` (three products,
-three sums, as Python's complex arithmetic did: 7.5 eps) and one product by
-``fl(1 / (n + 1)) / 2`` (the factor ``i / 2`` and the halving are exact). The rounded
-reciprocal, common to the four components, and the product add at most 2 u = eps
-relative; the quotient by ``2 (n + 1)`` they replaced (for speed) was counted as u =
-eps / 2. So 8.1 eps (7.5 eps padded) became 8.7 eps (8 eps padded alike). Horner's
-rule with real ``dt`` makes two roundings per step (a product, a sum: never fused), each
-relative to a partial sum bounded by ``sum_(j>=k) m_j h^(j-k)``. The last line is Duhamel's bound for a generator off by at
-most ``dX + dU |dt| + dD`` (the float inputs and the float ``X_a = r0 + U a`` against the
-exact inputs), under unitary propagators. The chain's next anchor is such a sample (at
-``dt = h``), so its bound is the window's bound, ``E_a + own``: the exact solution from
-a perturbed anchor moves by no more than the perturbation (unitary). A window whose
-bound exceeds the kernel's tol is evaluated sample by sample (certified) instead.
+three sums, as Python's complex arithmetic did: 7.5 eps) and one product by ``fl(1 / (n
++ 1)) / 2`` (the factor ``i / 2`` and the halving are exact). The rounded reciprocal,
+common to the four components, and the product add at most 2 u = eps relative; the
+quotient by ``2 (n + 1)`` they replaced (for speed) was counted as u = eps / 2. So 8.1
+eps (7.5 eps padded) became 8.7 eps (8 eps padded alike). Horner's rule with real ``dt``
+makes two roundings per step (a product, a sum: never fused), each relative to a partial
+sum bounded by ``sum_(j>=k) m_j h^(j-k)``. The last line is Duhamel's bound for a
+generator off by at most ``dX + dU |dt| + dD`` (the float inputs and the float ``X_a =
+r0 + U a`` against the exact inputs), under unitary propagators. The chain's next anchor
+is such a sample (at ``dt = h``), so its bound is the window's bound, ``E_a + own``: the
+exact solution from a perturbed anchor moves by no more than the perturbation (unitary).
+A window whose bound exceeds the kernel's tol is evaluated sample by sample (certified)
+instead.
 """
 
 import bisect
