@@ -146,6 +146,11 @@ class DenseSpinor:
         self._prm = np.array([self.r0, self.u, self.p, self.q, dabs_up, self.d_r0, self.d_u,
                               self.d_d, self.tol, self.chain_limit])
         self._co = np.empty((engine.MAX_TERMS, 4))       # scratch: one window's series
+        # how an exact anchor is had (see _exact), looked up once
+        self._cap = min(self.tol, max(ANCHOR_TOL * self.tol, ANCHOR_FLOOR))
+        self._prec_at = getattr(kernel, 'prec_at', None)
+        self._start_prec = getattr(kernel, 'start_prec', None)
+        self._anchor_fn = getattr(kernel, 'anchor', None) or kernel.evaluate
         self._k = None
         self._engine()                 # numba loaded (once a process) here, not at a sample
         self._octaves = {}
@@ -156,6 +161,8 @@ class DenseSpinor:
         reach = (self.chain_limit - cap) / (1.05 * engine.own_per_window(self._grid_rt()))
         self._half = int(min(BLOCK // 2, max(4, reach)))
         self._blen = 2 * self._half
+        self._ramp = np.arange(self._blen, dtype=float)     # 0, 1, ... for window anchors
+        self._widths = {}                                   # signed width -> (blen,) of it
         self._offsets = {1: [0], -1: [0]}           # windows before octave e (index e + 1)
         self._blocks = OrderedDict()                # (sign, first index) -> _Block
         self._revisits = 1.0                        # running share of queries in kept blocks
@@ -328,12 +335,16 @@ class DenseSpinor:
         blk = _Block()
         if g and end <= offs[e0 + 2]:               # one octave (nearly always)
             lo, hi, h = self._octave(sign, e0)
-            j = np.arange(b0 - offs[e0 + 1], end - offs[e0 + 1], dtype=float)
-            j *= sign * h                           # exact: h a power of two, j < 2^53
-            j += sign * lo
-            blk.a = j
-            blk.hs = np.empty(g)
-            blk.hs.fill(sign * h)
+            sh = sign * h
+            if g > len(self._ramp):                 # not a block of this grid (tests)
+                self._ramp = np.arange(g, dtype=float)
+                self._widths = {}
+            blk.a = self._ramp[:g] * sh             # exact: h a power of two, k < 2^53
+            blk.a += sign * (lo + (b0 - offs[e0 + 1]) * h)      # exact: a window's anchor
+            hs = self._widths.get(sh)
+            if hs is None or len(hs) < g:
+                hs = self._widths[sh] = np.full(len(self._ramp), sh)  # shared, never written
+            blk.hs = hs[:g]
         else:                                       # several octaves (near t = 0)
             los, hsz, first, count = [], [], [], []
             pos, e = b0, e0
@@ -354,9 +365,9 @@ class DenseSpinor:
         blk.lo = blk.hi = blk.m
         blk.fresh = True
         if g:
-            st = np.array(self._exact_state(float(blk.a[blk.m])))
-            blk.anc[blk.m] = st
-            blk.fwd, blk.back = st, st.copy()
+            st = blk.anc[blk.m]
+            st[:] = self._exact_state(float(blk.a[blk.m]))
+            blk.fwd, blk.back = st.copy(), st.copy()
         else:
             blk.a = blk.hs = blk.fwd = blk.back = None
         self.blocks_filled += 1
@@ -381,15 +392,13 @@ class DenseSpinor:
         every anchor whatever came before.
         """
         kernel = self.kernel
-        cap = min(self.tol, max(ANCHOR_TOL * self.tol, ANCHOR_FLOOR))
-        if hasattr(kernel, 'prec_at'):
-            kernel.prec = kernel.prec_at(a) or kernel.start_prec
-        elif hasattr(kernel, 'start_prec'):
-            kernel.prec = kernel.start_prec
-        (x, y, z, w), err_a = (kernel.anchor if hasattr(kernel, 'anchor') else
-                               kernel.evaluate)(a)
+        if self._prec_at is not None:
+            kernel.prec = self._prec_at(a) or kernel.start_prec
+        elif self._start_prec is not None:
+            kernel.prec = self._start_prec
+        (x, y, z, w), err_a = self._anchor_fn(a)
         self.exact_anchors += 1
-        return complex(w, z), complex(-y, x), max(float(err_a), cap)
+        return complex(w, z), complex(-y, x), max(float(err_a), self._cap)
 
     def _chain(self, blk, upto, whole=True):
         """Chain a block's anchors outwards on to its window ``upto - 1`` at least.

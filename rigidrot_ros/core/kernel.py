@@ -242,9 +242,12 @@ class HyperKernel:
     #: their phase (:meth:`_u_prec`), not at the working precision (whose bits go to the
     #: phase s^2 / 4 and the constants).
     U_BITS = 64
+    #: ... with their asymptotic series cut where its terms fall below 2^-U_TERM_BITS
+    #: (:meth:`_u_terms`; Arb's remainder bound is some 2^6 above the first term left out)
+    U_TERM_BITS = 56
     #: ... and again at the working precision where their bound passes this share of tol
-    #: (at 1e-3 an anchor's bound stays at its floor, see :mod:`.dense`).
-    FAR_RETRY = 1e-3
+    #: (1/64: a dense anchor's bound stays at its floor, ``dense.ANCHOR_TOL`` tol).
+    FAR_RETRY = 1.0 / 64
     #: Bits added to the starting precision of a dense anchor away from t = 0
     #: (:meth:`prec_at`).
     PREC_MARGIN = 8
@@ -288,7 +291,7 @@ class HyperKernel:
         self._need0, self._ms0 = need - 2 * ms0, ms0
         self._s_float = (float(self.r0), float(self.U), float(self.sqrtU))
         self._alpha_abs = math.hypot(0.5, float(self.half_delta))
-        self._nterms = {}                        # exponent of |z| -> terms of the far U
+        self._nterms = {}                        # |z| to 5 bits -> terms of the far U
         if not self.backend.certified and self.predicted > self.max_prec:
             # mpmath would grind through hopeless precisions: say so at once
             raise PrecisionError(
@@ -432,18 +435,18 @@ class HyperKernel:
         The terms of ``U(a, b, z) ~ z^{-a} sum (a)_k (a - b + 1)_k / (k! (-z)^k)`` (DLMF
         13.7.3) have ratios at most ``(|alpha| + 1.5 + k)^2 / ((k + 1) |z|)`` for the two
         U of :meth:`_spinor_far`; n is the first k where their product falls below
-        ``2^-U_BITS`` (cached by the exponent of |z|, with |z| rounded down to a power of
-        two). -1 where the terms stop falling first, or grow at first (``(|alpha| + 1.5)^2
-        > |z| / 2``: there Arb's remainder bound is far above the first term left out), and
-        Arb then chooses: only a cost choice, since Arb bounds the remainder rigorously
-        whatever n.
+        ``2^-U_TERM_BITS`` (cached by |z| rounded down to 5 bits). -1 where the terms stop
+        falling first, or grow at first (``(|alpha| + 1.5)^2 > |z| / 2``: there Arb's
+        remainder bound is far above the first term left out), and Arb then chooses: only
+        a cost choice, since Arb bounds the remainder rigorously whatever n.
         """
-        e = math.frexp(0.5 * s2)[1]
-        n = self._nterms.get(e)
+        m, e = math.frexp(0.5 * s2)
+        key = (e, int(16.0 * m))
+        n = self._nterms.get(key)
         if n is None:
-            z = math.ldexp(1.0, e - 1)                      # <= |z|
+            z = math.ldexp(key[1], e - 4)                  # <= |z|, within 1/8 of it
             a = self._alpha_abs + 1.5
-            target = math.ldexp(1.0, -self.U_BITS)
+            target = math.ldexp(1.0, -self.U_TERM_BITS)
             term, n = 1.0, -1
             for k in range(400 if a * a <= 0.5 * z else 0):
                 ratio = (a + k) ** 2 / ((k + 1) * z)
@@ -453,7 +456,7 @@ class HyperKernel:
                     break
                 if ratio >= 1.0 and k > a:                # diverging before the target
                     break
-            self._nterms[e] = n
+            self._nterms[key] = n
         return n
 
     def _spinor_far(self, c, s, uprec=None):
