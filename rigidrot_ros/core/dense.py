@@ -1,27 +1,28 @@
 """Dense output: many samples of the exact spinor from few exact evaluations.
 
 The time axis is cut into a fixed grid of windows: each octave ``[2^e, 2^(e+1))`` of |t|
-(and ``[0, 1)``) into windows of one power-of-two width ``h`` with ``R h <= RT`` and
-``U h^2 <= RT`` (``R`` the largest rate ``sqrt(X^2 + |D|^2)`` in the octave). Window
+(and ``[0, 1)``) into windows of one power-of-two width ``h`` with ``R h <= RT`` and ``U
+h^2 <= RT`` (``R`` the largest rate ``sqrt(X^2 + |D|^2)`` in the octave). Window
 boundaries are exact floats, so ``t - a`` is exact (Sterbenz), and a window is the same
 whichever query builds it. Inside a window anchored at ``a`` (the end nearer t = 0) the
 exact solution's own Taylor series about ``a`` (the recurrence of :mod:`.taylor`, in
 float64) gives every sample by Horner's rule. The anchors are checkpoints kept in blocks
 of at most ``BLOCK`` consecutive windows at every horizon: a block starts from an exact
 evaluation (1F1, certified Taylor continuation or the adiabatic series; the identity at
-t = 0) in its middle and chains window to window outwards and inwards (the next anchor is
-the window's own series at its end), re-anchored exactly where the chained bound would
-pass 0.9 of the kernel's tol; a block is twice the windows a chain can go at that tol, so
-a query pays one exact evaluation. A block is chained the first time a query needs it,
-both ways as far as its ends or the next exact anchor nobody asked for yet (each anchor
-follows from the one before alone, so the values do not depend on where a chain
-stopped); blocks are kept in a bounded store (``CHECKPOINT_BYTES``). The arithmetic
-(series, Horner's rule, chain) is compiled (:mod:`.engine`, numba, no fused or
-reassociated operations) and shared by scalar calls, batches and chains. So a sample is
-a function of t alone: the same bits from a scalar call, from a batch of any size or
-order, and whatever was evaluated before (issue 18: the node and the offline generator
-agree byte for byte). No window's series is kept: a
-scalar call builds it (about 0.5 us compiled) and a batch builds it once per window.
+t = 0) in its middle and chains window to window outwards and inwards (the next anchor
+is the window's own series at its end), re-anchored exactly where the chained bound
+would pass the kernel's tol less room for one window (``chain_limit``); a block is twice
+the windows a chain can go at that tol, so a query pays one exact evaluation. A block is
+chained as far as the queries need it, on to its ends where queries come back
+(:data:`REVISITS`), never past an exact anchor nobody asked for yet (each anchor follows
+from the one before alone, so the values do not depend on where a chain stopped); blocks
+are kept in a bounded store (``CHECKPOINT_BYTES``). The arithmetic (series, Horner's
+rule, chain) is compiled (:mod:`.engine`, numba, no fused or reassociated operations)
+and shared by scalar calls, batches and chains. So a sample is a function of t alone:
+the same bits from a scalar call, from a batch of any size or order, and whatever was
+evaluated before (issue 18: the node and the offline generator agree byte for byte). No
+window's series is kept: a scalar call builds it (about 0.5 us compiled) and a batch
+builds it once per window.
 
 Bound for every sample of a window (2-norm of the spinor error), all terms a priori:
 
@@ -70,12 +71,16 @@ _EPS = engine.EPS
 #: per window with 20-term series; 4 would need 30 terms and give 5e-14.
 RT = 2.0
 #: Checkpoints for random access: the spinor at the anchor of every window, in blocks of
-#: this many consecutive windows per direction. A block chains from an exact evaluation
-#: at its first anchor (the identity at t = 0), re-anchored exactly where the chained
-#: bound would pass 0.9 tol (at tol = 1e-12 about every 120 windows); 40 bytes a window
-#: (two complex, one bound), 56 while the block's chain is partial (anchor times and
-#: widths kept). One block costs its exact evaluation and about 0.2 us a window chained.
+#: at most this many consecutive windows per direction. A block chains from an exact
+#: evaluation in its middle (the identity at t = 0), re-anchored exactly where the chained
+#: bound would pass ``chain_limit`` (at tol = 1e-12 about every 110-150 windows); 40 bytes
+#: a window (two complex, one bound), 56 while the block's chain is partial (anchor times
+#: and widths kept). One block costs its exact evaluation and about 0.14 us a window
+#: chained.
 BLOCK = 512
+#: A chain re-anchors exactly where its bound would pass ``tol - 2 own_per_window(RT)``
+#: (room for one more window's samples), but not below this share of tol.
+CHAIN_LIMIT_FLOOR = 0.5
 #: An exact anchor's bound is at least this fraction of the kernel's tol (see
 #: DenseSpinor._exact).
 ANCHOR_TOL = 1.0 / 64
@@ -140,7 +145,10 @@ class DenseSpinor:
             self.d_u = float(du) * 1.0001
             self.d_d = float(mpmath.sqrt(dp * dp + dq * dq)) * 1.0001
         self.tol = kernel.tol
-        self.chain_limit = 0.9 * self.tol
+        # chains stop where the next window's samples could pass tol: its own bound is at
+        # most own_per_window(RT) (R h <= RT), with a factor 2 for the parameter terms
+        self.chain_limit = max(CHAIN_LIMIT_FLOOR * self.tol,
+                               self.tol - 2.0 * engine.own_per_window(RT))
         # |D| rounded up: the majorant's rate must not fall below the exact one
         dabs_up = math.sqrt(self.p * self.p + self.q * self.q) * (1 + 4 * _EPS)
         self._prm = np.array([self.r0, self.u, self.p, self.q, dabs_up, self.d_r0, self.d_u,
@@ -307,7 +315,7 @@ class DenseSpinor:
 
         Deterministic: the anchors of a block (:data:`BLOCK` windows) chain from an
         exact evaluation at the block's first anchor (the identity at t = 0),
-        re-anchored exactly where the chained bound would pass 0.9 tol. Each anchor
+        re-anchored exactly where the chained bound would pass ``chain_limit``. Each anchor
         follows from the one before it alone, so its value never depends on which query
         built the block or on what was evaluated before.
         """
@@ -404,7 +412,8 @@ class DenseSpinor:
         """Chain a block's anchors outwards on to its window ``upto - 1`` at least.
 
         Compiled (:func:`.engine.chain`): each anchor is the window before evaluated at
-        its end, re-anchored exactly where the chained bound would pass 0.9 tol. With
+        its end, re-anchored exactly where the chained bound would pass ``chain_limit``.
+        With
         ``whole`` the chain goes on past ``upto`` while it is cheap: up to the block's end
         or the next window that needs an exact evaluation.
         """
