@@ -292,6 +292,7 @@ class HyperKernel:
         self._s_float = (float(self.r0), float(self.U), float(self.sqrtU))
         self._alpha_abs = math.hypot(0.5, float(self.half_delta))
         self._nterms = {}                        # |z| to 5 bits -> terms of the far U
+        self._ubits = {}                         # exponent of |z| -> bits of the far U
         if not self.backend.certified and self.predicted > self.max_prec:
             # mpmath would grind through hopeless precisions: say so at once
             raise PrecisionError(
@@ -426,7 +427,11 @@ class HyperKernel:
         z = 0.5 * s2
         if not 1.0 < z < math.inf:
             return prec
-        bits = self.U_BITS + math.frexp(self._alpha_abs * (math.log(z) + 4.0) + 1.0)[1]
+        e = math.frexp(z)[1]
+        bits = self._ubits.get(e)
+        if bits is None:                        # |z| < 2^e: log |z| < e log 2
+            bits = self._ubits[e] = self.U_BITS + math.frexp(
+                self._alpha_abs * (e * math.log(2.0) + 4.0) + 1.0)[1]
         return min(prec, max(16, -(-bits // 16) * 16))
 
     def _u_terms(self, s2):
@@ -459,7 +464,7 @@ class HyperKernel:
             self._nterms[key] = n
         return n
 
-    def _spinor_far(self, c, s, uprec=None):
+    def _spinor_far(self, c, s, uprec=None, s2f=None):
         """``(v1, v2)`` at s from two Tricomi U, or None where |z| < FAR_Z.
 
         In the basis ``F1 = U(alpha, 1/2, z)``, ``e^z F2``, ``F2 = U(c, 1/2, -z)`` (``c =
@@ -506,7 +511,7 @@ class HyperKernel:
         e_mhalf = e_half.conjugate()                # z / 2 is imaginary (real part exactly 0)
         prec = b.prec()
         uprec = uprec or prec
-        n = self._u_terms(float(s2.real.mid())) if uprec < prec else -1
+        n = self._u_terms(s2f or float(s2.real.mid())) if uprec < prec else -1
         with b.workprec(uprec):
             f1 = b.hypu(c['alpha'], c['b12'], z, n)
             f1d = b.hypu(c['alpha1'], c['b32'], z, n)            # U(alpha + 1, 3/2, z)
@@ -550,10 +555,12 @@ class HyperKernel:
             c = self._constants(prec)
             s = (c['r0'] + c['U'] * b.real(t)) / c['sqrtU']
             if b.certified and self.FAR_Z is not None:
+                r0, u, su = self._s_float
+                s2f = (r0 + u * t) / su
+                s2f *= s2f                          # inf, not OverflowError, past the range
                 if uprec is None:
-                    r0, u, su = self._s_float
-                    uprec = self._u_prec(((r0 + u * t) / su) ** 2, prec)
-                far = self._spinor_far(c, s, uprec)
+                    uprec = self._u_prec(s2f, prec)
+                far = self._spinor_far(c, s, uprec, s2f)
             if far is not None:
                 v1, v2 = far
             else:
@@ -561,12 +568,19 @@ class HyperKernel:
                 v1 = c['C1'] * ye + c['C2'] * yo
                 v1s = c['C1'] * yep + c['C2'] * yop
                 v2 = -(2 * c['i'] * v1s + s * v1) / c['dbar']
-            w, z, r1 = b.parts(v1)
-            my, x, r2 = b.parts(v2)
-            q = np.array([x, -my, z, w])
-            if b.certified:
-                err = math.hypot(r1, r2)
+            if far is not None:
+                # Arb balls: midpoints (nearest doubles) and radii (bounds in the plane);
+                # a non-finite value is caught below
+                c1, c2 = complex(v1), complex(v2)
+                w, z, my, x = c1.real, c1.imag, c2.real, c2.imag
+                err = math.hypot(float(v1.rad()), float(v2.rad()))
             else:
+                w, z, r1 = b.parts(v1)
+                my, x, r2 = b.parts(v2)
+            q = np.array([x, -my, z, w])
+            if far is None and b.certified:
+                err = math.hypot(r1, r2)
+            elif far is None:
                 # running-error estimate: eps * ||Y(s)|| * ||Y(s0)^-1|| * |u0| * v2 gain,
                 # times the phases s^2 / 4 and s0^2 / 4 (rounding s moves them by eps s^2 / 2)
                 ns = max(b.abs(ye), b.abs(yep), b.abs(yo), b.abs(yop))
