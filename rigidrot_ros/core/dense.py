@@ -86,6 +86,10 @@ CHAIN_LIMIT_FLOOR = 0.5
 ANCHOR_TOL = 1.0 / 64
 #: ... but not below this (the kernels' own float floor is about 2.3e-16).
 ANCHOR_FLOOR = 4e-15
+#: Arrays of one window width (a block's widths are a view of one) kept at most: with the
+#: ramp of anchor offsets, ``GRID_BYTES`` in all.
+WIDTHS_KEPT = 4
+GRID_BYTES = (WIDTHS_KEPT + 1) * 8 * BLOCK
 #: Checkpoint blocks kept, least recently used dropped beyond this many bytes (2.6 MB:
 #: 512 full blocks).
 CHECKPOINT_BYTES = 40 * 65536
@@ -351,6 +355,8 @@ class DenseSpinor:
             blk.a += sign * (lo + (b0 - offs[e0 + 1]) * h)      # exact: a window's anchor
             hs = self._widths.get(sh)
             if hs is None or len(hs) < g:
+                if len(self._widths) >= WIDTHS_KEPT:
+                    self._widths.clear()
                 hs = self._widths[sh] = np.full(len(self._ramp), sh)  # shared, never written
             blk.hs = hs[:g]
         else:                                       # several octaves (near t = 0)
@@ -373,22 +379,22 @@ class DenseSpinor:
         blk.lo = blk.hi = blk.m
         blk.fresh = True
         if g:
-            st = blk.anc[blk.m]
-            st[:] = self._exact_state(float(blk.a[blk.m]))
-            blk.fwd, blk.back = st.copy(), st.copy()
+            st = np.array(self._exact_state(float(blk.a[blk.m])))
+            blk.anc[blk.m] = st
+            blk.fwd, blk.back = st, st.copy()
         else:
             blk.a = blk.hs = blk.fwd = blk.back = None
         self.blocks_filled += 1
         return blk
 
     def _exact_state(self, a):
+        """Anchor state ``(c1.re, c1.im, c2.re, c2.im, bound)`` at a by :meth:`_exact`."""
         if a == 0.0:
             return 1.0, 0.0, 0.0, 0.0, 0.0
-        c1, c2, err = self._exact(a)
-        return c1.real, c1.imag, c2.real, c2.imag, err
+        return self._exact(a)
 
     def _exact(self, a):
-        """Return the spinor (c1, c2) at an anchor by the exact kernel, and a fixed bound.
+        """Return the spinor ``(c1.re, c1.im, c2.re, c2.im)`` at an anchor, and a fixed bound.
 
         The kernel adapts its working precision to what earlier calls needed, so the bound
         it states (and, rarely, the last bit of a value) could depend on history. Here the
@@ -406,7 +412,7 @@ class DenseSpinor:
             kernel.prec = self._start_prec
         (x, y, z, w), err_a = self._anchor_fn(a)
         self.exact_anchors += 1
-        return complex(w, z), complex(-y, x), max(float(err_a), self._cap)
+        return float(w), float(z), -float(y), float(x), max(float(err_a), self._cap)
 
     def _chain(self, blk, upto, whole=True):
         """Chain a block's anchors outwards on to its window ``upto - 1`` at least.
@@ -471,7 +477,7 @@ class DenseSpinor:
             blk = self._block_or_none(sign, n) if n is not None else None
             if blk is not None:
                 a = sign * (lo + j * h)
-                x, y, z, w, bound, ok = self._engine()[0](
+                x, y, z, w, bound, ok = self._k[0](
                     self._prm, a, h, t - a, blk.anc[n % self._blen], self._co)
                 if ok:
                     return (x, y, z, w), bound
