@@ -28,7 +28,7 @@ Bound for every sample of a window (2-norm of the spinor error), all terms a pri
 
     E_a                                   the anchor's bound (exact or chained)
     + 4 max(m_N h^N, m_(N-1) h^(N-1))     the truncated tail (majorant ratio <= 1/4)
-    + 8.7 eps sum n m_n h^n               rounding in the coefficient recurrence
+    + 8.1 eps sum n m_n h^n               rounding in the coefficient recurrence
     + 2.02 eps sum (n + 1) m_n h^n        rounding in Horner's rule (samples and chaining)
     + (dX + dD) h / 2 + dU h^2 / 4        float64 parameters against the exact ones
 
@@ -36,21 +36,17 @@ with the majorant ``(n + 1) m_(n+1) = (R_a/2) m_n + (U/2) m_(n-1)``, ``m_0 = 1 +
 (``H_a`` is Hermitian with norm ``R_a``, so ``|c_n| <= m_n``; ``R_a`` is formed as
 ``sqrt(X_a^2 + |D|^2) (1 + 4 eps)``, above the exact norm of the float generator). A
 rounding error made at coefficient n propagates under the same majorant, so the computed
-coefficients are off by at most ``m_n sum_(k<=n) rho_k / m_k`` with ``rho_k <= 8 eps
+coefficients are off by at most ``m_n sum_(k<=n) rho_k / m_k`` with ``rho_k <= 7.5 eps
 m_k``: per component, each step forms ``X a + (p b + q b') + U c`` (three products,
-three sums, as Python's complex arithmetic did: 7.5 eps) and one product by ``fl(1 / (n
-+ 1)) / 2`` (the factor ``i / 2`` and the halving are exact). The rounded reciprocal,
-common to the four components, and the product add at most 2 u = eps relative; the
-quotient by ``2 (n + 1)`` they replaced (for speed) was counted as u = eps / 2. So 8.1
-eps (7.5 eps padded) became 8.7 eps (8 eps padded alike). Horner's rule with real ``dt``
-makes two roundings per step (a product, a sum: never fused), each relative to a partial
-sum bounded by ``sum_(j>=k) m_j h^(j-k)``. The last line is Duhamel's bound for a
-generator off by at most ``dX + dU |dt| + dD`` (the float inputs and the float ``X_a =
-r0 + U a`` against the exact inputs), under unitary propagators. The chain's next anchor
-is such a sample (at ``dt = h``), so its bound is the window's bound, ``E_a + own``: the
-exact solution from a perturbed anchor moves by no more than the perturbation (unitary).
-A window whose bound exceeds the kernel's tol is evaluated sample by sample (certified)
-instead.
+three sums, as Python's complex arithmetic did) and one quotient by ``2 (n + 1)`` (the
+factor ``i / 2`` is exact). Horner's rule with real ``dt`` makes two roundings per step
+(a product, a sum: never fused), each relative to a partial sum bounded by ``sum_(j>=k)
+m_j h^(j-k)``. The last line is Duhamel's bound for a generator off by at most ``dX + dU
+|dt| + dD`` (the float inputs and the float ``X_a = r0 + U a`` against the exact
+inputs), under unitary propagators. The chain's next anchor is such a sample (at ``dt =
+h``), so its bound is the window's bound, ``E_a + own``: the exact solution from a
+perturbed anchor moves by no more than the perturbation (unitary). A window whose bound
+exceeds the kernel's tol is evaluated sample by sample (certified) instead.
 """
 
 import bisect
@@ -75,7 +71,7 @@ RT = 2.0
 #: evaluation in its middle (the identity at t = 0), re-anchored exactly where the chained
 #: bound would pass ``chain_limit`` (at tol = 1e-12 about every 110-150 windows); 40 bytes
 #: a window (two complex, one bound), 56 while the block's chain is partial (anchor times
-#: and widths kept). One block costs its exact evaluation and about 0.14 us a window
+#: and widths kept). One block costs its exact evaluation and about 0.2 us a window
 #: chained.
 BLOCK = 512
 #: A chain re-anchors exactly where its bound would pass ``tol - 2 own_per_window(RT)``
