@@ -263,9 +263,10 @@ def test_far_route_at_large_delta_overlaps_arb_1f1_at_high_precision():
     assert len(kernel._nterms) >= 1             # 5e4 s: the terms were chosen here
 
 
-@pytest.mark.parametrize('scene', [SCENE, Scene(inertia=(2.0, 2.0, 3.0),
-                                               torque=(0.0, 0.0, 2e-4),
-                                               omega0=(0.3, -0.2, 0.5))])
+SPACECRAFT = Scene(inertia=(2.0, 2.0, 3.0), torque=(0.0, 0.0, 2e-4), omega0=(0.3, -0.2, 0.5))
+
+
+@pytest.mark.parametrize('scene', [SCENE, SPACECRAFT])
 def test_block_layout_is_every_windows_own_anchor_and_width(scene):
     # blocks laid out from a shared ramp (one octave) or octave by octave (near t = 0)
     # hold each window's anchor and signed width as the grid defines them, exactly
