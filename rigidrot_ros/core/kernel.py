@@ -611,9 +611,10 @@ class HyperKernel:
             prec = min(prec, ceiling)
             if self.predicted > 2 * self.FALLBACK_BITS:
                 prec = ceiling + 1                   # hopeless for 1F1: straight to Taylor
+        uprec = None                             # the cheap U first, full ones once raised
         while prec <= ceiling:
             try:
-                q, err = self._at_prec(t, prec)
+                q, err = self._at_prec(t, prec, uprec)
             except PrecisionError:
                 q, err = None, math.inf
             if err <= self.tol:
@@ -625,6 +626,7 @@ class HyperKernel:
             step = 32 if not math.isfinite(err) else \
                 max(32, int(math.log2(err) - math.log2(self.tol)) + 16)
             prec = min(ceiling, max(prec + step, int(prec * 1.25)))
+            uprec = prec
         if self.backend.certified and self.fallback is not None:
             if self._fallback is None:
                 self._fallback = self.fallback()
