@@ -136,7 +136,7 @@ def test_taylor_anchors_do_not_depend_on_what_was_stepped_before():
     for i, s in enumerate(got):
         assert s.quaternion.tobytes() == cold[i].quaternion.tobytes(), f't={t[i]}'
         assert float(s.error_bound) == float(cold[i].error_bound)
-    assert sol._dense.exact_anchors > 5
+    assert sol._dense.exact_anchors >= 4              # blocks of ~100 windows of 2 s
     assert all(len(times) == 1 for times, _ in kern._ck.values())      # nothing stepped
 
 

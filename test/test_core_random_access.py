@@ -55,3 +55,15 @@ def test_checkpoint_memory_is_bounded():
     for x in np.random.default_rng(8).uniform(-1e4, 1e5, 400):
         sol.at(float(x))
     assert 0 < dense.checkpoint_bytes() <= CHECKPOINT_BYTES + BLOCK_BYTES
+
+
+def test_a_python_float_takes_the_scalar_path_with_the_bits_of_a_numpy_scalar():
+    sol = solve(SCENES['default'])
+    for t in (0.0, 1.5, 77.25, -3.0):
+        a, b, c = sol.at(t), sol.at(np.float64(t)), sol.at(np.array(t))
+        for x in (b, c):
+            assert a.quaternion.tobytes() == x.quaternion.tobytes()
+            assert a.omega.tobytes() == x.omega.tobytes()
+            assert float(a.error_bound) == float(x.error_bound)
+    with pytest.raises(ValueError, match='finite'):
+        sol.at(float('nan'))

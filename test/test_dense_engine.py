@@ -8,8 +8,11 @@
   windows, lie within their bounds of an mpmath Taylor integration at 30 digits (no shared
   code: mpmath's own ODE solver on the real form of the spinor equation);
 - the far routes of the 1F1 kernel (Tricomi's U, cached gamma factors: the four Kummer
-  functions, and the spinor itself) give balls that overlap those of Arb's 1F1 at both
-  signs of s and at several precisions, and are as narrow.
+  functions, and the spinor itself from two U) give balls that overlap those of Arb's 1F1
+  at both signs of s and at several precisions, and are as narrow (or far below the
+  anchors' floor where the U are summed at fewer bits), also at delta = 325 against
+  1F1 at 1200 bits; a U precision too low for tol is repeated at the working precision;
+- a block's layout holds every window's own anchor and width, exactly.
 """
 
 import json
@@ -174,20 +177,105 @@ def test_far_kummer_route_overlaps_arb_1f1(prec):
 
 
 @pytest.mark.parametrize('prec', [70, 128])
-def test_far_spinor_route_overlaps_the_1f1_route(prec):
+@pytest.mark.parametrize('uprec', [None, 'auto'])
+def test_far_spinor_route_overlaps_the_1f1_route(prec, uprec):
+    # (v1, v2) from three Tricomi U and the Wronskian (DLMF 13.2.42), the U summed at the
+    # working precision or at the cheaper _u_prec, against Arb's four 1F1 (no U at all)
     kernel, c, b = _flint_kernel(prec)
     seen = 0
     with b.workprec(prec):
         for tv in (-2e4, -300.0, 0.0, 10.0, 90.0, 311.5, 2.5e3, 9.9e4):
             s = (c['r0'] + c['U'] * b.real(tv)) / c['sqrtU']
-            far = kernel._spinor_far(c, s)
+            up = None if uprec is None else \
+                kernel._u_prec(float((s * s).real.mid()), prec)
+            far = kernel._spinor_far(c, s, up)
             if far is None:
                 assert float(abs(s * s).upper()) <= 2 * kernel.FAR_Z * (1 + 1e-9)
                 continue
             seen += 1
-            ye, yep, yo, yop = kernel._fundamental(c, s)
-            for ref, got in ((c['C1'] * ye + c['C2'] * yo, far[0]),
-                             (c['C1'] * yep + c['C2'] * yop, far[1])):
+            far_z = kernel.FAR_Z
+            try:
+                kernel.FAR_Z = None                       # Arb's 1F1 itself, no U
+                ye, yep, yo, yop = kernel._fundamental(c, s)
+            finally:
+                kernel.FAR_Z = far_z
+            v1 = c['C1'] * ye + c['C2'] * yo
+            v1s = c['C1'] * yep + c['C2'] * yop
+            v2 = -(2 * c['i'] * v1s + s * v1) / c['dbar']
+            for ref, got in ((v1, far[0]), (v2, far[1])):
                 assert ref.overlaps(got)
-                assert float(abs(got).rad()) <= 4 * float(abs(ref).rad()) + 2.0 ** -(prec - 8)
+                # and the ball is narrow: about as the reference's, or far below the
+                # anchors' floor (dense.ANCHOR_FLOOR 4e-15) where the U are summed cheaper
+                floor = 2.0 ** -(prec - 8) if up is None or up >= prec else 1e-17
+                assert b.radius(got) <= 4 * b.radius(ref) + floor, (tv, up)
     assert seen >= 5
+
+
+def test_far_route_repeats_its_u_at_the_working_precision_where_the_bound_misses():
+    # a U precision far too low for tol: _at_prec repeats the U at prec (the same value
+    # as asking for prec outright) rather than returning the wide ball
+    kernel, c, b = _flint_kernel(96)
+    t = 311.5
+    full = kernel._at_prec(t, 96, 96)
+    low = kernel._spinor_far(c, (c['r0'] + c['U'] * b.real(t)) / c['sqrtU'], 24)
+    assert b.radius(low[1]) > kernel.FAR_RETRY * kernel.tol       # the cheap try misses
+    bits = kernel.U_BITS
+    try:
+        kernel.U_BITS = -100                                     # _u_prec gives 16 bits
+        again = kernel._at_prec(t, 96)
+    finally:
+        kernel.U_BITS = bits
+    assert np.array_equal(again[0], full[0]) and again[1] == full[1]
+    assert full[1] <= 2.3e-16 + kernel.FAR_RETRY * kernel.tol
+
+
+def test_far_route_at_large_delta_overlaps_arb_1f1_at_high_precision():
+    # the spacecraft's kernel (delta = 325, alpha = 1/2 + 162.5 i): the dense anchors' route
+    # (two U, at _u_prec bits with _u_terms terms, or Arb's own choice where |alpha|^2 is
+    # large against |z|) against Arb's four 1F1 at 1200 bits (they cancel some 740 bits)
+    from rigidrot_ros.core.kernel import HyperKernel
+    mp_ = mpmath.mpf
+    kernel = HyperKernel(mp_(0.3), mp_(-0.2), mp_(0.75), mp_(1e-4), 'flint', tol=1e-13,
+                         check=False)
+    far_z = kernel.FAR_Z
+    b = kernel.backend
+    for tv in (-300.0, 880.0, 5e4):
+        with b.workprec(128):
+            c = kernel._constants(128)
+            s = (c['r0'] + c['U'] * b.real(tv)) / c['sqrtU']
+            sf = float(s.mid())
+            up = kernel._u_prec(sf * sf, 128)
+            assert up < 128
+            v1, v2 = kernel._spinor_far(c, s, up, sf * sf)
+        assert b.radius(v1) < 1e-16 and b.radius(v2) < 1e-16, tv
+        with b.workprec(1200):
+            c = kernel._constants(1200)
+            s = (c['r0'] + c['U'] * b.real(tv)) / c['sqrtU']
+            try:
+                kernel.FAR_Z = None
+                ye, yep, yo, yop = kernel._fundamental(c, s)
+            finally:
+                kernel.FAR_Z = far_z
+            r1 = c['C1'] * ye + c['C2'] * yo
+            r2 = -(2 * c['i'] * (c['C1'] * yep + c['C2'] * yop) + s * r1) / c['dbar']
+        assert b.radius(r1) < 1e-20 and b.radius(r2) < 1e-20
+        assert r1.overlaps(v1) and r2.overlaps(v2), tv
+    assert len(kernel._nterms) >= 1             # 5e4 s: the terms were chosen here
+
+
+SPACECRAFT = Scene(inertia=(2.0, 2.0, 3.0), torque=(0.0, 0.0, 2e-4), omega0=(0.3, -0.2, 0.5))
+
+
+@pytest.mark.parametrize('scene', [SCENE, SPACECRAFT])
+def test_block_layout_is_every_windows_own_anchor_and_width(scene):
+    # blocks laid out from a shared ramp (one octave) or octave by octave (near t = 0)
+    # hold each window's anchor and signed width as the grid defines them, exactly
+    dense = solve(scene, tol=1e-12)._dense
+    dense._exact_state = lambda a: (1.0, 0.0, 0.0, 0.0, 0.0)     # the layout only
+    for sign in (1, -1):
+        for b0 in range(0, 6 * dense._blen, dense._blen):
+            blk = dense._fill(sign, b0, dense._blen)
+            for i in range(len(blk.anc)):
+                a = _anchor_time(dense, sign, b0 + i)
+                assert blk.a[i] == a
+                assert a + blk.hs[i] == _anchor_time(dense, sign, b0 + i + 1)

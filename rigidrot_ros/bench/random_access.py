@@ -21,7 +21,7 @@ from rigidrot_ros.bench import common
 from rigidrot_ros.core import engine
 from rigidrot_ros.core import MIN_TOL, PrecisionError, solve
 from rigidrot_ros.core import quaternion as quat
-from rigidrot_ros.core.dense import BLOCK_BYTES, CHECKPOINT_BYTES
+from rigidrot_ros.core.dense import BLOCK_BYTES, CHECKPOINT_BYTES, GRID_BYTES
 
 NAME = 'random_access'
 NEEDS = ('numpy', 'yaml')
@@ -30,8 +30,9 @@ CALLS = 200
 TOL = 1e-12
 #: Bytes a solution's random-access state can hold at most: checkpoint blocks (40 B a
 #: window, 56 while a block's chains are partial; CHECKPOINT_BYTES in all, plus the one
-#: block in use, BLOCK_BYTES at most) and the scratch array of one window's series.
-MEMORY_BOUND = CHECKPOINT_BYTES + BLOCK_BYTES + engine.MAX_TERMS * 4 * 8
+#: block in use, BLOCK_BYTES at most), the grid's shared arrays (GRID_BYTES) and the
+#: scratch array of one window's series.
+MEMORY_BOUND = CHECKPOINT_BYTES + BLOCK_BYTES + GRID_BYTES + engine.MAX_TERMS * 4 * 8
 #: Issue 20's targets, µs: (horizon, p50, p99 or None).
 TARGETS = {1e3: (20.0, 200.0), 1e5: (50.0, None)}
 

@@ -138,6 +138,10 @@ class _FlintBackend:
     def workprec(self, p):
         return self.flint.ctx.workprec(p)
 
+    def prec(self):
+        """Return the working precision, bits."""
+        return self.flint.ctx.prec
+
     def real(self, x):
         """Exact (or correctly rounded) conversion of an mpf/float to an arb ball."""
         if type(x) is float:
@@ -160,9 +164,15 @@ class _FlintBackend:
         return z.hypgeom_1f1(a, b)
 
     @staticmethod
-    def hypu(a, b, z):
-        """Tricomi's U(a, b, z), principal branch."""
-        return z.hypgeom_u(a, b)
+    def hypu(a, b, z, n=-1):
+        """Tricomi's U(a, b, z), principal branch.
+
+        ``n >= 0``: Arb's asymptotic series with n terms (its error bound is rigorous
+        whatever n; a poor n only widens the ball); -1: Arb chooses the method and terms.
+        """
+        if n < 0:
+            return z.hypgeom_u(a, b)
+        return z.hypgeom_u(a, b, n=n, asymp=True)
 
     def gamma(self, z):
         return z.gamma()
@@ -186,6 +196,11 @@ class _FlintBackend:
     @staticmethod
     def abs(z):
         return float(abs(z).upper())
+
+    @staticmethod
+    def radius(z):
+        """Radius of a complex ball (2-norm of its parts' radii), float."""
+        return math.hypot(float(z.real.rad()), float(z.imag.rad()))
 
     @staticmethod
     def parts(z):

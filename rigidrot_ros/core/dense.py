@@ -1,27 +1,28 @@
 """Dense output: many samples of the exact spinor from few exact evaluations.
 
 The time axis is cut into a fixed grid of windows: each octave ``[2^e, 2^(e+1))`` of |t|
-(and ``[0, 1)``) into windows of one power-of-two width ``h`` with ``R h <= RT`` and
-``U h^2 <= RT`` (``R`` the largest rate ``sqrt(X^2 + |D|^2)`` in the octave). Window
+(and ``[0, 1)``) into windows of one power-of-two width ``h`` with ``R h <= RT`` and ``U
+h^2 <= RT`` (``R`` the largest rate ``sqrt(X^2 + |D|^2)`` in the octave). Window
 boundaries are exact floats, so ``t - a`` is exact (Sterbenz), and a window is the same
 whichever query builds it. Inside a window anchored at ``a`` (the end nearer t = 0) the
 exact solution's own Taylor series about ``a`` (the recurrence of :mod:`.taylor`, in
 float64) gives every sample by Horner's rule. The anchors are checkpoints kept in blocks
 of at most ``BLOCK`` consecutive windows at every horizon: a block starts from an exact
 evaluation (1F1, certified Taylor continuation or the adiabatic series; the identity at
-t = 0) in its middle and chains window to window outwards and inwards (the next anchor is
-the window's own series at its end), re-anchored exactly where the chained bound would
-pass 0.9 of the kernel's tol; a block is twice the windows a chain can go at that tol, so
-a query pays one exact evaluation. A block is chained the first time a query needs it,
-both ways as far as its ends or the next exact anchor nobody asked for yet (each anchor
-follows from the one before alone, so the values do not depend on where a chain
-stopped); blocks are kept in a bounded store (``CHECKPOINT_BYTES``). The arithmetic
-(series, Horner's rule, chain) is compiled (:mod:`.engine`, numba, no fused or
-reassociated operations) and shared by scalar calls, batches and chains. So a sample is
-a function of t alone: the same bits from a scalar call, from a batch of any size or
-order, and whatever was evaluated before (issue 18: the node and the offline generator
-agree byte for byte). No window's series is kept: a
-scalar call builds it (about 0.5 us compiled) and a batch builds it once per window.
+t = 0) in its middle and chains window to window outwards and inwards (the next anchor
+is the window's own series at its end), re-anchored exactly where the chained bound
+would pass the kernel's tol less room for one window (``chain_limit``); a block is twice
+the windows a chain can go at that tol, so a query pays one exact evaluation. A block is
+chained as far as the queries need it, on to its ends where queries come back
+(:data:`REVISITS`), never past an exact anchor nobody asked for yet (each anchor follows
+from the one before alone, so the values do not depend on where a chain stopped); blocks
+are kept in a bounded store (``CHECKPOINT_BYTES``). The arithmetic (series, Horner's
+rule, chain) is compiled (:mod:`.engine`, numba, no fused or reassociated operations)
+and shared by scalar calls, batches and chains. So a sample is a function of t alone:
+the same bits from a scalar call, from a batch of any size or order, and whatever was
+evaluated before (issue 18: the node and the offline generator agree byte for byte). No
+window's series is kept: a scalar call builds it (about 0.5 us compiled) and a batch
+builds it once per window.
 
 Bound for every sample of a window (2-norm of the spinor error), all terms a priori:
 
@@ -36,16 +37,16 @@ with the majorant ``(n + 1) m_(n+1) = (R_a/2) m_n + (U/2) m_(n-1)``, ``m_0 = 1 +
 ``sqrt(X_a^2 + |D|^2) (1 + 4 eps)``, above the exact norm of the float generator). A
 rounding error made at coefficient n propagates under the same majorant, so the computed
 coefficients are off by at most ``m_n sum_(k<=n) rho_k / m_k`` with ``rho_k <= 7.5 eps
-m_k``: per component, each step forms ``X a + (p b + q b') + U c`` (three products, three
-sums, as Python's complex arithmetic did) and one quotient by ``2 (n + 1)`` (the factor
-``i / 2`` is exact). Horner's rule with real ``dt`` makes two roundings per step (a
-product, a sum: never fused), each relative to a partial sum bounded by
-``sum_(j>=k) m_j h^(j-k)``. The last line is Duhamel's bound for a generator off by at
-most ``dX + dU |dt| + dD`` (the float inputs and the float ``X_a = r0 + U a`` against the
-exact inputs), under unitary propagators. The chain's next anchor is such a sample (at
-``dt = h``), so its bound is the window's bound, ``E_a + own``: the exact solution from
-a perturbed anchor moves by no more than the perturbation (unitary). A window whose
-bound exceeds the kernel's tol is evaluated sample by sample (certified) instead.
+m_k``: per component, each step forms ``X a + (p b + q b') + U c`` (three products,
+three sums, as Python's complex arithmetic did) and one quotient by ``2 (n + 1)`` (the
+factor ``i / 2`` is exact). Horner's rule with real ``dt`` makes two roundings per step
+(a product, a sum: never fused), each relative to a partial sum bounded by ``sum_(j>=k)
+m_j h^(j-k)``. The last line is Duhamel's bound for a generator off by at most ``dX + dU
+|dt| + dD`` (the float inputs and the float ``X_a = r0 + U a`` against the exact
+inputs), under unitary propagators. The chain's next anchor is such a sample (at ``dt =
+h``), so its bound is the window's bound, ``E_a + own``: the exact solution from a
+perturbed anchor moves by no more than the perturbation (unitary). A window whose bound
+exceeds the kernel's tol is evaluated sample by sample (certified) instead.
 """
 
 import bisect
@@ -66,17 +67,25 @@ _EPS = engine.EPS
 #: per window with 20-term series; 4 would need 30 terms and give 5e-14.
 RT = 2.0
 #: Checkpoints for random access: the spinor at the anchor of every window, in blocks of
-#: this many consecutive windows per direction. A block chains from an exact evaluation
-#: at its first anchor (the identity at t = 0), re-anchored exactly where the chained
-#: bound would pass 0.9 tol (at tol = 1e-12 about every 120 windows); 40 bytes a window
-#: (two complex, one bound), 56 while the block's chain is partial (anchor times and
-#: widths kept). One block costs its exact evaluation and about 0.2 us a window chained.
+#: at most this many consecutive windows per direction. A block chains from an exact
+#: evaluation in its middle (the identity at t = 0), re-anchored exactly where the chained
+#: bound would pass ``chain_limit`` (at tol = 1e-12 about every 110-150 windows); 40 bytes
+#: a window (two complex, one bound), 56 while the block's chain is partial (anchor times
+#: and widths kept). One block costs its exact evaluation and about 0.2 us a window
+#: chained.
 BLOCK = 512
+#: A chain re-anchors exactly where its bound would pass ``tol - 2 own_per_window(RT)``
+#: (room for one more window's samples), but not below this share of tol.
+CHAIN_LIMIT_FLOOR = 0.5
 #: An exact anchor's bound is at least this fraction of the kernel's tol (see
 #: DenseSpinor._exact).
 ANCHOR_TOL = 1.0 / 64
 #: ... but not below this (the kernels' own float floor is about 2.3e-16).
 ANCHOR_FLOOR = 4e-15
+#: Arrays of one window width (a block's widths are a view of one) kept at most: with the
+#: ramp of anchor offsets, ``GRID_BYTES`` in all.
+WIDTHS_KEPT = 4
+GRID_BYTES = (WIDTHS_KEPT + 1) * 8 * BLOCK
 #: Checkpoint blocks kept, least recently used dropped beyond this many bytes (2.6 MB:
 #: 512 full blocks).
 CHECKPOINT_BYTES = 40 * 65536
@@ -136,12 +145,20 @@ class DenseSpinor:
             self.d_u = float(du) * 1.0001
             self.d_d = float(mpmath.sqrt(dp * dp + dq * dq)) * 1.0001
         self.tol = kernel.tol
-        self.chain_limit = 0.9 * self.tol
+        # chains stop where the next window's samples could pass tol: its own bound is at
+        # most own_per_window(RT) (R h <= RT), with a factor 2 for the parameter terms
+        self.chain_limit = max(CHAIN_LIMIT_FLOOR * self.tol,
+                               self.tol - 2.0 * engine.own_per_window(RT))
         # |D| rounded up: the majorant's rate must not fall below the exact one
         dabs_up = math.sqrt(self.p * self.p + self.q * self.q) * (1 + 4 * _EPS)
         self._prm = np.array([self.r0, self.u, self.p, self.q, dabs_up, self.d_r0, self.d_u,
                               self.d_d, self.tol, self.chain_limit])
         self._co = np.empty((engine.MAX_TERMS, 4))       # scratch: one window's series
+        # how an exact anchor is had (see _exact), looked up once
+        self._cap = min(self.tol, max(ANCHOR_TOL * self.tol, ANCHOR_FLOOR))
+        self._prec_at = getattr(kernel, 'prec_at', None)
+        self._start_prec = getattr(kernel, 'start_prec', None)
+        self._anchor_fn = getattr(kernel, 'anchor', None) or kernel.evaluate
         self._k = None
         self._engine()                 # numba loaded (once a process) here, not at a sample
         self._octaves = {}
@@ -152,6 +169,8 @@ class DenseSpinor:
         reach = (self.chain_limit - cap) / (1.05 * engine.own_per_window(self._grid_rt()))
         self._half = int(min(BLOCK // 2, max(4, reach)))
         self._blen = 2 * self._half
+        self._ramp = np.arange(self._blen, dtype=float)     # 0, 1, ... for window anchors
+        self._widths = {}                                   # signed width -> (blen,) of it
         self._offsets = {1: [0], -1: [0]}           # windows before octave e (index e + 1)
         self._blocks = OrderedDict()                # (sign, first index) -> _Block
         self._revisits = 1.0                        # running share of queries in kept blocks
@@ -168,20 +187,21 @@ class DenseSpinor:
 
     # -- the grid -------------------------------------------------------------------------
     def _grid_rt(self):
-        """Typical largest ``R h`` of a window: the median over the octaves up to 2^20 s.
+        """Largest ``R h`` of a window over the octaves up to 2^20 s: the block's reach.
 
         A function of the scene alone (t >= 0; octaves of fewer than 128 windows, near
-        t = 0 where ``R`` changes fast, left out). Only a cost estimate: a block in an
-        octave of larger ``R h`` re-anchors exactly where its bound would pass the limit,
-        so a query there may pay a second exact evaluation. ``0.85 RT`` where no octave
-        qualifies.
+        t = 0 where ``R`` changes fast, left out). Only a cost estimate: a block whose
+        chains would pass the limit before its ends re-anchors exactly there, so a query
+        there may pay a second exact evaluation; sized from the largest ``R h`` (not the
+        median), a block reaches its ends from its middle at every horizon. ``0.85 RT``
+        where no octave qualifies.
         """
         rts = []
         for e in range(-1, 21):
             lo, hi, h = self._octave(1, e)
             if h is not None and (hi - lo) / h >= 128:
                 rts.append(max(self._rate(lo), self._rate(hi)) * h)
-        return min(RT, sorted(rts)[len(rts) // 2]) if rts else 0.85 * RT
+        return min(RT, max(rts)) if rts else 0.85 * RT
 
     def _rate(self, t):
         return math.hypot(abs(self.r0 + self.u * t), self.dabs)
@@ -295,7 +315,7 @@ class DenseSpinor:
 
         Deterministic: the anchors of a block (:data:`BLOCK` windows) chain from an
         exact evaluation at the block's first anchor (the identity at t = 0),
-        re-anchored exactly where the chained bound would pass 0.9 tol. Each anchor
+        re-anchored exactly where the chained bound would pass ``chain_limit``. Each anchor
         follows from the one before it alone, so its value never depends on which query
         built the block or on what was evaluated before.
         """
@@ -323,21 +343,32 @@ class DenseSpinor:
         blk = _Block()
         if g and end <= offs[e0 + 2]:               # one octave (nearly always)
             lo, hi, h = self._octave(sign, e0)
-            j = np.arange(b0 - offs[e0 + 1], end - offs[e0 + 1], dtype=float)
-            j *= sign * h                           # exact: h a power of two, j < 2^53
-            j += sign * lo
-            blk.a = j
-            blk.hs = np.empty(g)
-            blk.hs.fill(sign * h)
-        else:
-            idx = np.arange(b0, end)
-            es = np.searchsorted(offs, idx, side='right') - 2
-            los, hsz, first = np.empty(g), np.empty(g), np.empty(g, dtype=np.int64)
-            for e in np.unique(es).tolist():
+            sh = sign * h
+            if g > len(self._ramp):                 # not a block of this grid (tests)
+                self._ramp = np.arange(g, dtype=float)
+                self._widths = {}
+            blk.a = self._ramp[:g] * sh             # exact: h a power of two, k < 2^53
+            blk.a += sign * (lo + (b0 - offs[e0 + 1]) * h)      # exact: a window's anchor
+            hs = self._widths.get(sh)
+            if hs is None or len(hs) < g:
+                if len(self._widths) >= WIDTHS_KEPT:
+                    self._widths.clear()
+                hs = self._widths[sh] = np.full(len(self._ramp), sh)  # shared, never written
+            blk.hs = hs[:g]
+        else:                                       # several octaves (near t = 0)
+            los, hsz, first, count = [], [], [], []
+            pos, e = b0, e0
+            while pos < end:
                 lo, hi, h = self._octave(sign, e)
-                at = es == e
-                los[at], hsz[at], first[at] = lo, h, offs[e + 1]
-            blk.a = sign * (los + (idx - first) * hsz)
+                last = min(end, offs[e + 2])
+                los.append(lo)
+                hsz.append(h)
+                first.append(offs[e + 1])
+                count.append(last - pos)
+                pos, e = last, e + 1
+            hsz = np.repeat(hsz, count)
+            j = np.arange(b0, end) - np.repeat(first, count)
+            blk.a = sign * (np.repeat(los, count) + j * hsz)
             blk.hs = sign * hsz
         blk.anc = np.empty((g, 5))
         blk.m = 0 if b0 == 0 else min(self._half, g - 1)
@@ -353,13 +384,13 @@ class DenseSpinor:
         return blk
 
     def _exact_state(self, a):
+        """Anchor state ``(c1.re, c1.im, c2.re, c2.im, bound)`` at a by :meth:`_exact`."""
         if a == 0.0:
             return 1.0, 0.0, 0.0, 0.0, 0.0
-        c1, c2, err = self._exact(a)
-        return c1.real, c1.imag, c2.real, c2.imag, err
+        return self._exact(a)
 
     def _exact(self, a):
-        """Return the spinor (c1, c2) at an anchor by the exact kernel, and a fixed bound.
+        """Return the spinor ``(c1.re, c1.im, c2.re, c2.im)`` at an anchor, and a fixed bound.
 
         The kernel adapts its working precision to what earlier calls needed, so the bound
         it states (and, rarely, the last bit of a value) could depend on history. Here the
@@ -371,21 +402,20 @@ class DenseSpinor:
         every anchor whatever came before.
         """
         kernel = self.kernel
-        cap = min(self.tol, max(ANCHOR_TOL * self.tol, ANCHOR_FLOOR))
-        if hasattr(kernel, 'prec_at'):
-            kernel.prec = kernel.prec_at(a) or kernel.start_prec
-        elif hasattr(kernel, 'start_prec'):
-            kernel.prec = kernel.start_prec
-        (x, y, z, w), err_a = (kernel.anchor if hasattr(kernel, 'anchor') else
-                               kernel.evaluate)(a)
+        if self._prec_at is not None:
+            kernel.prec = self._prec_at(a) or kernel.start_prec
+        elif self._start_prec is not None:
+            kernel.prec = self._start_prec
+        (x, y, z, w), err_a = self._anchor_fn(a)
         self.exact_anchors += 1
-        return complex(w, z), complex(-y, x), max(float(err_a), cap)
+        return float(w), float(z), -float(y), float(x), max(float(err_a), self._cap)
 
     def _chain(self, blk, upto, whole=True):
         """Chain a block's anchors outwards on to its window ``upto - 1`` at least.
 
         Compiled (:func:`.engine.chain`): each anchor is the window before evaluated at
-        its end, re-anchored exactly where the chained bound would pass 0.9 tol. With
+        its end, re-anchored exactly where the chained bound would pass ``chain_limit``.
+        With
         ``whole`` the chain goes on past ``upto`` while it is cheap: up to the block's end
         or the next window that needs an exact evaluation.
         """
@@ -443,7 +473,7 @@ class DenseSpinor:
             blk = self._block_or_none(sign, n) if n is not None else None
             if blk is not None:
                 a = sign * (lo + j * h)
-                x, y, z, w, bound, ok = self._engine()[0](
+                x, y, z, w, bound, ok = self._k[0](
                     self._prm, a, h, t - a, blk.anc[n % self._blen], self._co)
                 if ok:
                     return (x, y, z, w), bound

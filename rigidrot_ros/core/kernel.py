@@ -238,6 +238,16 @@ class HyperKernel:
     #: With flint, Kummer's functions at ``|z| = s^2 / 2`` from this up are formed from
     #: Tricomi's U (:meth:`_kummer_far`); None: always 1F1.
     FAR_Z = 100.0
+    #: With flint, the far route's Tricomi U are summed at this many bits plus those of
+    #: their phase (:meth:`_u_prec`), not at the working precision (whose bits go to the
+    #: phase s^2 / 4 and the constants).
+    U_BITS = 64
+    #: ... with their asymptotic series cut where its terms fall below 2^-U_TERM_BITS
+    #: (:meth:`_u_terms`; Arb's remainder bound is some 2^6 above the first term left out)
+    U_TERM_BITS = 56
+    #: ... and again at the working precision where their bound passes this share of tol
+    #: (1/64: a dense anchor's bound stays at its floor, ``dense.ANCHOR_TOL`` tol).
+    FAR_RETRY = 1.0 / 64
     #: Bits added to the starting precision of a dense anchor away from t = 0
     #: (:meth:`prec_at`).
     PREC_MARGIN = 8
@@ -280,6 +290,9 @@ class HyperKernel:
         self.start_prec = self.prec              # dense anchors start here (determinism)
         self._need0, self._ms0 = need - 2 * ms0, ms0
         self._s_float = (float(self.r0), float(self.U), float(self.sqrtU))
+        self._alpha_abs = math.hypot(0.5, float(self.half_delta))
+        self._nterms = {}                        # |z| to 5 bits -> terms of the far U
+        self._ubits = {}                         # exponent of |z| -> bits of the far U
         if not self.backend.certified and self.predicted > self.max_prec:
             # mpmath would grind through hopeless precisions: say so at once
             raise PrecisionError(
@@ -379,22 +392,111 @@ class HyperKernel:
             out.append(g1 * u + g2 * ez * v)
         return out
 
-    def _spinor_far(self, c, s):
-        """``(v1, dv1/ds)`` at s from four Tricomi U, or None where |z| < FAR_Z.
+    def _far_constants(self, c, sign):
+        """Per-precision constants of :meth:`_spinor_far` for one sign of s (cached in c).
 
-        In the basis ``F1 = U(alpha, 1/2, z)``, ``F2 = e^z U(c, 1/2, -z)`` (``c = 1/2 -
-        alpha``) of Kummer's equation, :meth:`_kummer_far` and DLMF 13.2.40 give
-        ``v1 = e^{-z/2} (A F1 + B F2)`` with constants for each sign of s:
+        ``A``, ``Bp = sgn(s) B e^{-i pi/4} / sqrt 2``, ``Bq = sgn(s) B c sqrt 2 e^{i pi/4}``
+        (see there) and ``2 / conj(Delta)`` (in units of sqrt U).
+        """
+        b = self.backend
+        key = ('spinor_far', sign)
+        k = c.get(key)
+        if k is None:
+            self._kummer_far(c, c['i'] * b.real(4 * self.FAR_Z) / 2)   # the G constants
+            g = c['far']
+            pi_i = b.pi_i()
+            sqrt2 = b.sqrt(c['two'])
+            kk = sqrt2 * b.exp(-pi_i / 4)                            # sqrt 2 e^{-i pi/4}
+            kc = sqrt2 * b.exp(pi_i / 4)
+            bb = c['C1'] * g['m1'][1] + c['C2'] * sign * kc * g['m3'][1]
+            k = c[key] = {
+                'A': c['C1'] * g['m1'][0] + c['C2'] * sign * kk * g['m3'][0],
+                'Bp': sign * bb * kk / 2,
+                'Bq': sign * bb * g['c12'] * kc,
+                'two_dbar': c['two'] / c['dbar'],
+            }
+        return k
+
+    def _u_prec(self, s2, prec):
+        """Bits at which :meth:`_spinor_far` sums its Tricomi U: a function of s^2 and prec.
+
+        ``U_BITS`` plus the bits of the phase ``|alpha| log |z|`` of ``z^{-alpha}``,
+        rounded up to 16; at most ``prec``. Only a cost choice: the balls say what came
+        out, and :meth:`_at_prec` repeats the U at ``prec`` where the bound missed tol.
+        """
+        z = 0.5 * s2
+        if not 1.0 < z < math.inf:
+            return prec
+        e = math.frexp(z)[1]
+        bits = self._ubits.get(e)
+        if bits is None:                        # |z| < 2^e: log |z| < e log 2
+            bits = self._ubits[e] = self.U_BITS + math.frexp(
+                self._alpha_abs * (e * math.log(2.0) + 4.0) + 1.0)[1]
+        return min(prec, max(16, -(-bits // 16) * 16))
+
+    def _u_terms(self, s2):
+        """Terms of the asymptotic series of the far route's U at ``|z| = s2 / 2`` (or -1).
+
+        The terms of ``U(a, b, z) ~ z^{-a} sum (a)_k (a - b + 1)_k / (k! (-z)^k)`` (DLMF
+        13.7.3) have ratios at most ``(|alpha| + 1.5 + k)^2 / ((k + 1) |z|)`` for the two
+        U of :meth:`_spinor_far`; n is the first k where their product falls below
+        ``2^-U_TERM_BITS`` (cached by |z| rounded down to 5 bits). -1 where the terms stop
+        falling first, or grow at first (``(|alpha| + 1.5)^2 > |z| / 2``: there Arb's
+        remainder bound is far above the first term left out), and Arb then chooses: only
+        a cost choice, since Arb bounds the remainder rigorously whatever n.
+        """
+        m, e = math.frexp(0.5 * s2)
+        key = (e, int(16.0 * m))
+        n = self._nterms.get(key)
+        if n is None:
+            z = math.ldexp(key[1], e - 4)                  # <= |z|, within 1/8 of it
+            a = self._alpha_abs + 1.5
+            target = math.ldexp(1.0, -self.U_TERM_BITS)
+            term, n = 1.0, -1
+            for k in range(400 if a * a <= 0.5 * z else 0):
+                ratio = (a + k) ** 2 / ((k + 1) * z)
+                term *= ratio
+                if term <= target:
+                    n = k + 1
+                    break
+                if ratio >= 1.0 and k > a:                # diverging before the target
+                    break
+            self._nterms[key] = n
+        return n
+
+    def _spinor_far(self, c, s, uprec=None, s2f=None):
+        """``(v1, v2)`` at s from two Tricomi U, or None where |z| < FAR_Z.
+
+        In the basis ``F1 = U(alpha, 1/2, z)``, ``e^z F2``, ``F2 = U(c, 1/2, -z)`` (``c =
+        1/2 - alpha``) of Kummer's equation, :meth:`_kummer_far` and DLMF 13.2.40 give
+        ``v1 = e^{-z/2} (A F1 + B e^z F2)`` with constants for each sign of s:
 
             A = C1 G1(m1) + C2 sgn(s) k G1(m3),   B = C1 G2(m1) + C2 sgn(s) conj(k) G2(m3),
 
         ``k = sqrt 2 e^{-i pi/4}`` (``s z^{-1/2}``; ``s (-z)^{-1/2} = sgn(s) conj(k)``).
-        With ``dz/ds = i s``, ``U'(a, b, z) = -a U(a + 1, b + 1, z)`` (DLMF 13.3.22):
+        With ``dz/ds = i s`` and ``U'(a, b, z) = -a U(a + 1, b + 1, z)`` (DLMF 13.3.22),
+        ``v2 = -(2 i dv1/ds + s v1) / conj(Delta)`` (in units of sqrt U) is
 
-            dv1/ds = i s e^{-z/2} [A (-F1/2 - alpha U(alpha + 1, 3/2, z))
-                                   + B e^z (U(c, 1/2, -z)/2 + c U(c + 1, 3/2, -z))].
+            v2 = (2 s / conj(Delta)) [B e^{z/2} c F2d - A e^{-z/2} G],
+            G = F1 + alpha F1d,   F1d = U(alpha + 1, 3/2, z),   F2d = U(c + 1, 3/2, -z).
 
-        Four U in all (and one exponential), in Arb balls.
+        Here z = i s^2 / 2 is imaginary, so ``-z = conj(z)``, and ``conj(alpha) = c + 1/2``:
+        with ``conj U(a, b, z) = U(conj a, b, conj z)`` (b real), Kummer's transformation
+        ``U(a, b, z) = z^{1-b} U(a - b + 1, 2 - b, z)`` (DLMF 13.2.40) and the contiguous
+        relation ``U(a, b, z) = a U(a + 1, b, z) + U(a, b - 1, z)`` (DLMF 13.3.10),
+
+            F2 = (-z)^{1/2} conj(G),   F2d = (-z)^{-1/2} conj(F1),
+
+        ``(-z)^{1/2} = |s| e^{-i pi/4} / sqrt 2``. So
+
+            v1 = e^{-z/2} A F1 + e^{z/2} Bp s conj(G),
+            v2 = (2 / conj(Delta)) [e^{z/2} Bq conj(F1) - s e^{-z/2} A G]
+
+        (:meth:`_far_constants`): two U (and one exponential, its conjugate the other).
+        The U are summed at ``uprec`` bits (:meth:`_u_prec`) with :meth:`_u_terms` terms
+        of their asymptotic series (None or the working precision: Arb's own choice of
+        method and terms), the rest at the working precision, all in Arb balls: certified
+        as the 1F1 route is.
         """
         b = self.backend
         s2 = s * s
@@ -403,31 +505,21 @@ class HyperKernel:
         sign = 1 if s > 0 else -1 if s < 0 else 0
         if not sign:
             return None
-        key = ('spinor_far', sign)
-        ab = c.get(key)
-        if ab is None:
-            self._kummer_far(c, c['i'] * b.real(4 * self.FAR_Z) / 2)   # the G constants
-            g = c['far']
-            k = b.sqrt(b.real(2)) * b.exp(-b.pi_i() / 4)              # sqrt 2 e^{-i pi/4}
-            kc = b.sqrt(b.real(2)) * b.exp(b.pi_i() / 4)
-            ab = c[key] = (c['C1'] * g['m1'][0] + c['C2'] * sign * k * g['m3'][0],
-                           c['C1'] * g['m1'][1] + c['C2'] * sign * kc * g['m3'][1])
-        a_, b_ = ab
-        g = c['far']
-        i = c['i']
-        z = i * s2 / 2
-        mz = -z
+        k = self._far_constants(c, sign)
+        z = c['i'] * s2 / 2
         e_half = b.exp(z / 2)
-        e_mhalf = 1 / e_half
-        f1 = b.hypu(c['alpha'], c['b12'], z)
-        f1d = b.hypu(c['alpha1'], c['b32'], z)              # U(alpha + 1, 3/2, z)
-        f2 = b.hypu(g['c12'], c['b12'], mz)                 # U(c, 1/2, -z)
-        f2d = b.hypu(g['c12'] + 1, c['b32'], mz)            # U(c + 1, 3/2, -z)
-        half = c['half']
-        v1 = e_mhalf * a_ * f1 + e_half * b_ * f2
-        v1s = i * s * (e_mhalf * a_ * (-half * f1 - c['alpha'] * f1d)
-                       + e_half * b_ * (half * f2 + g['c12'] * f2d))
-        return v1, v1s
+        e_mhalf = e_half.conjugate()                # z / 2 is imaginary (real part exactly 0)
+        prec = b.prec()
+        uprec = uprec or prec
+        n = self._u_terms(s2f or float(s2.real.mid())) if uprec < prec else -1
+        with b.workprec(uprec):
+            f1 = b.hypu(c['alpha'], c['b12'], z, n)
+            f1d = b.hypu(c['alpha1'], c['b32'], z, n)            # U(alpha + 1, 3/2, z)
+        g = f1 + c['alpha'] * f1d
+        a_ = k['A']
+        v1 = e_mhalf * (a_ * f1) + e_half * ((k['Bp'] * s) * g.conjugate())
+        v2 = k['two_dbar'] * (e_half * (k['Bq'] * f1.conjugate()) - (s * e_mhalf) * (a_ * g))
+        return v1, v2
 
     def _fundamental(self, c, s):
         """(y_e, y_e', y_o, y_o') at s, derivatives in s."""
@@ -450,25 +542,45 @@ class HyperKernel:
         return ye, yep, yo, yop
 
     # -- evaluation -----------------------------------------------------------------------
-    def _at_prec(self, t, prec):
+    def _at_prec(self, t, prec, uprec=None):
+        """Quaternion and bound at t with ``prec`` working bits (the far route's U at uprec).
+
+        ``uprec`` None: :meth:`_u_prec`; where the far route's bound then passes
+        ``FAR_RETRY`` of tol, the U are summed again at ``prec`` (a function of t and
+        prec alone, as the first try is).
+        """
         b = self.backend
+        far = None
         with b.workprec(prec):
             c = self._constants(prec)
             s = (c['r0'] + c['U'] * b.real(t)) / c['sqrtU']
-            far = self._spinor_far(c, s) if b.certified and self.FAR_Z is not None else None
+            if b.certified and self.FAR_Z is not None:
+                r0, u, su = self._s_float
+                s2f = (r0 + u * t) / su
+                s2f *= s2f                          # inf, not OverflowError, past the range
+                if uprec is None:
+                    uprec = self._u_prec(s2f, prec)
+                far = self._spinor_far(c, s, uprec, s2f)
             if far is not None:
-                v1, v1s = far
+                v1, v2 = far
             else:
                 ye, yep, yo, yop = self._fundamental(c, s)
                 v1 = c['C1'] * ye + c['C2'] * yo
                 v1s = c['C1'] * yep + c['C2'] * yop
-            v2 = -(2 * c['i'] * v1s + s * v1) / c['dbar']
-            w, z, r1 = b.parts(v1)
-            my, x, r2 = b.parts(v2)
-            q = np.array([x, -my, z, w])
-            if b.certified:
-                err = math.hypot(r1, r2)
+                v2 = -(2 * c['i'] * v1s + s * v1) / c['dbar']
+            if far is not None:
+                # Arb balls: midpoints (nearest doubles) and radii (bounds in the plane);
+                # a non-finite value is caught below
+                c1, c2 = complex(v1), complex(v2)
+                w, z, my, x = c1.real, c1.imag, c2.real, c2.imag
+                err = math.hypot(float(v1.rad()), float(v2.rad()))
             else:
+                w, z, r1 = b.parts(v1)
+                my, x, r2 = b.parts(v2)
+            q = np.array([x, -my, z, w])
+            if far is None and b.certified:
+                err = math.hypot(r1, r2)
+            elif far is None:
                 # running-error estimate: eps * ||Y(s)|| * ||Y(s0)^-1|| * |u0| * v2 gain,
                 # times the phases s^2 / 4 and s0^2 / 4 (rounding s moves them by eps s^2 / 2)
                 ns = max(b.abs(ye), b.abs(yep), b.abs(yo), b.abs(yop))
@@ -480,6 +592,8 @@ class HyperKernel:
         if not (math.isfinite(x) and math.isfinite(my) and math.isfinite(z)
                 and math.isfinite(w)):
             err = math.inf
+        if far is not None and uprec < prec and not err <= self.FAR_RETRY * self.tol:
+            return self._at_prec(t, prec, prec)
         # float64 rounding of the four components
         return q, err + 2.3e-16
 
@@ -497,9 +611,10 @@ class HyperKernel:
             prec = min(prec, ceiling)
             if self.predicted > 2 * self.FALLBACK_BITS:
                 prec = ceiling + 1                   # hopeless for 1F1: straight to Taylor
+        uprec = None                             # the cheap U first, full ones once raised
         while prec <= ceiling:
             try:
-                q, err = self._at_prec(t, prec)
+                q, err = self._at_prec(t, prec, uprec)
             except PrecisionError:
                 q, err = None, math.inf
             if err <= self.tol:
@@ -511,6 +626,7 @@ class HyperKernel:
             step = 32 if not math.isfinite(err) else \
                 max(32, int(math.log2(err) - math.log2(self.tol)) + 16)
             prec = min(ceiling, max(prec + step, int(prec * 1.25)))
+            uprec = prec
         if self.backend.certified and self.fallback is not None:
             if self._fallback is None:
                 self._fallback = self.fallback()

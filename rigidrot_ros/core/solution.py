@@ -195,6 +195,8 @@ class BaseSolution(abc.ABC):
         PrecisionError
             When the bound of a sample cannot meet ``tol``.
         """
+        if type(t) is float:                  # the scalar path, without an array round trip
+            return self._at_scalar(t)
         t_arr = as_times(t)
         if t_arr.ndim == 0:
             return self._at_scalar(float(t_arr))
