@@ -464,7 +464,7 @@ class HyperKernel:
             self._nterms[key] = n
         return n
 
-    def _spinor_far(self, c, s, uprec=None, s2f=None):
+    def _spinor_far(self, c, s, uprec=None, s2f=None, sign=None):
         """``(v1, v2)`` at s from two Tricomi U, or None where |z| < FAR_Z.
 
         In the basis ``F1 = U(alpha, 1/2, z)``, ``e^z F2``, ``F2 = U(c, 1/2, -z)`` (``c =
@@ -500,21 +500,30 @@ class HyperKernel:
         """
         b = self.backend
         s2 = s * s
-        if not b.far_ok(s2, self.FAR_Z):
-            return None
-        sign = 1 if s > 0 else -1 if s < 0 else 0
-        if not sign:
-            return None
+        if sign is None:
+            if not b.far_ok(s2, self.FAR_Z):
+                return None
+            sign = 1 if s > 0 else -1 if s < 0 else 0
+            if not sign:
+                return None
         k = self._far_constants(c, sign)
         z = c['i'] * s2 / 2
-        e_half = b.exp(z / 2)
+        e_half = (z / 2).exp()
         e_mhalf = e_half.conjugate()                # z / 2 is imaginary (real part exactly 0)
-        prec = b.prec()
+        ctx = b.flint.ctx
+        prec = ctx.prec
         uprec = uprec or prec
         n = self._u_terms(s2f or float(s2.real.mid())) if uprec < prec else -1
-        with b.workprec(uprec):
-            f1 = b.hypu(c['alpha'], c['b12'], z, n)
-            f1d = b.hypu(c['alpha1'], c['b32'], z, n)            # U(alpha + 1, 3/2, z)
+        ctx.prec = uprec                            # as workprec(uprec), without its cost
+        try:
+            if n < 0:
+                f1 = z.hypgeom_u(c['alpha'], c['b12'])
+                f1d = z.hypgeom_u(c['alpha1'], c['b32'])          # U(alpha + 1, 3/2, z)
+            else:
+                f1 = z.hypgeom_u(c['alpha'], c['b12'], n=n, asymp=True)
+                f1d = z.hypgeom_u(c['alpha1'], c['b32'], n=n, asymp=True)
+        finally:
+            ctx.prec = prec
         g = f1 + c['alpha'] * f1d
         a_ = k['A']
         v1 = e_mhalf * (a_ * f1) + e_half * ((k['Bp'] * s) * g.conjugate())
@@ -550,6 +559,14 @@ class HyperKernel:
         prec alone, as the first try is).
         """
         b = self.backend
+        if b.certified and self.FAR_Z is not None:
+            r0, u, su = self._s_float
+            sf = (r0 + u * t) / su
+            s2f = sf * sf                           # inf, not OverflowError, past the range
+            if 2.000002 * self.FAR_Z < s2f < math.inf:
+                # surely |z| >= FAR_Z (the ball test of _spinor_far would pass): the far
+                # route with plain floats in between (no workprec, no np.array)
+                return self._at_prec_far(t, prec, uprec, s2f, 1 if sf > 0.0 else -1)
         far = None
         with b.workprec(prec):
             c = self._constants(prec)
@@ -596,6 +613,33 @@ class HyperKernel:
             return self._at_prec(t, prec, prec)
         # float64 rounding of the four components
         return q, err + 2.3e-16
+
+    def _at_prec_far(self, t, prec, uprec, s2f, sign):
+        """:meth:`_at_prec` on the far route, where ``s2f`` (a float) puts |z| past FAR_Z.
+
+        The very Arb operations of :meth:`_at_prec` there (so the same balls and bits),
+        with the precision set on flint's context directly.
+        """
+        ctx = self.backend.flint.ctx
+        old = ctx.prec
+        ctx.prec = prec
+        try:
+            c = self._consts.get(prec) or self._constants(prec)
+            s = (c['r0'] + c['U'] * self.backend.real(t)) / c['sqrtU']
+            if uprec is None:
+                uprec = self._u_prec(s2f, prec)
+            v1, v2 = self._spinor_far(c, s, uprec, s2f, sign)
+            c1, c2 = complex(v1), complex(v2)
+            err = math.hypot(float(v1.rad()), float(v2.rad()))
+        finally:
+            ctx.prec = old
+        w, z, my, x = c1.real, c1.imag, c2.real, c2.imag
+        if not (math.isfinite(x) and math.isfinite(my) and math.isfinite(z)
+                and math.isfinite(w)):
+            err = math.inf
+        if uprec < prec and not err <= self.FAR_RETRY * self.tol:
+            return self._at_prec_far(t, prec, prec, s2f, sign)
+        return np.array([x, -my, z, w]), err + 2.3e-16
 
     def evaluate(self, t):
         """Quaternion (x, y, z, w) at t and a bound on its component error (2-norm).
