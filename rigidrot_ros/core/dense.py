@@ -97,6 +97,11 @@ BLOCK_BYTES = 56 * BLOCK + 40
 #: as the query (random access far and wide: each query a new block). The chained extent
 #: changes the cost, never the values.
 REVISITS = 0.25
+#: From the octave ``[2^FAR_OCTAVE, 2^(FAR_OCTAVE+1))`` s of |t| on, blocks are half as
+#: long (:meth:`DenseSpinor.block_of`): out there nearly every random query is a block of
+#: its own, and its cost is the exact evaluation plus a chain of a quarter block on
+#: average; a stream pays one more exact evaluation per half block, a few per hour.
+FAR_OCTAVE = 12
 
 
 class _Block:
@@ -110,7 +115,7 @@ class _Block:
     dropped once both chains have reached the block's ends.
     """
 
-    __slots__ = ('anc', 'm', 'lo', 'hi', 'fwd', 'back', 'fresh', 'a', 'hs')
+    __slots__ = ('anc', 'b0', 'm', 'lo', 'hi', 'fwd', 'back', 'fresh', 'a', 'hs')
 
     def nbytes(self):
         """Bytes held by the block's arrays."""
@@ -169,9 +174,13 @@ class DenseSpinor:
         reach = (self.chain_limit - cap) / (1.05 * engine.own_per_window(self._grid_rt()))
         self._half = int(min(BLOCK // 2, max(4, reach)))
         self._blen = 2 * self._half
+        self._far_len = 2 * max(2, self._half // 2)        # blocks from FAR_OCTAVE on
         self._ramp = np.arange(self._blen, dtype=float)     # 0, 1, ... for window anchors
         self._widths = {}                                   # signed width -> (blen,) of it
         self._offsets = {1: [0], -1: [0]}           # windows before octave e (index e + 1)
+        # first window index of FAR_OCTAVE per direction (never reached: no grid there)
+        self._far_n = {sign: self._index((sign, FAR_OCTAVE, 0)) or 1 << 62
+                       for sign in (1, -1)}
         self._blocks = OrderedDict()                # (sign, first index) -> _Block
         self._revisits = 1.0                        # running share of queries in kept blocks
         self._block_bytes = 0
@@ -252,9 +261,17 @@ class DenseSpinor:
             offs.append(offs[-1] + int((hi - lo) / h))
         return offs[e + 1] + j
 
-    def block_of(self, n):
-        """Return (first index, length) of the checkpoint block holding window index n."""
-        return n - n % self._blen, self._blen
+    def block_of(self, n, sign=1):
+        """Return (first index, length) of the checkpoint block holding window index n.
+
+        Blocks of ``_blen`` windows from t = 0 (the last one cut at the first window of
+        ``FAR_OCTAVE``), then of ``_far_len``: a function of the scene alone.
+        """
+        n0 = self._far_n[sign]
+        if n < n0:
+            b0 = n - n % self._blen
+            return b0, min(self._blen, n0 - b0)
+        return n - (n - n0) % self._far_len, self._far_len
 
     def _block(self, sign, n, last=None):
         """Return the block holding window index n, chained at least through ``last``.
@@ -263,7 +280,7 @@ class DenseSpinor:
         n. The chain runs on up to the block's end or the next exact anchor (which waits
         until a query needs it).
         """
-        b0, g = self.block_of(n)
+        b0, g = self.block_of(n, sign)
         bk = (sign, b0)
         blk = self._blocks.get(bk)
         if blk is None:
@@ -325,11 +342,12 @@ class DenseSpinor:
         blk = self._block(key[0], n)
         if blk is None:
             return None
-        r = blk.anc[n % self._blen].tolist()
+        r = blk.anc[n - blk.b0].tolist()
         return complex(r[0], r[1]), complex(r[2], r[3]), r[4]
 
     def _fill(self, sign, b0, g):
         """Checkpoints of the block of g windows from index b0 (cut where windows end)."""
+        half = g // 2
         offs = self._offsets[sign]
         while offs[-1] < b0 + g:                     # octaves up to the block's end
             lo, hi, h = self._octave(sign, len(offs) - 2)
@@ -371,7 +389,8 @@ class DenseSpinor:
             blk.a = sign * (np.repeat(los, count) + j * hsz)
             blk.hs = sign * hsz
         blk.anc = np.empty((g, 5))
-        blk.m = 0 if b0 == 0 else min(self._half, g - 1)
+        blk.b0 = b0
+        blk.m = 0 if b0 == 0 else min(half, g - 1)
         blk.lo = blk.hi = blk.m
         blk.fresh = True
         if g:
@@ -406,9 +425,10 @@ class DenseSpinor:
             kernel.prec = self._prec_at(a) or kernel.start_prec
         elif self._start_prec is not None:
             kernel.prec = self._start_prec
-        (x, y, z, w), err_a = self._anchor_fn(a)
+        q, err_a = self._anchor_fn(a)
+        x, y, z, w = q.tolist() if type(q) is np.ndarray else map(float, q)
         self.exact_anchors += 1
-        return float(w), float(z), -float(y), float(x), max(float(err_a), self._cap)
+        return w, z, -y, x, max(float(err_a), self._cap)
 
     def _chain(self, blk, upto, whole=True):
         """Chain a block's anchors outwards on to its window ``upto - 1`` at least.
@@ -474,7 +494,7 @@ class DenseSpinor:
             if blk is not None:
                 a = sign * (lo + j * h)
                 x, y, z, w, bound, ok = self._k[0](
-                    self._prm, a, h, t - a, blk.anc[n % self._blen], self._co)
+                    self._prm, a, h, t - a, blk.anc[n - blk.b0], self._co)
                 if ok:
                     return (x, y, z, w), bound
         q, err = self.kernel.evaluate(t)
@@ -528,7 +548,8 @@ class DenseSpinor:
                 slow.append((s0 + s, s0 + e_))
                 continue
             nw = n0 + (jw - jw[0])                             # window index per direction
-            b0s = nw - nw % self._blen
+            n0 = self._far_n[sign]
+            b0s = np.where(nw < n0, nw - nw % self._blen, nw - (nw - n0) % self._far_len)
             bcut = np.flatnonzero(np.diff(b0s)) + 1
             for u0, u1 in zip(np.concatenate([[0], bcut]).tolist(),
                               np.concatenate([bcut, [len(nw)]]).tolist()):
