@@ -5,7 +5,7 @@ import pytest
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.core.dense import BLOCK_BYTES, CHECKPOINT_BYTES
+from rigidrot_ros.core.dense import BLOCK_BYTES, CHECKPOINT_BYTES, FAR_OCTAVE
 
 SCENES = {
     'default': Scene(inertia=(2, 2, 1), torque=(0, 0, 0.05), omega0=(0.3, -0.2, 0.5)),
@@ -43,6 +43,38 @@ def test_random_access_within_bounds_of_a_tighter_reference(name):
     err = quat.angle_between(q, ref.quaternion)
     assert np.all(bound <= 1e-12)
     assert np.all(err <= bound + ref.error_bound)
+
+
+@pytest.mark.parametrize('name', ['default', 'spacecraft'])
+def test_shorter_far_blocks_keep_scalar_and_batch_bits_and_bounds(name):
+    # blocks are half as long from 2^FAR_OCTAVE s on: consecutive blocks still meet
+    # exactly, and times on both sides of that edge and far out give the same bits one
+    # by one in random order as in one batch, within their bounds of a tighter reference
+    sol = solve(SCENES[name], tol=1e-12)
+    dense = sol._dense
+    for sign in (1, -1):
+        n0 = dense._far_n[sign]
+        b0, g = dense.block_of(n0 - 1, sign)
+        assert b0 + g == n0 and g <= dense._blen
+        assert dense.block_of(n0, sign) == (n0, dense._far_len) < (n0, dense._blen)
+        f = dense._far_len
+        assert dense.block_of(n0 + 3 * f + 1, sign) == (n0 + 3 * f, f)
+    rng = np.random.default_rng(12)
+    edge = 2.0 ** FAR_OCTAVE
+    t = np.concatenate([edge + rng.uniform(-40.0, 40.0, 60), -edge + rng.uniform(-5.0, 5.0, 10),
+                        rng.uniform(5e4, 5.0005e4, 20)])
+    one = [sol.at(float(x)) for x in t]
+    batch = solve(SCENES[name], tol=1e-12).at(t)
+    q = np.array([s.quaternion for s in one])
+    bound = np.array([float(s.error_bound) for s in one])
+    assert q.tobytes() == batch.quaternion.tobytes()
+    assert bound.tobytes() == batch.error_bound.tobytes()
+    pick = np.sort(t[::9])
+    ref = solve(SCENES[name], tol=4e-14).at(pick)
+    got = sol.at(pick)
+    assert np.all(got.error_bound <= 1e-12)
+    assert np.all(quat.angle_between(got.quaternion, ref.quaternion)
+                  <= got.error_bound + ref.error_bound)
 
 
 def test_checkpoint_memory_is_bounded():

@@ -71,17 +71,18 @@ class OneF1Seeder:
         self.hyper = None
         self.failed_at = 0
         self.cheap_failed = False
-        self.anchor_failed = False
+        self.anchor_failed = 0
 
     def anchor(self, t):
         """Certified value at t at ``CHEAP_BITS``, or None: a dense anchor's evaluation.
 
         Its value and cost depend on t alone (no stepping from whatever checkpoint is
-        nearest); None where that precision does not reach the tol (then, and for every
-        later anchor, the caller steps instead).
+        nearest); None where that precision does not reach the tol (the caller then steps
+        to this anchor). Tried at every anchor: a failure is not carried over to later
+        anchors (it was: after one failure near the spacecraft's avoided crossing at
+        t < 0, anchors far out stepped from whichever checkpoint was nearest, and their
+        bits depended on the queries before). ``anchor_failed`` counts the failures.
         """
-        if self.anchor_failed:
-            return None
         if self.hyper is None:
             self.hyper = HyperKernel(*self.inputs, backend='flint', tol=self.tol,
                                      max_prec=SEED_BITS[0][1], fallback=None, check=False,
@@ -92,7 +93,7 @@ class OneF1Seeder:
                 return q, err
         except PrecisionError:
             pass
-        self.anchor_failed = True
+        self.anchor_failed += 1
         return None
 
     def __call__(self, t, stepping_ms):
