@@ -104,6 +104,8 @@ class DDPoly:
         self.usable = all(g == 0.0 or _G_MIN <= abs(g) <= _G_MAX for g in (self.g1h, self.g2h))
         self._ag1 = abs(self.g1h) + abs(self.g1l)
         self._ag2 = abs(self.g2h) + abs(self.g2l)
+        # Dekker splits of the constants, made once (angle makes the same operations)
+        self._s1, self._s2, self._sp = _split(self.g1h), _split(self.g2h), _split(self.p_hi)
 
     # -- vectorised ---------------------------------------------------------------------
     def angles(self, t):
@@ -159,14 +161,18 @@ class DDPoly:
             return None
         g1h, g2h = self.g1h, self.g2h
         p1 = g1h * t
-        ah, al = _split(g1h)
-        th, tl = _split(t)
+        ah, al = self._s1
+        c = _SPLIT * t                              # _split(t), inline
+        th = c - (c - t)
+        tl = t - th
         e1 = ((ah * th - p1) + ah * tl + al * th) + al * tl
         s = t * t
         se = ((th * th - s) + 2.0 * th * tl) + tl * tl
         p2 = g2h * s
-        bh, bl = _split(g2h)
-        sh, sl = _split(s)
+        bh, bl = self._s2
+        c = _SPLIT * s                              # _split(s)
+        sh = c - (c - s)
+        sl = s - sh
         e2 = ((bh * sh - p2) + bh * sl + bl * sh) + bl * sl
         l1 = self.g1l * t
         l2 = g2h * se + self.g2l * s
@@ -180,8 +186,10 @@ class DDPoly:
         fl = (frac - (fh - bb)) + (low - bb)
         ph = self.p_hi
         x = ph * fh
-        ch, cl = _split(ph)
-        fhh, fhl = _split(fh)
+        ch, cl = self._sp
+        c = _SPLIT * fh                             # _split(fh)
+        fhh = c - (c - fh)
+        fhl = fh - fhh
         xe = ((ch * fhh - x) + ch * fhl + cl * fhh) + cl * fhl
         out = x + (xe + (ph * fl + self.p_lo * fh))
         bound = (4.0 * math.pi * 1.0000001) * (
