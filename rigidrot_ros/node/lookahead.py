@@ -59,7 +59,7 @@ import numpy as np
 
 __all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'BatchWorker', 'AHEAD_MIN', 'AHEAD_MAX',
            'BATCH_BUDGET_S', 'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S',
-           'SWITCH_INTERVAL_S', 'WORKER_NICE', 'WORKER_AHEAD_S']
+           'SWITCH_INTERVAL_S', 'WORKER_NICE', 'WORKER_AHEAD_S', 'WORKER_BATCH']
 
 #: The first batch's size, and the smallest.
 AHEAD_MIN = 8
@@ -82,6 +82,15 @@ AMORTIZE = 1.5
 STRIKES = 3
 #: Seconds after a look-ahead starts during which slow batches are no strikes.
 WARMUP_S = 2.0
+#: With a worker, every batch is this many samples (``RIGIDROT_WORKER_BATCH`` overrides it;
+#: ``0``: sized by the cost model as inline, the choice before). A gyro read has a fixed
+#: part of ~1 ms (its numpy steps); sized by the cost model, 57 % of the gyro's batches were
+#: under 32 samples (traced at 1 kHz, 20 s, under load: 505 batches, 0.85 s of the worker's
+#: time), and 30 of that run's 34 late gyro samples waited while one ran: the worker and
+#: the publishing thread share the interpreter, which changes hands every
+#: :data:`SWITCH_INTERVAL_S`, so the publishing call runs at about half speed meanwhile.
+#: Fixed-size batches pay the fixed part once per 256 samples.
+WORKER_BATCH = AHEAD_MAX
 #: Batches the cost model remembers.
 _HISTORY = 8
 #: How much nicer (lower CPU priority, ``setpriority`` on the thread: no root needed) the
@@ -122,6 +131,15 @@ class _Job:
         self.wall = time.perf_counter() - c0
         self.cost = time.thread_time() - cpu0
         self.done.set()
+
+
+def _worker_batch():
+    """Return :data:`WORKER_BATCH`, or ``$RIGIDROT_WORKER_BATCH`` (0 to AHEAD_MAX) if set."""
+    try:
+        n = int(os.environ.get('RIGIDROT_WORKER_BATCH', WORKER_BATCH))
+    except ValueError:
+        return WORKER_BATCH
+    return n if n == 0 else min(max(n, AHEAD_MIN), AHEAD_MAX)
 
 
 def _worker_nice():
@@ -230,6 +248,7 @@ class Ahead(abc.ABC):
                  first=0, clock=time.monotonic, worker=None):
         self.period_s = float(period_s)
         self.worker = worker            # a BatchWorker: refill()'s batches run there
+        self._fixed_size = _worker_batch() if worker is not None else 0
         self._job = None                # the batch in the worker, if any
         self.build = build
         self.budget_s = float(budget_s)
@@ -406,6 +425,9 @@ class Ahead(abc.ABC):
         keep the garbage collector's young generations small) but never a strike.
         """
         self._costs = (self._costs + [(n, cost)])[-_HISTORY:]
+        if self.worker is not None and self._fixed_size:
+            self.size = self._fixed_size        # in the worker: fixed-size batches
+            return
         fixed, per = self._fit()
         # a batch aims at PERIOD_SHARE of a period (it then fits between two samples),
         # else at LATE_SHARE, else at the budget: a longer batch makes samples late
