@@ -10,7 +10,7 @@ from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, AMORTIZE, BATCH_BUDGET_S
 from rigidrot_ros.node.lookahead import BatchWorker, WORKER_AHEAD_S
 from rigidrot_ros.node.lookahead import LATE_SHARE, Lookahead, PERIOD_SHARE, SensorAhead
-from rigidrot_ros.node.lookahead import STRIKES, WARMUP_S
+from rigidrot_ros.node.lookahead import STRIKES, WARMUP_S, WORKER_BATCH
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
 PERIOD = 0.01
@@ -353,7 +353,8 @@ def test_a_failing_batch_in_the_worker_turns_off_and_evaluates_per_sample():
         worker.stop()
 
 
-def test_with_a_worker_a_batch_starts_a_batch_ahead_and_is_never_a_strike():
+def test_with_a_worker_a_batch_starts_a_batch_ahead_and_is_never_a_strike(monkeypatch):
+    monkeypatch.setenv('RIGIDROT_WORKER_BATCH', '0')     # sized by the cost model
     clock = _Clock()
     worker = BatchWorker()
     try:
@@ -376,6 +377,39 @@ def test_with_a_worker_a_batch_starts_a_batch_ahead_and_is_never_a_strike():
         inline = Lookahead(solve(SCENE), _time_of, PERIOD)
         inline.size, inline._next = la.size, la._next
         assert la.needs(k) and not inline.needs(k)  # a batch sooner than inline
+    finally:
+        worker.stop()
+
+
+def test_with_a_worker_batches_are_fixed_size_whatever_they_cost(monkeypatch):
+    """In the worker every batch after the first is WORKER_BATCH: the fixed part paid once."""
+    monkeypatch.delenv('RIGIDROT_WORKER_BATCH', raising=False)
+    clock = _Clock()
+    worker = BatchWorker()
+    try:
+        la = Lookahead(solve(SCENE), _time_of, PERIOD, budget_s=1e-9, clock=clock,
+                       worker=worker)
+        clock.t += 10 * WARMUP_S                    # past the warm-up: no excuse for cost
+        sizes = []
+        for k in range(1000):
+            la.get(k)
+            n = la.refill(k)
+            if n:
+                sizes.append(n)
+        assert sizes[0] == AHEAD_MIN and set(sizes[1:]) == {WORKER_BATCH} and len(sizes) > 3
+        assert la.off_reason == '' and la.size == WORKER_BATCH == AHEAD_MAX
+    finally:
+        worker.stop()
+
+
+@pytest.mark.parametrize('value, size', [('0', 0), ('1', AHEAD_MIN), ('64', 64),
+                                         ('100000', AHEAD_MAX), ('x', WORKER_BATCH)])
+def test_the_worker_batch_size_from_the_environment(monkeypatch, value, size):
+    monkeypatch.setenv('RIGIDROT_WORKER_BATCH', value)
+    worker = BatchWorker()
+    try:
+        assert Lookahead(solve(SCENE), _time_of, PERIOD, worker=worker)._fixed_size == size
+        assert Lookahead(solve(SCENE), _time_of, PERIOD)._fixed_size == 0    # inline
     finally:
         worker.stop()
 
