@@ -282,7 +282,7 @@ def test_worker_batches_give_the_samples_of_inline_batches_bit_for_bit():
     try:
         inline = Lookahead(sol, _time_of, PERIOD, budget_s=1.0)
         threaded = Lookahead(sol, _time_of, PERIOD, budget_s=1.0, worker=worker)
-        for k in range(400):
+        for k in range(1000):
             a, b = inline.get(k), threaded.get(k)
             assert a[0] == b[0], k                  # plain floats: exactly equal
             inline.refill(k)
