@@ -10,7 +10,7 @@ from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, AMORTIZE, BATCH_BUDGET_S
 from rigidrot_ros.node.lookahead import BatchWorker, WORKER_AHEAD_S
 from rigidrot_ros.node.lookahead import LATE_SHARE, Lookahead, PERIOD_SHARE, SensorAhead
-from rigidrot_ros.node.lookahead import STRIKES, WARMUP_S, WORKER_BATCH
+from rigidrot_ros.node.lookahead import STRIKES, WARMUP_S, WORKER_BATCH, WORKER_BUDGET_S
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
 PERIOD = 0.01
@@ -381,9 +381,13 @@ def test_with_a_worker_a_batch_starts_a_batch_ahead_and_is_never_a_strike(monkey
         worker.stop()
 
 
-def test_with_a_worker_batches_are_fixed_size_whatever_they_cost(monkeypatch):
+def test_with_a_worker_batches_are_fixed_size_within_the_worker_budget(monkeypatch):
     """In the worker every batch after the first is WORKER_BATCH: the fixed part paid once."""
+    import itertools
+    import time
     monkeypatch.delenv('RIGIDROT_WORKER_BATCH', raising=False)
+    ticks = itertools.count()
+    monkeypatch.setattr(time, 'thread_time', lambda: next(ticks) * 1e-6)    # 1 us a batch
     clock = _Clock()
     worker = BatchWorker()
     try:
@@ -398,6 +402,15 @@ def test_with_a_worker_batches_are_fixed_size_whatever_they_cost(monkeypatch):
                 sizes.append(n)
         assert sizes[0] == AHEAD_MIN and set(sizes[1:]) == {WORKER_BATCH} and len(sizes) > 3
         assert la.off_reason == '' and la.size == WORKER_BATCH == AHEAD_MAX
+        # a slow model: the batch shrinks to the worker's budget (cost model), never a strike
+        la._costs = []
+        la._judge(WORKER_BATCH, 4 * WORKER_BUDGET_S)        # one size seen: all per sample
+        assert la.size == WORKER_BATCH // 4 and la.off_reason == ''
+        la._judge(la.size, WORKER_BUDGET_S)                 # two sizes: a fixed part fitted
+        assert AHEAD_MIN <= la.size <= WORKER_BATCH // 4
+        la._costs = []
+        la._judge(WORKER_BATCH, 1e3)                        # far over: the smallest batch
+        assert la.size == AHEAD_MIN and la.off_reason == ''
     finally:
         worker.stop()
 

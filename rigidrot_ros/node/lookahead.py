@@ -59,7 +59,8 @@ import numpy as np
 
 __all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'BatchWorker', 'AHEAD_MIN', 'AHEAD_MAX',
            'BATCH_BUDGET_S', 'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S',
-           'SWITCH_INTERVAL_S', 'WORKER_NICE', 'WORKER_AHEAD_S', 'WORKER_BATCH']
+           'SWITCH_INTERVAL_S', 'WORKER_NICE', 'WORKER_AHEAD_S', 'WORKER_BATCH',
+           'WORKER_BUDGET_S']
 
 #: The first batch's size, and the smallest.
 AHEAD_MIN = 8
@@ -89,8 +90,13 @@ WARMUP_S = 2.0
 #: time), and 30 of that run's 34 late gyro samples waited while one ran: the worker and
 #: the publishing thread share the interpreter, which changes hands every
 #: :data:`SWITCH_INTERVAL_S`, so the publishing call runs at about half speed meanwhile.
-#: Fixed-size batches pay the fixed part once per 256 samples.
+#: Fixed-size batches pay the fixed part once per 256 samples, as far as
+#: :data:`WORKER_BUDGET_S` allows.
 WORKER_BATCH = AHEAD_MAX
+#: A worker batch is made smaller than :data:`WORKER_BATCH` where its predicted CPU time
+#: (the cost model) would pass this: a slow model (e.g. ``backend:=flint`` at low rates)
+#: keeps batches a reset, a parameter check or a shutdown waits for short.
+WORKER_BUDGET_S = 6e-3
 #: Batches the cost model remembers.
 _HISTORY = 8
 #: How much nicer (lower CPU priority, ``setpriority`` on the thread: no root needed) the
@@ -425,10 +431,12 @@ class Ahead(abc.ABC):
         keep the garbage collector's young generations small) but never a strike.
         """
         self._costs = (self._costs + [(n, cost)])[-_HISTORY:]
-        if self.worker is not None and self._fixed_size:
-            self.size = self._fixed_size        # in the worker: fixed-size batches
-            return
         fixed, per = self._fit()
+        if self.worker is not None and self._fixed_size:
+            # in the worker: fixed-size batches, as far as the worker's budget allows
+            fits = int((WORKER_BUDGET_S - fixed) / per + 1e-9) if per > 0 else AHEAD_MAX
+            self.size = min(max(fits, AHEAD_MIN), self._fixed_size)
+            return
         # a batch aims at PERIOD_SHARE of a period (it then fits between two samples),
         # else at LATE_SHARE, else at the budget: a longer batch makes samples late
         budget = self.budget_s
