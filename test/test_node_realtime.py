@@ -169,10 +169,10 @@ def test_a_poll_runs_the_pass_that_is_due_and_frees_the_cycles(thresholds):
         refs = []
         for i in range(300):                            # the interpreter's mix of passes
             refs.append(weakref.ref(_Cycle()))
-            keep = None                                 # freed first: its count goes
-            keep = [[] for _ in range(2 * collector.STEP)]
+            keep.clear()                                # freed first: its count goes
+            keep.extend([[] for _ in range(2 * collector.STEP)])
             assert ps.poll() is not None
-        assert ps.passes[0] > ps.passes[1] > ps.passes[2] > 0
+        assert len(keep) == 2 * collector.STEP and ps.passes[0] > ps.passes[1] > ps.passes[2] > 0
         assert sum(r() is not None for r in refs) <= 1  # memory bounded: all but the last
     finally:
         ps.stop()
