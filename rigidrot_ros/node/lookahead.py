@@ -37,7 +37,9 @@ once, and the publishing thread takes the results in when it next touches that b
 a batch no longer holds the executor (a gyro batch has a fixed part of ~0.6 ms, past
 half a period at 1 kHz). There the next batch starts when a whole batch, and at least
 :data:`WORKER_AHEAD_S` of samples, is left (not half a batch), and a batch beyond its
-budget is no strike (it only keeps the next one small). Only one evaluation runs at a
+budget is no strike. Its batches are :data:`WORKER_BATCH` samples (the fixed part paid
+once per 256; fewer only where the cost model predicts more than :data:`WORKER_BUDGET_S`
+of CPU). Only one evaluation runs at a
 time (:attr:`BatchWorker.lock`: the core's caches, a sensor's noise stream and mpmath's
 working precision are not thread-safe): an index asked for while its batch runs waits for
 it, and the publishing thread's own evaluations (a miss, a catch-up) take the lock. A
