@@ -166,6 +166,11 @@ def test_a_poll_runs_the_pass_that_is_due_and_frees_the_cycles(thresholds):
         assert gc.get_count()[0] >= collector.STEP
         assert ps.poll() is not None and dead() is None and gc.get_count()[0] < collector.STEP
         assert ps.poll() is None                        # nothing pending: no pass
+        keep.extend([[] for _ in range(2 * collector.STEP)])
+        assert ps.poll(early=False) is None             # a call with no room: not yet
+        keep.extend([[] for _ in range(collector.LATE_STEP)])
+        assert ps.poll(early=False) is not None         # overdue: at the end of any call
+        keep.clear()
         refs = []
         for i in range(300):                            # the interpreter's mix of passes
             refs.append(weakref.ref(_Cycle()))

@@ -301,8 +301,8 @@ class AttitudeNode(Node):
             self._freezer.poll()        # once per run, a few seconds in (O(1))
             self._publish_diagnostics()
         wake = max(now_ns - due_ns, 0)
-        if wake + time.perf_counter_ns() - c_tick <= _GC_ROOM * self._timer_ns:
-            self._passes.poll()         # the next call is most of a period away
+        # the collector's pass, where the next call is most of a period away (or overdue)
+        self._passes.poll(wake + time.perf_counter_ns() - c_tick <= _GC_ROOM * self._timer_ns)
         c_end = time.perf_counter_ns()
         gc_ns = self._gc.total_ns - gc0
         self._counters.call(wake + c_end - c_tick, lambda: [

@@ -28,10 +28,11 @@ the allocation that crosses the threshold: traced at 1 kHz, 4 of the 10 late gyr
 left after fixed-size worker batches waited on a young pass in the look-ahead worker.
 While a node runs, the automatic threshold of generation 0 is raised to
 :data:`SAFETY_THRESHOLD` (a net: the passes still happen if the scheduler stops calling),
-and the scheduler calls :meth:`Passes.poll` at the end of a call that finished early in
-its period (the next sample a good part of a period away): once :data:`STEP` (the
-interpreter's default threshold, 700) allocations are pending, it runs the pass the
-interpreter would have run (generation 1 every 10th, 2 every 100th: the same counters,
+and the scheduler calls :meth:`Passes.poll` at the end of every call. Once :data:`STEP`
+(the interpreter's default threshold, 700) allocations are pending and the call ended
+early in its period (the next sample a good part of a period away), or once
+:data:`LATE_STEP` are pending whenever it ended, it runs the pass the interpreter would
+have run (generation 1 every 10th, 2 every 100th: the same counters,
 :func:`gc.get_count`). Memory then stays as bounded as with the automatic passes.
 ``RIGIDROT_GC_SCHEDULE=0`` leaves the automatic passes alone.
 """
@@ -40,13 +41,16 @@ import gc
 import os
 import time
 
-__all__ = ['Freezer', 'FREEZE_AFTER_S', 'enabled', 'Passes', 'STEP', 'SAFETY_THRESHOLD',
-           'scheduled']
+__all__ = ['Freezer', 'FREEZE_AFTER_S', 'enabled', 'Passes', 'STEP', 'LATE_STEP',
+           'SAFETY_THRESHOLD', 'scheduled']
 
 #: Seconds into a run at which the objects made by its start are frozen too.
 FREEZE_AFTER_S = 2.0
 #: Allocations pending (generation 0's count) at which :meth:`Passes.poll` runs a pass.
 STEP = 700
+#: Allocations pending at which :meth:`Passes.poll` runs a pass even in a call that did
+#: not end early.
+LATE_STEP = 3 * STEP
 #: Generation 0's automatic threshold while :class:`Passes` runs them (a net only).
 SAFETY_THRESHOLD = 20 * STEP
 
@@ -133,16 +137,19 @@ class Passes:
             gc.set_threshold(*self._saved)      # unless someone else set them since
         self._saved = None
 
-    def poll(self):
+    def poll(self, early=True):
         """Run the pass that is due, if :data:`STEP` allocations are pending; its generation.
 
+        ``early``: the caller has room now (the next sample is a good part of a period
+        away); else the pass runs only once :data:`LATE_STEP` are pending (a stream whose
+        calls never end early, e.g. 4 kHz: the pass stays young, at the end of a call).
         None if no pass was due (or not started). The generation is the one the
         interpreter would collect: the oldest whose count reached its threshold.
         """
         if self._saved is None:
             return None
         c0, c1, c2 = gc.get_count()
-        if c0 < STEP:
+        if c0 < (STEP if early else LATE_STEP):
             return None
         _, t1, t2 = self._saved
         gen = 2 if c2 > t2 else 1 if c1 > t1 else 0      # as the interpreter chooses
