@@ -461,3 +461,26 @@ def test_a_call_in_the_worker_reports_its_error_and_the_worker_goes_on():
         assert [type(e) for e in errors] == [ZeroDivisionError] and done == [True]
     finally:
         worker.stop()
+
+
+def test_a_second_ctrl_c_while_the_worker_stops_does_not_end_the_shutdown():
+    """stop() waits the running batch out even when a KeyboardInterrupt hits its wait."""
+    import signal
+    import threading
+    gate, ran = threading.Event(), []
+    worker = BatchWorker()
+    worker.call(lambda: (gate.wait(10), ran.append(1)))
+
+    def interrupt():
+        pause = threading.Event()
+        pause.wait(0.2)                             # main is in stop()'s wait by then
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+        pause.wait(0.2)
+        gate.set()
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        threading.Thread(target=interrupt, daemon=True).start()
+        worker.stop()                               # no KeyboardInterrupt out of here
+    finally:
+        signal.signal(signal.SIGINT, old)
+    assert ran == [1] and not worker.alive

@@ -186,6 +186,7 @@ class BatchWorker:
         self.lock = threading.RLock()
         self._jobs = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._ended = threading.Event()     # set by the thread as it ends
         self._thread.start()
         if sys.getswitchinterval() > SWITCH_INTERVAL_S:
             sys.setswitchinterval(SWITCH_INTERVAL_S)
@@ -205,7 +206,7 @@ class BatchWorker:
 
     def submit(self, job):
         """Queue a :class:`_Job` (anything with ``run()``)."""
-        if not self._thread.is_alive():
+        if not self.alive:
             raise RuntimeError('the look-ahead worker has stopped')
         self._jobs.put(job)
 
@@ -220,6 +221,7 @@ class BatchWorker:
         while True:
             job = self._jobs.get()
             if job is None:
+                self._ended.set()
                 return
             with self.lock:
                 job.run()
@@ -227,13 +229,22 @@ class BatchWorker:
     @property
     def alive(self):
         """Whether the thread runs."""
-        return self._thread.is_alive()
+        return self._thread.is_alive() and not self._ended.is_set()
 
     def stop(self, timeout=5.0):
         """End the thread after the jobs queued; wait at most ``timeout`` s. Idempotent."""
         if self._thread.is_alive():
             self._jobs.put(None)
-            self._thread.join(timeout)
+            # waited on an event, not join(): a second Ctrl-C (spin's handler raises
+            # KeyboardInterrupt) in join() makes Python 3.11 take the running thread for
+            # ended; the last batch is waited out (bounded by ``timeout``), the bag is
+            # still to be finished
+            end = time.monotonic() + timeout
+            while not self._ended.is_set() and time.monotonic() < end:
+                try:
+                    self._ended.wait(max(end - time.monotonic(), 0.0))
+                except KeyboardInterrupt:
+                    continue
 
 
 class Ahead(abc.ABC):
