@@ -10,7 +10,7 @@ from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, AMORTIZE, BATCH_BUDGET_S
 from rigidrot_ros.node.lookahead import BatchWorker, WORKER_AHEAD_S
 from rigidrot_ros.node.lookahead import LATE_SHARE, Lookahead, PERIOD_SHARE, SensorAhead
-from rigidrot_ros.node.lookahead import STRIKES, WARMUP_S
+from rigidrot_ros.node.lookahead import STRIKES, WARMUP_S, WORKER_BATCH, WORKER_BUDGET_S
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
 PERIOD = 0.01
@@ -282,7 +282,7 @@ def test_worker_batches_give_the_samples_of_inline_batches_bit_for_bit():
     try:
         inline = Lookahead(sol, _time_of, PERIOD, budget_s=1.0)
         threaded = Lookahead(sol, _time_of, PERIOD, budget_s=1.0, worker=worker)
-        for k in range(400):
+        for k in range(1000):
             a, b = inline.get(k), threaded.get(k)
             assert a[0] == b[0], k                  # plain floats: exactly equal
             inline.refill(k)
@@ -353,7 +353,8 @@ def test_a_failing_batch_in_the_worker_turns_off_and_evaluates_per_sample():
         worker.stop()
 
 
-def test_with_a_worker_a_batch_starts_a_batch_ahead_and_is_never_a_strike():
+def test_with_a_worker_a_batch_starts_a_batch_ahead_and_is_never_a_strike(monkeypatch):
+    monkeypatch.setenv('RIGIDROT_WORKER_BATCH', '0')     # sized by the cost model
     clock = _Clock()
     worker = BatchWorker()
     try:
@@ -376,6 +377,52 @@ def test_with_a_worker_a_batch_starts_a_batch_ahead_and_is_never_a_strike():
         inline = Lookahead(solve(SCENE), _time_of, PERIOD)
         inline.size, inline._next = la.size, la._next
         assert la.needs(k) and not inline.needs(k)  # a batch sooner than inline
+    finally:
+        worker.stop()
+
+
+def test_with_a_worker_batches_are_fixed_size_within_the_worker_budget(monkeypatch):
+    """In the worker every batch after the first is WORKER_BATCH: the fixed part paid once."""
+    import itertools
+    import time
+    monkeypatch.delenv('RIGIDROT_WORKER_BATCH', raising=False)
+    ticks = itertools.count()
+    monkeypatch.setattr(time, 'thread_time', lambda: next(ticks) * 1e-6)    # 1 us a batch
+    clock = _Clock()
+    worker = BatchWorker()
+    try:
+        la = Lookahead(solve(SCENE), _time_of, PERIOD, budget_s=1e-9, clock=clock,
+                       worker=worker)
+        clock.t += 10 * WARMUP_S                    # past the warm-up: no excuse for cost
+        sizes = []
+        for k in range(1000):
+            la.get(k)
+            n = la.refill(k)
+            if n:
+                sizes.append(n)
+        assert sizes[0] == AHEAD_MIN and set(sizes[1:]) == {WORKER_BATCH} and len(sizes) > 3
+        assert la.off_reason == '' and la.size == WORKER_BATCH == AHEAD_MAX
+        # a slow model: the batch shrinks to the worker's budget (cost model), never a strike
+        la._costs = []
+        la._judge(WORKER_BATCH, 4 * WORKER_BUDGET_S)        # one size seen: all per sample
+        assert la.size == WORKER_BATCH // 4 and la.off_reason == ''
+        la._judge(la.size, WORKER_BUDGET_S)                 # two sizes: a fixed part fitted
+        assert AHEAD_MIN <= la.size <= WORKER_BATCH // 4
+        la._costs = []
+        la._judge(WORKER_BATCH, 1e3)                        # far over: the smallest batch
+        assert la.size == AHEAD_MIN and la.off_reason == ''
+    finally:
+        worker.stop()
+
+
+@pytest.mark.parametrize('value, size', [('0', 0), ('1', AHEAD_MIN), ('64', 64),
+                                         ('100000', AHEAD_MAX), ('x', WORKER_BATCH)])
+def test_the_worker_batch_size_from_the_environment(monkeypatch, value, size):
+    monkeypatch.setenv('RIGIDROT_WORKER_BATCH', value)
+    worker = BatchWorker()
+    try:
+        assert Lookahead(solve(SCENE), _time_of, PERIOD, worker=worker)._fixed_size == size
+        assert Lookahead(solve(SCENE), _time_of, PERIOD)._fixed_size == 0    # inline
     finally:
         worker.stop()
 
@@ -414,3 +461,26 @@ def test_a_call_in_the_worker_reports_its_error_and_the_worker_goes_on():
         assert [type(e) for e in errors] == [ZeroDivisionError] and done == [True]
     finally:
         worker.stop()
+
+
+def test_a_second_ctrl_c_while_the_worker_stops_does_not_end_the_shutdown():
+    """stop() waits the running batch out even when a KeyboardInterrupt hits its wait."""
+    import signal
+    import threading
+    gate, ran = threading.Event(), []
+    worker = BatchWorker()
+    worker.call(lambda: (gate.wait(10), ran.append(1)))
+
+    def interrupt():
+        pause = threading.Event()
+        pause.wait(0.2)                             # main is in stop()'s wait by then
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+        pause.wait(0.2)
+        gate.set()
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        threading.Thread(target=interrupt, daemon=True).start()
+        worker.stop()                               # no KeyboardInterrupt out of here
+    finally:
+        signal.signal(signal.SIGINT, old)
+    assert ran == [1] and not worker.alive

@@ -118,3 +118,66 @@ def test_the_freezer_off_does_nothing(unfreeze, monkeypatch):
     assert not fr.poll() and not _frozen(obj) and fr.freezes == 0
     monkeypatch.setenv('RIGIDROT_GC_FREEZE', '1')
     assert collector.Freezer().on
+
+
+@pytest.fixture
+def thresholds():
+    saved = gc.get_threshold()
+    yield saved
+    gc.set_threshold(*saved)
+
+
+class _Cycle:
+    """A container in a reference cycle (only the collector frees it)."""
+
+    def __init__(self):
+        self.me = self
+
+
+def test_passes_take_generation_0_over_and_give_it_back(thresholds, monkeypatch):
+    gc.set_threshold(700, 10, 10)
+    ps = collector.Passes(on=True)
+    ps.start()
+    ps.start()                                          # idempotent
+    assert gc.get_threshold() == (collector.SAFETY_THRESHOLD, 10, 10) and ps.active
+    ps.stop()
+    ps.stop()
+    assert gc.get_threshold() == (700, 10, 10) and not ps.active
+    assert ps.poll() is None                            # stopped: never collects
+    monkeypatch.setenv('RIGIDROT_GC_SCHEDULE', '0')
+    off = collector.Passes()
+    off.start()
+    assert not off.on and gc.get_threshold() == (700, 10, 10) and off.poll() is None
+    monkeypatch.delenv('RIGIDROT_GC_SCHEDULE')
+    assert collector.Passes().on
+
+
+def test_a_poll_runs_the_pass_that_is_due_and_frees_the_cycles(thresholds):
+    """Cyclic garbage outlives 700 allocations (no automatic pass) until a poll collects it."""
+    import weakref
+    gc.set_threshold(700, 10, 10)
+    gc.collect()
+    ps = collector.Passes(on=True)
+    ps.start()
+    try:
+        dead = weakref.ref(_Cycle())                    # garbage, kept alive by its cycle
+        keep = [[] for _ in range(3 * collector.STEP)]  # allocations past the default
+        assert dead() is not None                       # threshold: no automatic pass
+        assert gc.get_count()[0] >= collector.STEP
+        assert ps.poll() is not None and dead() is None and gc.get_count()[0] < collector.STEP
+        assert ps.poll() is None                        # nothing pending: no pass
+        keep.extend([[] for _ in range(2 * collector.STEP)])
+        assert ps.poll(early=False) is None             # a call with no room: not yet
+        keep.extend([[] for _ in range(collector.LATE_STEP)])
+        assert ps.poll(early=False) is not None         # overdue: at the end of any call
+        keep.clear()
+        refs = []
+        for i in range(300):                            # the interpreter's mix of passes
+            refs.append(weakref.ref(_Cycle()))
+            keep.clear()                                # freed first: its count goes
+            keep.extend([[] for _ in range(2 * collector.STEP)])
+            assert ps.poll() is not None
+        assert len(keep) == 2 * collector.STEP and ps.passes[0] > ps.passes[1] > ps.passes[2] > 0
+        assert sum(r() is not None for r in refs) <= 1  # memory bounded: all but the last
+    finally:
+        ps.stop()

@@ -37,7 +37,9 @@ once, and the publishing thread takes the results in when it next touches that b
 a batch no longer holds the executor (a gyro batch has a fixed part of ~0.6 ms, past
 half a period at 1 kHz). There the next batch starts when a whole batch, and at least
 :data:`WORKER_AHEAD_S` of samples, is left (not half a batch), and a batch beyond its
-budget is no strike (it only keeps the next one small). Only one evaluation runs at a
+budget is no strike. Its batches are :data:`WORKER_BATCH` samples (the fixed part paid
+once per 256; fewer only where the cost model predicts more than :data:`WORKER_BUDGET_S`
+of CPU). Only one evaluation runs at a
 time (:attr:`BatchWorker.lock`: the core's caches, a sensor's noise stream and mpmath's
 working precision are not thread-safe): an index asked for while its batch runs waits for
 it, and the publishing thread's own evaluations (a miss, a catch-up) take the lock. A
@@ -59,7 +61,8 @@ import numpy as np
 
 __all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'BatchWorker', 'AHEAD_MIN', 'AHEAD_MAX',
            'BATCH_BUDGET_S', 'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S',
-           'SWITCH_INTERVAL_S', 'WORKER_NICE', 'WORKER_AHEAD_S']
+           'SWITCH_INTERVAL_S', 'WORKER_NICE', 'WORKER_AHEAD_S', 'WORKER_BATCH',
+           'WORKER_BUDGET_S']
 
 #: The first batch's size, and the smallest.
 AHEAD_MIN = 8
@@ -82,6 +85,20 @@ AMORTIZE = 1.5
 STRIKES = 3
 #: Seconds after a look-ahead starts during which slow batches are no strikes.
 WARMUP_S = 2.0
+#: With a worker, every batch is this many samples (``RIGIDROT_WORKER_BATCH`` overrides it;
+#: ``0``: sized by the cost model as inline, the choice before). A gyro read has a fixed
+#: part of ~1 ms (its numpy steps); sized by the cost model, 57 % of the gyro's batches were
+#: under 32 samples (traced at 1 kHz, 20 s, under load: 505 batches, 0.85 s of the worker's
+#: time), and 30 of that run's 34 late gyro samples waited while one ran: the worker and
+#: the publishing thread share the interpreter, which changes hands every
+#: :data:`SWITCH_INTERVAL_S`, so the publishing call runs at about half speed meanwhile.
+#: Fixed-size batches pay the fixed part once per 256 samples, as far as
+#: :data:`WORKER_BUDGET_S` allows.
+WORKER_BATCH = AHEAD_MAX
+#: A worker batch is made smaller than :data:`WORKER_BATCH` where its predicted CPU time
+#: (the cost model) would pass this: a slow model (e.g. ``backend:=flint`` at low rates)
+#: keeps batches a reset, a parameter check or a shutdown waits for short.
+WORKER_BUDGET_S = 6e-3
 #: Batches the cost model remembers.
 _HISTORY = 8
 #: How much nicer (lower CPU priority, ``setpriority`` on the thread: no root needed) the
@@ -124,6 +141,15 @@ class _Job:
         self.done.set()
 
 
+def _worker_batch():
+    """Return :data:`WORKER_BATCH`, or ``$RIGIDROT_WORKER_BATCH`` (0 to AHEAD_MAX) if set."""
+    try:
+        n = int(os.environ.get('RIGIDROT_WORKER_BATCH', WORKER_BATCH))
+    except ValueError:
+        return WORKER_BATCH
+    return n if n == 0 else min(max(n, AHEAD_MIN), AHEAD_MAX)
+
+
 def _worker_nice():
     """Return :data:`WORKER_NICE`, or ``$RIGIDROT_WORKER_NICE`` (an integer >= 0) if set."""
     try:
@@ -160,6 +186,7 @@ class BatchWorker:
         self.lock = threading.RLock()
         self._jobs = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._ended = threading.Event()     # set by the thread as it ends
         self._thread.start()
         if sys.getswitchinterval() > SWITCH_INTERVAL_S:
             sys.setswitchinterval(SWITCH_INTERVAL_S)
@@ -179,7 +206,7 @@ class BatchWorker:
 
     def submit(self, job):
         """Queue a :class:`_Job` (anything with ``run()``)."""
-        if not self._thread.is_alive():
+        if not self.alive:
             raise RuntimeError('the look-ahead worker has stopped')
         self._jobs.put(job)
 
@@ -194,6 +221,7 @@ class BatchWorker:
         while True:
             job = self._jobs.get()
             if job is None:
+                self._ended.set()
                 return
             with self.lock:
                 job.run()
@@ -201,13 +229,22 @@ class BatchWorker:
     @property
     def alive(self):
         """Whether the thread runs."""
-        return self._thread.is_alive()
+        return self._thread.is_alive() and not self._ended.is_set()
 
     def stop(self, timeout=5.0):
         """End the thread after the jobs queued; wait at most ``timeout`` s. Idempotent."""
         if self._thread.is_alive():
             self._jobs.put(None)
-            self._thread.join(timeout)
+            # waited on an event, not join(): a second Ctrl-C (spin's handler raises
+            # KeyboardInterrupt) in join() makes Python 3.11 take the running thread for
+            # ended; the last batch is waited out (bounded by ``timeout``), the bag is
+            # still to be finished
+            end = time.monotonic() + timeout
+            while not self._ended.is_set() and time.monotonic() < end:
+                try:
+                    self._ended.wait(max(end - time.monotonic(), 0.0))
+                except KeyboardInterrupt:
+                    continue
 
 
 class Ahead(abc.ABC):
@@ -230,6 +267,7 @@ class Ahead(abc.ABC):
                  first=0, clock=time.monotonic, worker=None):
         self.period_s = float(period_s)
         self.worker = worker            # a BatchWorker: refill()'s batches run there
+        self._fixed_size = _worker_batch() if worker is not None else 0
         self._job = None                # the batch in the worker, if any
         self.build = build
         self.budget_s = float(budget_s)
@@ -407,6 +445,11 @@ class Ahead(abc.ABC):
         """
         self._costs = (self._costs + [(n, cost)])[-_HISTORY:]
         fixed, per = self._fit()
+        if self.worker is not None and self._fixed_size:
+            # in the worker: fixed-size batches, as far as the worker's budget allows
+            fits = int((WORKER_BUDGET_S - fixed) / per + 1e-9) if per > 0 else AHEAD_MAX
+            self.size = min(max(fits, AHEAD_MIN), self._fixed_size)
+            return
         # a batch aims at PERIOD_SHARE of a period (it then fits between two samples),
         # else at LATE_SHARE, else at the budget: a longer batch makes samples late
         budget = self.budget_s
