@@ -90,7 +90,7 @@ def unfreeze():
     gc.unfreeze()
 
 
-def test_the_freezer_freezes_at_start_and_once_a_run_after_its_delay(unfreeze):
+def test_the_freezer_freezes_at_start_and_once_into_the_first_run(unfreeze):
     now = [100.0]
     fr = collector.Freezer(on=True, clock=lambda: now[0])
     early = []
@@ -106,6 +106,12 @@ def test_the_freezer_freezes_at_start_and_once_a_run_after_its_delay(unfreeze):
     now[0] += 0.02
     assert fr.poll() and _frozen(later) and fr.freezes == 2
     assert not fr.poll()                # once per arm
+    # a second run (a ~/reset): its garbage must stay collectable, so no freeze
+    again = []
+    again.append(again)
+    fr.arm()
+    now[0] += 2 * collector.FREEZE_AFTER_S
+    assert not fr.poll() and not _frozen(again) and fr.freezes == 2
 
 
 def test_the_freezer_off_does_nothing(unfreeze, monkeypatch):
