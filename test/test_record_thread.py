@@ -1,19 +1,14 @@
 """The recorder's writer thread: a writer that falls behind loses and reorders nothing."""
 
-from pathlib import Path
 import threading
 import time
 
-from geometry_msgs.msg import Vector3Stamped
 import pytest
-import rclpy
-from rclpy.serialization import serialize_message
-from rosbags.highlevel import AnyReader
-from std_msgs.msg import String
 
-from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter
 from rigidrot_ros.io.recorder import Recorder
+
+from test_record_process import _calls, _node, _read  # noqa: I100, I201 - a test module beside it
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
@@ -32,28 +27,15 @@ class _SlowWriter(BagWriter):
         return super().write(topic, data, log_time_ns, publish_time_ns)
 
 
-def _calls(n):
-    """``n`` calls of published messages: a raw vector and a String object (serialized later)."""
-    out = []
-    for i in range(n):
-        vec = msgs.vector(msgs.stamp(10**9 + i * 10**6), 'body', (i, -i, 0.5 * i))
-        out.append((10**9 + i * 10**6 + 7, [('/rate', Vector3Stamped, serialize_message(vec)),
-                                            ('/note', String(data=f'call {i}'), None)]))
-    return out
-
-
 def _record(tmp_path, name, threaded, delay, calls):
-    node = rclpy.create_node(f'rec_{name}')
+    node = _node(f'rec_{name}')
     try:
-        node.create_publisher(Vector3Stamped, '/rate', 10)
-        node.create_publisher(String, '/note', 10)
         writer = _SlowWriter(str(tmp_path), name, flush_period=0.01)
         writer.delay = delay
         rec = Recorder(node, writer, exclude_own=True, threaded=threaded)
         queued, c0 = 0, time.perf_counter()
         for i, (now_ns, items) in enumerate(calls):
-            rec.record_published(now_ns, [(t, m if raw is None else m, raw)
-                                          for t, m, raw in items])
+            rec.record_published(now_ns, items)
             if i == len(calls) // 2:
                 rec.add_run({'index': '1', 'note': 'half way'})
                 rec._flush()                        # as the flush timer would
@@ -63,11 +45,6 @@ def _record(tmp_path, name, threaded, delay, calls):
         return path, counts, queued, handed
     finally:
         node.destroy_node()
-
-
-def _read(path):
-    with AnyReader([Path(path)]) as reader:
-        return [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
 
 
 def test_a_writer_that_falls_behind_loses_and_reorders_nothing(tmp_path):
@@ -84,10 +61,9 @@ def test_a_writer_that_falls_behind_loses_and_reorders_nothing(tmp_path):
 
 
 def test_a_failing_disk_stops_the_threaded_recording_with_one_event(tmp_path):
-    node = rclpy.create_node('rec_fail')
+    node = _node('rec_fail')
     events = []
     try:
-        node.create_publisher(Vector3Stamped, '/rate', 10)
         writer = BagWriter(str(tmp_path), 'fail', flush_period=0.01)
 
         def broken(*args):
