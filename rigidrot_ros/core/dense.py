@@ -440,9 +440,8 @@ class DenseSpinor:
 
         Compiled (:func:`.engine.chain`): each anchor is the window before evaluated at
         its end, re-anchored exactly where the chained bound would pass ``chain_limit``.
-        With
-        ``whole`` the chain goes on past ``upto`` while it is cheap: up to the block's end
-        or the next window that needs an exact evaluation.
+        With ``whole`` the chain goes on past ``upto`` while it is cheap: up to the block's
+        end or the next window that needs an exact evaluation.
         """
         chain = self._engine()[2]
         g = len(blk.anc)
