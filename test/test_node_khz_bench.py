@@ -1,5 +1,7 @@
 """node_khz's report of where the time went: the longest call's phases, gc passes, policy."""
 
+import numpy as np
+
 from rigidrot_ros.bench import node_khz
 
 
@@ -48,3 +50,58 @@ def test_a_node_without_the_keys_reads_na():
          'exit_code': 0, 'stderr_tail': ''}), lines.append)
     assert 'longest call median/worst n/a us (worst: n/a); gc passes n/a; scheduling n/a' \
         in lines[-1]
+
+
+def test_a_stall_covers_the_waits_it_shares_a_point_with():
+    from rigidrot_ros.bench import stalls
+    got = stalls.overlapping([(100, 50), (1000, 10)], [0, 140, 151, 990, 1011],
+                             [99, 200, 160, 1000, 2000])
+    assert got.tolist() == [False, True, False, True, False]
+    assert not stalls.overlapping([(100, 50)], [120], [130], min_ns=51).any()
+
+
+def _bag(t0, late_stamps_ms, late_delay_us):
+    stamps = np.array([t0 + int(ms * 1e6) for ms in late_stamps_ms], dtype=np.int64)
+    return {'t0_ns': t0, 'measured_s': 10.0, 'gyro_late': len(stamps), 'ticks_missed': 0,
+            '_late_waits': (stamps, stamps + int(late_delay_us * 1e3))}
+
+
+def test_late_samples_within_the_machines_stalls_are_told_apart():
+    t0 = 10**18
+    w = t0 + 2 * 10**9                              # the span starts after the 2 s warm-up
+    rec = {'policy': 'SCHED_FIFO 20', 'stalls': [
+        [t0 + 10**9, 5_000_000],                    # in the warm-up: not counted
+        [w + 3 * 10**9, 2_000_000],                 # covers the first late sample
+        [w + 5 * 10**9, 400_000],                   # under half a period at 1 kHz
+        [w + 6 * 10**9, 600_000]]}                  # past half a period, no late sample
+    bag = _bag(t0, [5000.5, 7000.1], 1200)          # ms from t0; 1.2 ms late each
+    got = node_khz.machine_figures(rec, bag, 1000.0)
+    assert '_late_waits' not in bag
+    assert got == {'machine_policy': 'SCHED_FIFO 20', 'machine_stalls': 2,
+                   'machine_stall_max_us': 2000.0, 'gyro_late_machine': 1}
+    bag.update(got)
+    diag = {'lookahead': {'on_throughout': True}, 'ticks_missed': 0}
+    assert node_khz._verdict(1000.0, bag, diag)[1] == 'not met'
+    bag['gyro_late_machine'] = 2
+    assert node_khz._verdict(1000.0, bag, diag)[1] == 'not met (all 2 late in machine stalls)'
+    bag['gyro_late'] = bag['gyro_late_machine'] = 0
+    assert node_khz._verdict(1000.0, bag, diag)[1] == 'met'
+    assert node_khz.machine_figures(None, _bag(t0, [], 0), 1000.0)['machine_stalls'] is None
+
+
+def test_the_stall_probe_writes_its_record_when_stopped(tmp_path):
+    """A separate process, stopped as the benchmark stops it (SIGTERM)."""
+    import json
+    import signal
+    import subprocess
+    import sys
+    import time
+    out = tmp_path / 'stalls.json'
+    proc = subprocess.Popen([sys.executable, '-m', 'rigidrot_ros.bench.stalls', str(out)])
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(30) == 0
+    rec = json.loads(out.read_text())
+    assert rec['policy'] in ('SCHED_FIFO 20', 'SCHED_OTHER')
+    assert rec['wakes'] >= 100                      # a 1 ms grid, for most of a second
+    assert all(late > 300_000 for _, late in rec['stalls'])

@@ -304,6 +304,8 @@ class AttitudeNode(Node):
         # the collector's pass, where the next call is most of a period away (or overdue)
         self._passes.poll(wake + time.perf_counter_ns() - c_tick <= _GC_ROOM * self._timer_ns)
         c_end = time.perf_counter_ns()
+        if self._worker is not None:
+            self._open_gate(c_tick, now_ns, c_end)
         gc_ns = self._gc.total_ns - gc0
         self._counters.call(wake + c_end - c_tick, lambda: [
             ('wake', wake),
@@ -312,6 +314,21 @@ class AttitudeNode(Node):
             ('publish', c_publish - c_collect), ('record', c_record - c_publish),
             ('batch', (c_batch - c_record, batch)), ('diag', c_end - c_batch),
             ('gc', gc_ns)])
+
+    def _open_gate(self, c_tick, now_ns, c_end):
+        """Let the worker run until shortly before the next call (lookahead.SlackGate).
+
+        For good while a stream's batch in the worker is needed soon (``Ahead.urgent``).
+        ``c_tick``, ``c_end``: the call's start and end (perf_counter ns); ``now_ns``: its
+        start on the node's clock.
+        """
+        gate = self._worker.gate
+        if (self._ahead is not None and self._ahead.urgent()) or \
+                any(s.ahead.urgent() for s in self._sensors):
+            gate.open()
+            return
+        nxt = self._grid_due_ns(now_ns + c_end - c_tick) + self._timer_ns
+        gate.open_until(gate.deadline_ns(c_tick + (nxt - now_ns), self._timer_ns))
 
     def _grid_due_ns(self, now_ns):
         """Return the scheduler grid time this call was due at (the last one at or before now)."""
@@ -517,13 +534,25 @@ class AttitudeNode(Node):
                 'sensors': {s.stream.name: s.take_latencies() for s in self._sensors},
                 'gyro': [s.bound for s in self._streams if s.name == 'imu'],
                 'delivered': self._delivered_rate(), 'last': self._last_sample,
-                'stamp': self.get_clock().now(), 'scheduling': self._scheduling}
+                'stamp': self.get_clock().now(), 'scheduling': self._scheduling,
+                'gate': self._gate_window()}
         if self._worker is None:
             self._send_diagnostics(snap)
         else:
             self._worker.call(lambda: self._send_diagnostics(snap), self._diag_failed)
             if wait:
                 self._worker.drain()
+
+    def _gate_window(self):
+        """The worker gate over the window, as text: holds and the time held (or why none)."""
+        gate = self._worker.gate if self._worker is not None else None
+        if gate is None or not gate.on:
+            return 'off'
+        last = getattr(self, '_gate_last', (0, 0))
+        self._gate_last = (gate.holds, gate.held_ns)
+        if gate.deadline == gate.FREE and gate.holds == last[0]:
+            return 'open'
+        return f'{gate.holds - last[0]} holds, {(gate.held_ns - last[1]) / 1e6:.1f} ms'
 
     def _diag_failed(self, exc):
         if self.context.ok():
@@ -545,6 +574,7 @@ class AttitudeNode(Node):
                                   'attitude', message=msg,
                                   hardware_id=self.get_fully_qualified_name())
         values['scheduling'] = snap['scheduling']
+        values['worker_gate'] = snap['gate']
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         arr = DiagnosticArray()
         arr.header.stamp = snap['stamp'].to_msg()
@@ -570,7 +600,7 @@ class AttitudeNode(Node):
     # -- reset -------------------------------------------------------------------------------
     def _eval_lock(self):
         """Return the worker's evaluation lock (mpmath's precision, the core's caches), if any."""
-        return self._worker.lock if self._worker is not None else contextlib.nullcontext()
+        return self._worker.locked() if self._worker is not None else contextlib.nullcontext()
 
     def _on_reset(self, request, response):
         try:
