@@ -200,7 +200,9 @@ def _read_probe(path):
 
 
 def machine_figures(rec, bag, rate, warmup=WARMUP_S):
-    """The machine's stalls in the span (:mod:`rigidrot_ros.bench.stalls`), and the late gyro samples they explain.
+    """The machine's stalls in the span, and the late gyro samples within them.
+
+    ``rec``: the probe's record (:mod:`rigidrot_ros.bench.stalls`), or None.
 
     ``machine_policy``: the probe's scheduling; ``machine_stalls``: its wake-ups more than
     half a period late in the span, ``machine_stall_max_us`` the longest;

@@ -77,7 +77,9 @@ def probe(seconds=None, period_s=PERIOD_S, threshold_s=THRESHOLD_S, priority=PRI
 
 
 def overlapping(stalls, starts_ns, ends_ns, min_ns=0):
-    """Return a bool per wait ``[starts_ns[i], ends_ns[i]]``: does a stall of at least ``min_ns`` cover part of it?
+    """Return a bool per wait ``[starts_ns[i], ends_ns[i]]``: a stall covers part of it.
+
+    Only stalls of at least ``min_ns`` count.
 
     A stall ``[due, due + delay]`` (the probe's wait past its due time) overlaps a wait
     if the two intervals share a point.
@@ -94,7 +96,7 @@ def overlapping(stalls, starts_ns, ends_ns, min_ns=0):
 def main(argv=None):
     """``python -m rigidrot_ros.bench.stalls OUT.json [--seconds S]``."""
     ap = argparse.ArgumentParser(prog='python -m rigidrot_ros.bench.stalls',
-                                 description='Note the machine\'s stalls: wake-ups of a '
+                                 description="Note the machine's stalls: wake-ups of a "
                                  'real-time 1 ms sleep loop past 0.3 ms.')
     ap.add_argument('out', help='JSON file to write at the end')
     ap.add_argument('--seconds', type=float, default=None,

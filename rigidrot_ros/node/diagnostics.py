@@ -22,8 +22,9 @@ sample's true time, over the window; with a ``<name>.latency`` model at least th
 started);
 ``increment_error_bound_rad`` (the largest bound of this run's gyro increments);
 ``sensor_samples_skipped``, ``ticks_published``, ``ticks_late``, ``ticks_missed``,
-``publish_rate_hz`` and ``delivered_rate_hz``. The node adds ``scheduling`` (its policy, :mod:`~rigidrot_ros.node.realtime`)
-and ``worker_gate`` (the look-ahead worker held to the scheduler's slack over the window,
+``publish_rate_hz`` and ``delivered_rate_hz``. The node adds ``scheduling`` (its
+policy, :mod:`~rigidrot_ros.node.realtime`) and ``worker_gate`` (the look-ahead worker
+held to the scheduler's slack over the window,
 :class:`~rigidrot_ros.node.lookahead.SlackGate`: ``<n> holds, <ms> ms``; ``open`` where
 it is not held, e.g. below a 1 ms period; ``off`` with ``RIGIDROT_WORKER_GATE=0`` or no
 worker).
@@ -35,8 +36,8 @@ the buffers, or evaluated then (``owed``: samples per stream, ``now``: of those 
 buffered), ``publish``, ``record`` (handing the messages to the recorder), ``batch`` (the
 look-ahead batch, and whose), ``diag`` (these add up to the call), and ``gc``: the
 garbage collector's passes within the call, a part of the phases above, e.g. of ``diag``
-for a pass the scheduler ran at its end); ``gc_collections`` (passes in the window, generations 0/1/2) and ``gc_max_us``
-(the longest, :class:`GcWatch`).
+for a pass the scheduler ran at its end); ``gc_collections`` (passes in the window,
+generations 0/1/2) and ``gc_max_us`` (the longest, :class:`GcWatch`).
 """
 
 from dataclasses import dataclass, field

@@ -141,8 +141,9 @@ _NO_HOLD = frozenset({'threading', 'queue', 'importlib', 'logging', 'numba', 'll
 #: them, 2025 late gyro samples in 20 s against ~260 without the gate).
 GATE_MIN_PERIOD_S = 1e-3
 #: A stream with a batch in the worker and less than this many seconds of samples
-#: buffered before it makes the gate open for good until the batch is in (:meth:`Ahead.urgent`):
-#: a worker held to the slack must never make the publishing thread wait for its batch.
+#: buffered before it makes the gate open for good until the batch is in
+#: (:meth:`Ahead.urgent`): a worker held to the slack must never make the publishing
+#: thread wait for its batch.
 GATE_URGENT_S = 0.02
 #: The longest the worker waits for the publishing thread to open the gate again; past it
 #: (the scheduler stopped: a reset, a shutdown) the worker goes on for as long again.
@@ -389,6 +390,7 @@ class BatchWorker:
             sys.setprofile(self.gate.profile if self.gate.deadline != SlackGate.FREE else None)
             with self.lock:
                 job.run()
+            sys.setprofile(None)        # idle, the worker waits on its queue, not the gate
 
     @property
     def alive(self):
