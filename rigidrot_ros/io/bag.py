@@ -13,22 +13,27 @@ carries ``"rigidrot_run": 1`` (the node's transient-local ``~/run`` topic, which
 recorder keeps). :func:`read_bag` merges both into :attr:`BagContents.runs`.
 """
 
+import collections
+import contextlib
 from dataclasses import dataclass, field
 import datetime
 import json
 import os
 import re
 import struct
+import threading
 import time
+import zlib
 
 from mcap.data_stream import RecordBuilder
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import make_reader, StreamReader
-from mcap.records import Channel, Message, MessageIndex, Metadata, Schema
-from mcap.writer import CompressionType, Writer
+from mcap.records import Channel, Chunk, ChunkIndex, Message, MessageIndex, Metadata, Schema
+from mcap.writer import CompressionType, IndexType, Writer
 import numpy as np
 import yaml
+import zstandard
 
 from rigidrot_ros.io.msgdefs import schema_text
 
@@ -36,6 +41,9 @@ __all__ = ['BagWriter', 'BagError', 'read_bag', 'BagContents', 'qos_yaml', 'RUN_
            'bag_files', 'reindex', 'run_from_string', 'STRING_TYPE']
 
 RUN_RECORD = 'rigidrot_run'
+#: Chunks closed but not yet written that an offloading :class:`BagWriter` holds at most;
+#: past it the caller writes them itself (waits for the disk).
+MAX_PENDING_CHUNKS = 4
 STRING_TYPE = 'std_msgs/msg/String'
 MAGIC = b'\x89MCAP0\r\n'
 _INFINITE = {'sec': 2147483647, 'nsec': 4294967295}
@@ -122,6 +130,28 @@ class BagWriter:
     split_seconds : float
         Start a new file ``<dir>_<n>.mcap`` after this many seconds (a split bag, as
         rosbag2's ``--max-bag-duration`` writes it; 0 = never).
+    offload : callable, optional
+        ``offload(fn)`` runs ``fn()`` later on another thread (e.g. a
+        :class:`rigidrot_ros.node.lookahead.BatchWorker`'s ``call``). Then closing a chunk
+        (:meth:`flush`, :meth:`maybe_flush`, a chunk past its size) only detaches it on the
+        caller's thread (its bytes, times and message indexes; the next messages go into a
+        fresh chunk) and ``fn`` does the rest: zstd (which releases the interpreter), crc,
+        the Chunk and MessageIndex records, the chunk index, the stream write and flush.
+        The file is byte for byte what the inline writer writes: a detached chunk is
+        written before anything written to the file after it (:meth:`add_metadata`, a
+        split, :meth:`close` first write the chunks still queued, on the caller's thread).
+        At most :data:`MAX_PENDING_CHUNKS` detached chunks wait; past that the caller
+        writes them itself (a stalled disk makes it wait; memory stays bounded by about
+        that many chunks). An ``offload`` that raises (a stopped worker raises
+        RuntimeError) is bypassed: the chunk is written inline, never dropped. An error
+        of an offloaded write (OSError: disk full) is raised by the caller's next
+        :meth:`write`, :meth:`write_many`, :meth:`maybe_flush`, :meth:`flush`,
+        :meth:`add_metadata` or :meth:`close`; what was written before it stays in the
+        file. None (the default): every chunk is written inline, as always.
+    on_wait : callable, optional
+        Called on the caller's thread before it waits for an offloaded write in progress
+        (e.g. a :class:`rigidrot_ros.node.lookahead.SlackGate`'s ``open``, so that a worker
+        held by the gate finishes it).
 
     Notes
     -----
@@ -134,7 +164,8 @@ class BagWriter:
     in bounded memory.
     """
 
-    def __init__(self, root, name, flush_period=0.5, path=None, split_seconds=3600.0):
+    def __init__(self, root, name, flush_period=0.5, path=None, split_seconds=3600.0,
+                 offload=None, on_wait=None):
         if path is not None:
             self.path = _exact_dir(os.path.abspath(path))
         else:
@@ -156,6 +187,11 @@ class BagWriter:
         self._dirty = False
         self._closed = False
         self._roll_due = False
+        self._offload = offload
+        self._on_wait = on_wait
+        self._lock = threading.Lock()         # the file's records and stream (offload)
+        self._pending = collections.deque()   # detached chunks, oldest first (offload)
+        self._error = None                    # an offloaded write's error, not yet raised
         self._open_file()
         self._write_metadata_yaml()
 
@@ -177,6 +213,10 @@ class BagWriter:
         for topic, (type_name, text, meta) in self._channel_args.items():
             self._register(topic, type_name, text, meta)
         self._chunk_list = getattr(self._writer, '_Writer__chunk_indices', None)
+        if self._offload is not None:
+            # a chunk past its size is detached too (mcap's add_message and write_many
+            # call this name-mangled method; an instance attribute shadows it)
+            self._writer._Writer__maybe_finalize_chunk = self._maybe_detach
 
     def add_topic(self, topic, type_name, qos=None, schema=None, metadata=None):
         """Register ``topic`` of ``pkg/msg/Type``; returns its channel id.
@@ -215,6 +255,8 @@ class BagWriter:
 
     def write(self, topic, data, log_time_ns, publish_time_ns=None):
         """Write one serialized (CDR) message."""
+        if self._error is not None:
+            self._raise_error()
         if self._roll_due:
             self._roll()
         cid = self._channels[topic]
@@ -245,6 +287,8 @@ class BagWriter:
         if not (len(topics) == n == len(log_times_ns)):
             raise ValueError('write_many needs one topic, one payload and one stamp per '
                              'message')
+        if self._error is not None:
+            self._raise_error()
         if n == 0:
             return
         if self._roll_due:
@@ -324,30 +368,34 @@ class BagWriter:
 
     def add_metadata(self, name, data):
         """Write an MCAP metadata record (a string map) and flush it to the file."""
-        self._writer.add_metadata(name, dict(data))
+        with self._exclusive():
+            self._writer.add_metadata(name, dict(data))
+            if self._offload is not None:
+                self._fh.flush()
         self._dirty = True
         self.flush()
 
     def maybe_flush(self):
         """Flush if ``flush_period`` has passed since the last flush."""
+        if self._error is not None:
+            self._raise_error()
         if self._dirty and time.monotonic() - self._last_flush >= self._flush_period:
             self.flush()
 
     def flush(self):
-        """Close the open chunk and push it to the operating system."""
+        """Close the open chunk and push it to the operating system (or hand it to ``offload``)."""
         if self._closed:
             return
-        self._writer.flush()
-        self._fh.flush()
+        if self._error is not None:
+            self._raise_error()
+        if self._offload is None:
+            self._writer.flush()
+            self._fh.flush()
+            _pack_indexes(self._chunk_list)
+        else:
+            self._detach()
         self._dirty = False
         self._last_flush = time.monotonic()
-        if self._chunk_list is not None:          # pack the new chunk indexes
-            if not self._chunk_list or not isinstance(self._chunk_list[0], _PackedRecords):
-                self._chunk_list.insert(0, _PackedRecords())
-            packed = self._chunk_list[0]
-            for index in self._chunk_list[1:]:
-                packed.add(index)
-            del self._chunk_list[1:]
         if (self._split > 0 and self._last_flush - self._file_started >= self._split
                 and self._per_file[self._files[-1]][2]):
             self._roll_due = True           # the next message starts the next file
@@ -355,9 +403,10 @@ class BagWriter:
     def _roll(self):
         """Finish the current file and continue in the next one of the split bag."""
         self._roll_due = False
-        self._writer.finish()
-        self._fh.close()
-        self._open_file()
+        with self._exclusive():
+            self._writer.finish()
+            self._fh.close()
+            self._open_file()
         self._write_metadata_yaml()
 
     @property
@@ -375,16 +424,152 @@ class BagWriter:
         if self._closed:
             return
         self._closed = True
+        error, self._error = self._error, None      # reported here, after the rest
+        finished = False
         try:
-            self._writer.finish()
+            with self._exclusive():                 # the chunks in flight first
+                self._writer.finish()
+            finished = True
+        except Exception:   # noqa: B902 - the first error is the one to report
+            if error is None:
+                raise
         finally:
             self._fh.close()
-        self._write_metadata_yaml()
+        if finished:
+            self._write_metadata_yaml()             # a finished file is described
+        if error is not None:
+            raise error
+
+    # -- offload (chunks written off the caller's thread) ------------------------------------
+    def _raise_error(self):
+        error, self._error = self._error, None
+        raise error
+
+    @contextlib.contextmanager
+    def _exclusive(self):
+        """On the caller's thread: hold the file (the chunks in flight written first).
+
+        Raises an offloaded write's error not yet reported. A no-op without ``offload``.
+        """
+        if self._offload is None:
+            yield
+            return
+        if not self._lock.acquire(blocking=False):
+            if self._on_wait is not None:
+                self._on_wait()
+            self._lock.acquire()
+        try:
+            self._write_held()
+            if self._error is not None:
+                self._raise_error()
+            yield
+        finally:
+            self._lock.release()
+
+    def _maybe_detach(self):
+        """Detach the open chunk if it has passed the chunk size (mcap's own test)."""
+        writer = self._writer
+        if writer._Writer__chunk_builder.count > writer._Writer__chunk_size:
+            self._detach()
+
+    def _detach(self):
+        """Close the open chunk on the caller's thread; its write goes to ``offload``.
+
+        Takes the chunk builder's bytes (one copy), times and message indexes, and leaves
+        the builder empty for the next messages (the same object: :meth:`write_many` holds
+        it). The chunk count is mcap's statistics record's, as its own close counts it.
+        """
+        writer = self._writer
+        chunk = writer._Writer__chunk_builder
+        if chunk.num_messages == 0:
+            return
+        writer._Writer__statistics.chunk_count += 1
+        self._pending.append((writer, chunk.end(), chunk.message_start_time,
+                              chunk.message_end_time, chunk.message_indices))
+        chunk.message_indices = {}
+        chunk.message_start_time = chunk.message_end_time = 0
+        chunk.num_messages = 0
+        if len(self._pending) > MAX_PENDING_CHUNKS:
+            with self._exclusive():                 # a stalled disk: the caller waits
+                pass
+            return
+        try:
+            self._offload(self._write_pending)
+        except Exception:   # noqa: B902 - a stopped worker, or any: written here, not lost
+            with self._exclusive():
+                pass
+
+    def _write_pending(self):
+        """Write the detached chunks, oldest first (the offloaded call; any thread)."""
+        with self._lock:
+            self._write_held()
+
+    def _write_held(self):
+        # the lock is held: the chunks in order; a failed one is dropped (as inline, its
+        # bytes may be half written) and its error kept for the caller; the rest wait
+        while self._pending and self._error is None:
+            item = self._pending[0]
+            try:
+                _write_chunk(*item)
+            except Exception as exc:    # noqa: B902 - any error: raised on the caller's thread
+                self._error = exc
+                self._pending.popleft()
+                return
+            self._pending.popleft()
 
     def _write_metadata_yaml(self):
         write_metadata_yaml(self.path, list(self._files), self._topics, self._counts,
                             self._first, self._last,
                             {f: tuple(v) for f, v in self._per_file.items()})
+
+
+def _pack_indexes(chunk_list):
+    """Pack the mcap writer's new chunk indexes (``_Writer__chunk_indices``) into bytes."""
+    if chunk_list is None:
+        return
+    if not chunk_list or not isinstance(chunk_list[0], _PackedRecords):
+        chunk_list.insert(0, _PackedRecords())
+    packed = chunk_list[0]
+    for index in chunk_list[1:]:
+        packed.add(index)
+    del chunk_list[1:]
+
+
+def _write_chunk(writer, data, start, end, indices):
+    """Write a detached chunk into ``writer``'s file as mcap's own chunk close does.
+
+    The same records in the same order as ``Writer.__finalize_chunk`` (mcap 1.6): the Chunk
+    (zstd, crc of the uncompressed bytes), its MessageIndex records, the ChunkIndex kept
+    for the summary (then packed), and the stream flushed to the operating system.
+    """
+    compressed = zstandard.compress(data)
+    chunk = Chunk(compression='zstd', data=compressed, message_start_time=start,
+                  message_end_time=end,
+                  uncompressed_crc=zlib.crc32(data) if writer._Writer__enable_crcs else 0,
+                  uncompressed_size=len(data))
+    flush = writer._Writer__flush
+    records = writer._Writer__record_builder
+    stream = writer._Writer__stream
+    flush()
+    offset = stream.tell()
+    chunk.write(records)
+    index = ChunkIndex(message_start_time=start, message_end_time=end,
+                       chunk_start_offset=offset, chunk_length=records.count,
+                       message_index_offsets={}, message_index_length=0,
+                       compression='zstd', compressed_size=len(compressed),
+                       uncompressed_size=len(data))
+    flush()
+    index_start = stream.tell()
+    if writer._Writer__index_types & IndexType.MESSAGE:
+        for cid, message_index in indices.items():
+            index.message_index_offsets[cid] = index_start + records.count
+            message_index.write(records)
+    index.message_index_length = records.count
+    flush()
+    chunk_list = writer._Writer__chunk_indices
+    chunk_list.append(index)
+    _pack_indexes(chunk_list)
+    stream.flush()
 
 
 def write_metadata_yaml(path, files, topics, counts, first, last, per_file=None):
