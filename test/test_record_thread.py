@@ -1,14 +1,19 @@
-"""The recorder's writer thread: a writer that falls behind loses and reorders nothing."""
+"""The recorder's writer thread, and the node's chunk writes in its worker: nothing lost."""
 
+from pathlib import Path
 import threading
 import time
 
 import pytest
+from rosbags.highlevel import AnyReader
 
+from rigidrot_ros.io import bag as bagmod
 from rigidrot_ros.io.bag import BagWriter
 from rigidrot_ros.io.recorder import Recorder
 
-from test_record_process import _calls, _node, _read  # noqa: I100, I201 - a test module beside it
+from ros_helpers import node_and_listener, reset_twice, stamp_ns  # noqa: I100, I201
+from test_bag_offload import _Disk, _Thread  # noqa: I100, I201 - test modules beside it
+from test_record_process import _calls, _node, _read  # noqa: I100, I201
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
@@ -79,3 +84,83 @@ def test_a_failing_disk_stops_the_threaded_recording_with_one_event(tmp_path):
         assert 'No space left on device' in events[0][1]
     finally:
         node.destroy_node()
+
+
+def test_a_disk_error_of_an_offloaded_chunk_stops_the_recording_with_one_event(tmp_path):
+    node = _node('rec_offload_fail')
+    events, worker = [], _Thread()
+    try:
+        writer = BagWriter(str(tmp_path), 'full', flush_period=0.01, offload=worker)
+        rec = Recorder(node, writer, exclude_own=True,
+                       on_event=lambda level, text: events.append((level, text)))
+        calls = _calls(60)
+        for now_ns, items in calls[:20]:
+            rec.record_published(now_ns, items)
+        writer.flush()
+        while writer._pending:
+            time.sleep(0.01)
+        disk = _Disk(writer._fh)
+        writer._writer._Writer__stream = disk
+        disk.full = True
+        for now_ns, items in calls[20:40]:
+            rec.record_published(now_ns, items)
+        writer.flush()                          # this chunk's write fails in the thread
+        while writer._error is None:
+            time.sleep(0.01)
+        for now_ns, items in calls[40:]:
+            rec.record_published(now_ns, items)     # the error surfaces here, once
+        rec.close()
+        assert not rec.active
+        assert [lv for lv, _ in events] == ['error']
+        assert 'No space left on device' in events[0][1]
+    finally:
+        worker.stop()
+        node.destroy_node()
+    # what was written before the error is in the file (no summary: read as torn)
+    got = bagmod.read_bag(writer.path)
+    assert [m[2] for m in got.messages] == [t for t, _ in calls[:20] for _ in range(2)]
+
+
+@pytest.mark.parametrize('offload', ['1', '0'])
+def test_the_node_at_1_khz_writes_its_chunks_in_its_worker(tmp_path, monkeypatch, offload):
+    monkeypatch.setenv('RIGIDROT_RECORD_OFFLOAD', offload)
+    monkeypatch.delenv('RIGIDROT_RECORD_THREAD', raising=False)
+    monkeypatch.delenv('RIGIDROT_RECORD_PROCESS', raising=False)
+    threads = []
+    write_chunk = bagmod._write_chunk
+
+    def spy(*args):
+        threads.append(threading.current_thread().name)
+        return write_chunk(*args)
+    monkeypatch.setattr(bagmod, '_write_chunk', spy)
+    node, ex, lis = node_and_listener(publish_rate=1000.0, record=True,
+                                      record_path=str(tmp_path), **{'imu.enable': True,
+                                                                    'imu.rate': 1000.0})
+    ex.add_node(lis)
+    try:
+        writer = node._runs.recorder._writer
+        assert (writer._offload is not None) == (offload == '1')
+        reset_twice(node, ex, ticks=1000 if offload == '1' else 100)  # chunks at the resets
+        counts = node._runs.recorder.counts
+    finally:
+        node.destroy_node()                     # the worker stops, then the bag is finished
+        lis.destroy_node()
+    assert writer.closed and not writer._pending
+    if offload == '1':
+        assert threads.count('rigidrot-lookahead') >= 20       # 3 s, a chunk every 0.1 s
+    else:
+        assert not threads
+    imu, logs, runs = [], [], 0
+    with AnyReader([Path(writer.path)]) as reader:
+        for conn, log_ns, raw in reader.messages():
+            logs.append(log_ns)
+            if conn.topic == '/imu':
+                imu.append(stamp_ns(reader.deserialize(raw, conn.msgtype)))
+            runs += conn.topic.endswith('/run')
+        total = sum(c.msgcount for c in reader.connections)
+    assert len(logs) == total == sum(counts.values())       # all of it, summary and all
+    assert len(imu) == counts['/imu'] >= (2900 if offload == '1' else 290)
+    assert logs == sorted(logs)
+    assert all(b > a for a, b in zip(imu, imu[1:]))         # every sample, in order
+    assert runs == 3                                        # start-up and two resets
+    assert len(bagmod.read_bag(writer.path).runs) == 3

@@ -129,7 +129,7 @@ class AttitudeNode(Node):
         self._make_publishers()
         self._srv = self.create_service(Trigger, '~/reset', self._on_reset)
         self._runs = recording.RunLog(self._pub_run, recording.open_recorder(
-            self, self._values) if self._values['record'] else None)
+            self, self._values, self._worker) if self._values['record'] else None)
         self._timer = None
         self._period_hz = float(self._values['publish_rate'])
         self._streams, self._sensors = [], []

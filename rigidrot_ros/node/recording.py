@@ -7,6 +7,8 @@ opened by :func:`open_recorder` from the parameters; it writes inline, or with
 ``RIGIDROT_RECORD_THREAD=1`` in a thread of its own (``Recorder(threaded=True)``), or with
 ``RIGIDROT_RECORD_PROCESS=1`` through a child process that does all the file work
 (:class:`rigidrot_ros.io.bag_process.ProcessBagWriter`: the node only hands CDR bytes over).
+Inline (the default), the chunks' compression and writes run in the node's look-ahead
+worker (``BagWriter(offload=...)``; ``RIGIDROT_RECORD_OFFLOAD=0``: on the publishing thread).
 """
 
 import os
@@ -46,16 +48,35 @@ def _in_process():
     return os.environ.get('RIGIDROT_RECORD_PROCESS', '0').strip() == '1'
 
 
-def open_recorder(node, values):
+def _offloaded():
+    """Whether the inline writer hands its chunk writes to the worker (RIGIDROT_RECORD_OFFLOAD).
+
+    On by default (``0`` turns it off, for measuring): closing a chunk (every
+    :data:`RECORD_FLUSH_S`) then only detaches it on the publishing thread; zstd, the
+    records and the file write run in the look-ahead worker (doc/recording.md).
+    """
+    return os.environ.get('RIGIDROT_RECORD_OFFLOAD', '1').strip() != '0'
+
+
+def open_recorder(node, values, worker=None):
     """Return a :class:`Recorder` of ``node`` into a new bag (``record_path``, ``record_topics``).
 
-    Raises :class:`SceneError` naming the path or the parameter when it cannot.
+    ``worker``: the node's :class:`rigidrot_ros.node.lookahead.BatchWorker`, if it has one;
+    the inline writer then closes its chunks there (``BagWriter(offload=worker.call)``, the
+    worker's gate opened where the node waits for a chunk write), unless the bag is written
+    by a thread or a process of its own or ``RIGIDROT_RECORD_OFFLOAD=0``. Raises
+    :class:`SceneError` naming the path or the parameter when it cannot.
     """
     path = values['record_path'] or 'runs'
     topics = [t for t in (values['record_topics'] or []) if t]
     try:
-        kind = ProcessBagWriter if _in_process() else BagWriter
-        writer = kind(path, node.get_name(), flush_period=RECORD_FLUSH_S)
+        if _in_process():
+            writer = ProcessBagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S)
+        elif worker is not None and not _threaded() and _offloaded():
+            writer = BagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S,
+                               offload=worker.call, on_wait=worker.gate.open)
+        else:
+            writer = BagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S)
     except OSError as exc:
         raise SceneError(f'cannot record to {path!r}: {exc}') from None
     try:
