@@ -435,6 +435,7 @@ class BagWriter:
                 raise
         finally:
             self._fh.close()
+            self._pending.clear()                   # not written (an error): none later
         if finished:
             self._write_metadata_yaml()             # a finished file is described
         if error is not None:
