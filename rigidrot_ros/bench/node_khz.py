@@ -200,7 +200,7 @@ def _read_probe(path):
 
 
 def machine_figures(rec, bag, rate, warmup=WARMUP_S):
-    """The machine's stalls in the span, and the late gyro samples within them.
+    """Return the machine's stalls in the span, and the late gyro samples within them.
 
     ``rec``: the probe's record (:mod:`rigidrot_ros.bench.stalls`), or None.
 
@@ -433,7 +433,7 @@ def _log_rate(r, log):
 
 
 def _machine(b):
-    """The machine's stalls and the late gyro samples within them, as text."""
+    """Return the machine's stalls and the late gyro samples within them, as text."""
     if b.get('machine_stalls') is None:
         return 'machine stalls n/a'
     return (f'machine stalls past half a period {b["machine_stalls"]} (longest '

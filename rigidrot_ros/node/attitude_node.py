@@ -544,7 +544,7 @@ class AttitudeNode(Node):
                 self._worker.drain()
 
     def _gate_window(self):
-        """The worker gate over the window, as text: holds and the time held (or why none)."""
+        """Return the worker gate over the window, as text: holds and time held (or why none)."""
         gate = self._worker.gate if self._worker is not None else None
         if gate is None or not gate.on:
             return 'off'

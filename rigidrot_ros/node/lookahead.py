@@ -246,7 +246,7 @@ class SlackGate:
         self.held_ns += self._clock() - t0
 
     def deadline_ns(self, due_ns, period_ns):
-        """The deadline for a call due at ``due_ns`` (``clock``) every ``period_ns``.
+        """Return the deadline for a call due at ``due_ns`` (``clock``) every ``period_ns``.
 
         :data:`GATE_GUARD_S` before it (at most :data:`_GUARD_SHARE` of a period), or
         :data:`FREE` where the period is shorter than :data:`GATE_MIN_PERIOD_S`.
