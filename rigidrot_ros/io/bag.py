@@ -541,7 +541,8 @@ def _write_chunk(writer, data, start, end, indices):
 
     The same records in the same order as ``Writer.__finalize_chunk`` (mcap 1.6): the Chunk
     (zstd, crc of the uncompressed bytes), its MessageIndex records, the ChunkIndex kept
-    for the summary (then packed), and the stream flushed to the operating system.
+    for the summary (then packed), and the stream flushed to the operating system. zstd
+    only: the compression :meth:`BagWriter._open_file` gives every file.
     """
     compressed = zstandard.compress(data)
     chunk = Chunk(compression='zstd', data=compressed, message_start_time=start,
