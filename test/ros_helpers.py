@@ -194,3 +194,20 @@ def reset_twice(node, executor, ticks=100, timeout=30.0):
 def stamp_ns(msg):
     """Stamp as integer nanoseconds (a float64 of ~1.8e9 s resolves only ~2e-7 s)."""
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def read_node_bag(path):
+    """Return a node's bag read with rosbags: (imu stamps, log times, run messages, total).
+
+    ``total``: the messages the bag's summary counts.
+    """
+    from rosbags.highlevel import AnyReader
+    imu, logs, runs = [], [], 0
+    with AnyReader([Path(path)]) as reader:
+        for conn, log_ns, raw in reader.messages():
+            logs.append(log_ns)
+            if conn.topic == '/imu':
+                imu.append(stamp_ns(reader.deserialize(raw, conn.msgtype)))
+            runs += conn.topic.endswith('/run')
+        total = sum(c.msgcount for c in reader.connections)
+    return imu, logs, runs, total

@@ -1,18 +1,16 @@
 """The node's threads: catch-ups from one batch, the look-ahead worker, the recorder thread."""
 
 import functools
-from pathlib import Path
 import re
 import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
-from rosbags.highlevel import AnyReader
 
 from rigidrot_ros.node import realtime
 from rigidrot_ros.node.lookahead import AHEAD_MAX
-from ros_helpers import node_and_listener, reset_twice, spin_until, stamp_ns
+from ros_helpers import node_and_listener, read_node_bag, reset_twice, spin_until
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
@@ -93,13 +91,7 @@ def test_threads_serve_resets_and_stop_with_the_node(tmp_path, monkeypatch, reco
     for name in _THREADS:
         assert not _alive(name), name
     bag = next(tmp_path.iterdir())
-    imu, logs, runs = [], [], 0
-    with AnyReader([Path(bag)]) as reader:
-        for conn, log_ns, raw in reader.messages():
-            logs.append(log_ns)
-            if conn.topic == '/imu':
-                imu.append(stamp_ns(reader.deserialize(raw, conn.msgtype)))
-            runs += conn.topic.endswith('/run')
+    imu, logs, runs, _ = read_node_bag(bag)
     assert len(imu) >= counts['/imu'] >= 200        # everything queued before the close
     assert logs == sorted(logs)                     # written in the order handed over
     assert all(b > a for a, b in zip(imu, imu[1:]))     # no sample twice, none reordered

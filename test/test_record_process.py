@@ -20,8 +20,8 @@ from rigidrot_ros.io import messages as msgs
 from rigidrot_ros.io.bag import BagWriter, read_bag
 from rigidrot_ros.io.bag_process import ProcessBagWriter
 from rigidrot_ros.io.recorder import Recorder
-from ros_helpers import (next_domain_id, node_and_listener, reset_twice, ros_env, script,
-                         stamp_ns, start, stop, wait_for)
+from ros_helpers import (next_domain_id, node_and_listener, read_node_bag, reset_twice,
+                         ros_env, script, start, stop, wait_for)
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
@@ -200,13 +200,7 @@ def test_the_node_records_through_a_writer_process_over_resets(tmp_path, monkeyp
         node.destroy_node()
         lis.destroy_node()
     assert writer._proc.returncode == 0     # stopped by the node, the bag finished
-    imu, logs, runs = [], [], 0
-    with AnyReader([Path(writer.path)]) as reader:
-        for conn, log_ns, raw in reader.messages():
-            logs.append(log_ns)
-            if conn.topic == '/imu':
-                imu.append(stamp_ns(reader.deserialize(raw, conn.msgtype)))
-            runs += conn.topic.endswith('/run')
+    imu, logs, runs, _ = read_node_bag(writer.path)
     assert len(imu) >= counts['/imu'] >= 200        # everything handed over before the close
     assert logs == sorted(logs)
     assert all(b > a for a, b in zip(imu, imu[1:]))

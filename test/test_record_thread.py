@@ -1,17 +1,15 @@
 """The recorder's writer thread, and the node's chunk writes in its worker: nothing lost."""
 
-from pathlib import Path
 import threading
 import time
 
 import pytest
-from rosbags.highlevel import AnyReader
 
 from rigidrot_ros.io import bag as bagmod
 from rigidrot_ros.io.bag import BagWriter
 from rigidrot_ros.io.recorder import Recorder
 
-from ros_helpers import node_and_listener, reset_twice, stamp_ns  # noqa: I100, I201
+from ros_helpers import node_and_listener, read_node_bag, reset_twice  # noqa: I100, I201
 from test_bag_offload import _Disk, _Thread  # noqa: I100, I201 - test modules beside it
 from test_record_process import _calls, _node, _read  # noqa: I100, I201
 
@@ -150,14 +148,7 @@ def test_the_node_at_1_khz_writes_its_chunks_in_its_worker(tmp_path, monkeypatch
         assert threads.count('rigidrot-lookahead') >= 20       # 3 s, a chunk every 0.1 s
     else:
         assert not threads
-    imu, logs, runs = [], [], 0
-    with AnyReader([Path(writer.path)]) as reader:
-        for conn, log_ns, raw in reader.messages():
-            logs.append(log_ns)
-            if conn.topic == '/imu':
-                imu.append(stamp_ns(reader.deserialize(raw, conn.msgtype)))
-            runs += conn.topic.endswith('/run')
-        total = sum(c.msgcount for c in reader.connections)
+    imu, logs, runs, total = read_node_bag(writer.path)
     assert len(logs) == total == sum(counts.values())       # all of it, summary and all
     assert len(imu) == counts['/imu'] >= (2900 if offload == '1' else 290)
     assert logs == sorted(logs)
