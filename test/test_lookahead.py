@@ -661,3 +661,19 @@ def test_a_batch_held_in_the_worker_is_urgent_once_its_samples_are_near():
         assert not la.urgent()
     finally:
         worker.stop()
+
+
+def test_a_call_that_evaluates_nothing_does_not_wait_for_the_evaluation_lock():
+    """A chunk of the bag written in the worker never holds up the node's own evaluations."""
+    import threading
+    worker = BatchWorker()
+    try:
+        free, locked = threading.Event(), threading.Event()
+        with worker.locked():                       # the publishing thread evaluates
+            worker.call(free.set, evaluates=False)
+            assert free.wait(30.0)
+            worker.call(locked.set)
+            assert not locked.wait(0.2)             # this one waits for the lock
+        assert locked.wait(30.0)
+    finally:
+        worker.stop()

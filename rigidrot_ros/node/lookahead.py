@@ -300,12 +300,15 @@ def _worker_nice():
 
 
 class _Call:
-    """A plain call for the worker; its exception goes to ``on_error``."""
+    """A plain call for the worker; its exception goes to ``on_error``.
 
-    __slots__ = ('fn', 'on_error')
+    ``evaluates``: it runs under :attr:`BatchWorker.lock` (it touches a model's state).
+    """
 
-    def __init__(self, fn, on_error):
-        self.fn, self.on_error = fn, on_error
+    __slots__ = ('fn', 'on_error', 'evaluates')
+
+    def __init__(self, fn, on_error, evaluates=True):
+        self.fn, self.on_error, self.evaluates = fn, on_error, evaluates
 
     def run(self):
         try:
@@ -335,12 +338,15 @@ class BatchWorker:
         if sys.getswitchinterval() > SWITCH_INTERVAL_S:
             sys.setswitchinterval(SWITCH_INTERVAL_S)
 
-    def call(self, fn, on_error=None):
+    def call(self, fn, on_error=None, evaluates=True):
         """Queue ``fn()`` (any work that should not hold the publishing thread).
 
-        An exception goes to ``on_error(exc)`` if given, else it is dropped.
+        An exception goes to ``on_error(exc)`` if given, else it is dropped. ``evaluates``:
+        ``fn`` touches a model's state, so it runs under :attr:`lock`; False for work that
+        does not (a chunk of the bag written), which the publishing thread's own
+        evaluations then never wait for.
         """
-        self.submit(_Call(fn, on_error))
+        self.submit(_Call(fn, on_error, evaluates))
 
     def drain(self, timeout=None):
         """Wait until every job queued so far has run; False if ``timeout`` s passed first."""
@@ -388,7 +394,10 @@ class BatchWorker:
             # the gate's checks cost the worker about its own time again: only while the
             # scheduler holds it to deadlines (none at short periods, nor before its first)
             sys.setprofile(self.gate.profile if self.gate.deadline != SlackGate.FREE else None)
-            with self.lock:
+            if getattr(job, 'evaluates', True):
+                with self.lock:
+                    job.run()
+            else:
                 job.run()
             sys.setprofile(None)        # idle, the worker waits on its queue, not the gate
 

@@ -11,6 +11,7 @@ Inline (the default), the chunks' compression and writes run in the node's look-
 worker (``BagWriter(offload=...)``; ``RIGIDROT_RECORD_OFFLOAD=0``: on the publishing thread).
 """
 
+import functools
 import os
 import sys
 
@@ -62,8 +63,9 @@ def open_recorder(node, values, worker=None):
     """Return a :class:`Recorder` of ``node`` into a new bag (``record_path``, ``record_topics``).
 
     ``worker``: the node's :class:`rigidrot_ros.node.lookahead.BatchWorker`, if it has one;
-    the inline writer then closes its chunks there (``BagWriter(offload=worker.call)``, the
-    worker's gate opened where the node waits for a chunk write), unless the bag is written
+    the inline writer then closes its chunks there (``BagWriter(offload=worker.call)``,
+    outside the worker's evaluation lock; its gate opened where the node waits for a chunk
+    write), unless the bag is written
     by a thread or a process of its own or ``RIGIDROT_RECORD_OFFLOAD=0``. Raises
     :class:`SceneError` naming the path or the parameter when it cannot.
     """
@@ -74,7 +76,8 @@ def open_recorder(node, values, worker=None):
             writer = ProcessBagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S)
         elif worker is not None and not _threaded() and _offloaded():
             writer = BagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S,
-                               offload=worker.call, on_wait=worker.gate.open)
+                               offload=functools.partial(worker.call, evaluates=False),
+                               on_wait=worker.gate.open)
         else:
             writer = BagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S)
     except OSError as exc:
