@@ -165,6 +165,13 @@ class _Disk:
     def __init__(self, fh):
         self.fh, self.full = fh, False
 
+    @classmethod
+    def under(cls, writer):
+        """Put a disk under ``writer``'s open file (its mcap stream); return it."""
+        disk = cls(writer._fh)
+        writer._writer._Writer__stream = disk
+        return disk
+
     def write(self, data):
         if self.full and data:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
@@ -177,8 +184,7 @@ class _Disk:
 def test_a_disk_error_of_an_offloaded_write_surfaces_at_the_next_call(tmp_path):
     worker = _Thread()
     writer = BagWriter(str(tmp_path), 'full', flush_period=_NEVER, offload=worker)
-    disk = _Disk(writer._fh)
-    writer._writer._Writer__stream = disk
+    disk = _Disk.under(writer)
     writer.add_topic('/a', 'std_msgs/msg/String')
     sent = []
     for i in range(300):
@@ -206,8 +212,7 @@ def test_a_disk_error_of_an_offloaded_write_surfaces_at_the_next_call(tmp_path):
 def test_an_unreported_error_is_raised_by_close_which_still_finishes_the_file(tmp_path):
     worker = _Thread()
     writer = BagWriter(str(tmp_path), 'full', flush_period=_NEVER, offload=worker)
-    disk = _Disk(writer._fh)
-    writer._writer._Writer__stream = disk
+    disk = _Disk.under(writer)
     writer.add_topic('/a', 'std_msgs/msg/String')
     for i in range(100):
         writer.write('/a', _payload(i), 10**9 + i)

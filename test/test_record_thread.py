@@ -97,8 +97,7 @@ def test_a_disk_error_of_an_offloaded_chunk_stops_the_recording_with_one_event(t
         writer.flush()
         while writer._pending:
             time.sleep(0.01)
-        disk = _Disk(writer._fh)
-        writer._writer._Writer__stream = disk
+        disk = _Disk.under(writer)
         disk.full = True
         for now_ns, items in calls[20:40]:
             rec.record_published(now_ns, items)

@@ -124,6 +124,7 @@ class AttitudeNode(Node):
         self._scheduling = realtime.describe()
         #: Runs the look-ahead batches off the executor's thread (lookahead.BatchWorker)
         self._worker = BatchWorker() if _use_worker() else None
+        self._gate_last = (0, 0)        # the worker gate's holds and ns at the last report
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._on_post_set)
         self._make_publishers()
@@ -548,8 +549,7 @@ class AttitudeNode(Node):
         gate = self._worker.gate if self._worker is not None else None
         if gate is None or not gate.on:
             return 'off'
-        last = getattr(self, '_gate_last', (0, 0))
-        self._gate_last = (gate.holds, gate.held_ns)
+        last, self._gate_last = self._gate_last, (gate.holds, gate.held_ns)
         if gate.deadline == gate.FREE and gate.holds == last[0]:
             return 'open'
         return f'{gate.holds - last[0]} holds, {(gate.held_ns - last[1]) / 1e6:.1f} ms'

@@ -482,9 +482,7 @@ class Ahead(abc.ABC):
         job = self._job
         if job is None or not (wait or job.done.is_set()):
             return
-        if self.worker is not None:
-            self.worker.wait_for(job)
-        job.done.wait()
+        self.worker.wait_for(job)      # a job is in the worker (refill with a worker only)
         self._job = None
         if job.exc is not None:
             self._failed(job.start, job.n, job.exc)
