@@ -23,7 +23,7 @@ import numpy as np
 import zstandard
 
 from rigidrot_ros.bag.metadata import (MAX_PENDING_CHUNKS, qos_yaml, RUN_RECORD,
-                                       write_metadata_yaml)
+                                       uninterrupted, write_metadata_yaml)
 from rigidrot_ros.msgs.msgdefs import schema_text
 
 
@@ -383,9 +383,16 @@ class BagWriter:
         return self._closed
 
     def close(self):
-        """Finish the MCAP (summary and index) and write the final metadata.yaml."""
+        """Finish the MCAP (summary and index) and write the final metadata.yaml.
+
+        Run to its end whatever signal arrives (:func:`metadata.uninterrupted`): a second
+        Ctrl-C during it is raised after the bag is whole.
+        """
         if self._closed:
             return
+        uninterrupted(self._close)
+
+    def _close(self):
         self._closed = True
         error, self._error = self._error, None      # reported here, after the rest
         finished = False

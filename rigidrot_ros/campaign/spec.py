@@ -248,9 +248,10 @@ def load_spec(path):
     Every run's draw is made and validated too (:func:`check_draws`), so an impossible
     dispersion is found before anything is written.
     """
+    from rigidrot_ros.run import rclyaml
     try:
         with open(path, encoding='utf-8') as fh:
-            doc = yaml.safe_load(fh)
+            doc = rclyaml.load(fh, spec=True)     # values typed as the node types them
     except OSError as exc:
         raise SpecError(f'{path}: {exc.strerror or exc}') from None
     except UnicodeDecodeError as exc:
@@ -258,6 +259,8 @@ def load_spec(path):
             from None
     except yaml.YAMLError as exc:
         raise SpecError(f'{path}: not YAML ({" ".join(str(exc).split())})') from None
+    except rclyaml.ParameterValueError as exc:
+        raise SpecError(f'{path}: {exc}') from None
     spec = check_spec(doc, os.path.dirname(os.path.abspath(path)))
     check_draws(spec)
     return spec

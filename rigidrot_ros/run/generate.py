@@ -79,13 +79,21 @@ class GenerationError(ValueError):
 
 # -- parameters ------------------------------------------------------------------------------
 def parse_override(text):
-    """Return ``(name, value)`` of ``name:=value``; the value is read as YAML, as ROS does."""
+    """Return ``(name, value)`` of ``name:=value``; the value read as rcl reads it.
+
+    :func:`rigidrot_ros.run.rclyaml.load`: ``2e-4`` is a double, ``yes`` true, ``[0.1, 0, 0]``
+    refused (a list of one type), an empty value refused, as ``attitude_node`` does.
+    """
+    from rigidrot_ros.run import rclyaml
     name, sep, raw = str(text).partition(':=')
     if not sep or not name:
         raise GenerationError(f'-p expects name:=value, got {text!r}')
+    if not raw.strip():
+        raise GenerationError(f"-p {name}: no value (ROS refuses an empty one; write '' for "
+                              'an empty string)')
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ''
-    except yaml.YAMLError as exc:
+        value = rclyaml.load(raw)
+    except (yaml.YAMLError, ValueError) as exc:
         raise GenerationError(f'-p {name}: cannot read {raw!r} as a value '
                               f'({" ".join(str(exc).split())})') from None
     return name, value

@@ -16,9 +16,9 @@ import time
 from typing import Optional, Tuple
 
 import numpy as np
-import yaml
 
 from rigidrot_ros.core import NoExactSolution, PrecisionError, Scene, solve
+from rigidrot_ros.run import rclyaml
 from rigidrot_ros.run.params import BY_NAME, check_values
 from rigidrot_ros.sensors import (
     Accelerometer, AttitudeNoise, Gyro, ImuNoise, load_kalibr_imu, Magnetometer, StarTracker,
@@ -69,10 +69,14 @@ def find_config(name='default.yaml'):
 
 
 def load_defaults(path=None):
-    """Read the ``ros__parameters`` of a params YAML (first node entry) as a dict."""
+    """Read the ``ros__parameters`` of a params YAML (first node entry) as a dict.
+
+    Values are typed as rcl types them (:func:`rigidrot_ros.run.rclyaml.load`: ``2e-4`` is
+    a double, a list of mixed types is refused), so the file means what it means to the node.
+    """
     path = path or find_config()
     with open(path, encoding='utf-8') as fh:
-        doc = yaml.safe_load(fh)
+        doc = rclyaml.load(fh)
     if not isinstance(doc, dict) or not doc:
         raise ValueError(f'{path}: not a ROS 2 params file')
     for entry in doc.values():
