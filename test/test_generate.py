@@ -304,3 +304,23 @@ def test_the_helper_process_gives_the_same_bag(tmp_path, monkeypatch):
         out[helper] = [f.read_bytes() for f in sorted(Path(path).glob('*.mcap'))]
         assert used == [helper] * 4                   # every block from the helper, or none
     assert len(out[True]) == 1 and out[True] == out[False]
+
+
+def test_a_slow_machine_never_refuses_a_scene_offline(tmp_path, monkeypatch):
+    """The node bounds the wall time of its first samples; generation judges them untimed.
+
+    With every trial sample "too slow" (a limit of 0 s) the node's set-up refuses the scene,
+    as on a heavily loaded machine; the generator writes the bag all the same.
+    """
+    import rigidrot_ros.run.settings as settings
+    from rigidrot_ros.run import params
+    values = {'imu.enable': True, 'accel.enable': True, 'star_tracker.enable': True,
+              'mag.enable': True}
+    monkeypatch.setattr(settings, 'TRIAL_LIMIT_S', 0.0)
+    monkeypatch.setattr(settings, 'SAMPLE_BUDGET_S', 0.0)
+    with pytest.raises(settings.TrialError, match='to evaluate'):
+        settings.prepare_run(dict(params.defaults(), **values))
+    path = generate_bag(values, 0.5, tmp_path / 'bag')
+    with AnyReader([Path(path)]) as reader:
+        topics = {c.topic for c in reader.connections if c.msgcount}
+    assert {'/attitude', '/imu', '/delta_velocity', '/star_tracker', '/mag'} <= topics

@@ -23,8 +23,7 @@ import tempfile
 import time
 import traceback
 
-from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, load_factory, run_values
-from rigidrot_ros.run.generate import GenerationError
+from rigidrot_ros.campaign.spec import draw_run, load_factory, run_values
 
 __all__ = ['run_one', 'RunFailed', 'score_bag']
 
@@ -278,18 +277,10 @@ def run_one(spec, index, bag_root=None):
         os.makedirs(work)
     try:
         values = run_values(spec, draws)
-        for attempt in range(BUDGET_TRIES):      # the generator's wall-time budget (spec.py)
-            try:
-                if spec['estimator']['kind'] == 'inproc':
-                    score, series = _inproc(spec, values, work)
-                else:
-                    score, series = _ros(spec, values, work)
-                break
-            except GenerationError as exc:
-                if 'time budget' not in str(exc) or attempt == BUDGET_TRIES - 1:
-                    raise
-                shutil.rmtree(work, ignore_errors=True)
-                os.makedirs(work)
+        if spec['estimator']['kind'] == 'inproc':
+            score, series = _inproc(spec, values, work)
+        else:
+            score, series = _ros(spec, values, work)
         row.update(score)
         out['series'] = series
     except RunFailed as exc:

@@ -54,9 +54,6 @@ __all__ = ['SpecError', 'load_spec', 'check_spec', 'draw_run', 'run_values', 'MA
            'load_factory', 'DISPERSIONS']
 
 MAX_REDRAWS = 1000
-#: The node's start-up trial bounds its first samples' wall time: on a loaded machine it can
-#: run out of it. Such a refusal says nothing about the draw, so it is tried again.
-BUDGET_TRIES = 3
 TOP_KEYS = ('name', 'seed', 'runs', 'duration', 'timeout', 'base', 'dispersions',
             'sensor_seeds', 'estimator')
 BASE_KEYS = ('params_file', 'overrides')
@@ -332,13 +329,7 @@ def check_draws(spec):
     for i in range(spec['runs']):
         draws, _ = draw_run(spec, i)
         try:
-            for attempt in range(BUDGET_TRIES):
-                try:
-                    prepare_run(run_values(spec, draws))
-                    break
-                except GenerationError as exc:
-                    if 'time budget' not in str(exc) or attempt == BUDGET_TRIES - 1:
-                        raise
+            prepare_run(run_values(spec, draws))
         except GenerationError as exc:
             shown = {k: v for k, v in draws.items() if not k.endswith('seed')}
             raise SpecError(f'impossible dispersion: run {i} draws {shown}, which the node '

@@ -126,7 +126,10 @@ def prepare_run(values):
     :func:`rigidrot_ros.run.settings.prepare_run`, the node's own function (each value by its
     table entry, the scene solved, the sensors checked, the first samples tried), so a
     scene the node refuses is refused here with the same reason, and the solution has
-    evaluated what the node's has before its first tick. A name the node does not
+    evaluated what the node's has before its first tick. One exception: the node bounds
+    the wall time of its first samples (it must publish in time), generation does not
+    (``timed=False``): whether a run is generated never depends on how fast or loaded the
+    machine is. A name the node does not
     declare is refused (the node warns and ignores it; offline, a typo would silently
     change the run). Raises :class:`GenerationError` (one line).
     """
@@ -140,7 +143,7 @@ def prepare_run(values):
     p = params.defaults()
     p.update(values)
     try:
-        return settings.prepare_run(p)
+        return settings.prepare_run(p, timed=False)
     except settings.TrialError as exc:
         summary = ', '.join(f'{k} {p[k]!r}' for k in ('inertia', 'torque', 'omega0'))
         raise GenerationError(' '.join(f'scene {summary}: {exc}'.split())) from None

@@ -254,11 +254,12 @@ def build_solution(values):
                          f'{list(scene.omega0)})') from None
 
 
-def _timed(fn, fails, slow, hint):
+def _trial_sample(fn, fails, slow, hint, limit=True):
     """Run one trial sample ``fn()``: ``(result, None)``, or ``(None, why it is refused)``.
 
     ``fails`` says what could not be evaluated, ``slow`` what took too long (formatted
-    with ``cost``, s), ``hint`` what to try (appended to both).
+    with ``cost``, s), ``hint`` what to try (appended to both); ``limit`` False: no bound
+    on the time it takes.
     """
     c0 = time.perf_counter()
     try:
@@ -266,7 +267,7 @@ def _timed(fn, fails, slow, hint):
     except Exception as exc:        # PrecisionError, ValueError, or anything else
         return None, f'{fails}: {type(exc).__name__}: {exc}{hint}'
     cost = time.perf_counter() - c0
-    if cost > TRIAL_LIMIT_S:
+    if limit and cost > TRIAL_LIMIT_S:
         return None, (slow.format(cost=cost) +
                       f", beyond the node's limit of {TRIAL_LIMIT_S:g} s{hint}")
     return result, None
@@ -276,7 +277,7 @@ class TrialError(ValueError):
     """A run's first samples cannot be evaluated in time (:func:`trial`'s reason)."""
 
 
-def trial(sol, values, cfg=None):
+def trial(sol, values, cfg=None, timed=True):
     """Evaluate the first samples of a candidate run; return None or why it fails (str).
 
     A scene whose first tick (t = 0) or second (one period in, scaled by ``time_scale``)
@@ -286,7 +287,15 @@ def trial(sol, values, cfg=None):
     ``time_scale / imu_rate`` s of scene time, its quadrature within :data:`SAMPLE_BUDGET_S`
     as in the node) and the first star tracker sample are tried the same way, and a gyro
     sample whose increment bound is not finite refuses the scene too.
+
+    ``timed`` False (offline generation, which has no deadline): the same samples are
+    evaluated and judged, but neither :data:`TRIAL_LIMIT_S` nor :data:`SAMPLE_BUDGET_S`
+    applies, so the answer does not depend on how fast or loaded the machine is.
     """
+    budget = SAMPLE_BUDGET_S if timed else None
+
+    def _timed(*args):
+        return _trial_sample(*args, limit=timed)
     time_scale = float(values['time_scale'])
     t1 = time_scale / float(values['publish_rate'])
     for t in (0.0, t1):
@@ -303,7 +312,7 @@ def trial(sol, values, cfg=None):
 
         def gyro():                 # an ideal gyro: the run's own noise stream stays fresh
             with np.errstate(over='ignore', invalid='ignore'):  # judged below, not warned
-                return Gyro(sol).read(0.0, dt, budget=SAMPLE_BUDGET_S)
+                return Gyro(sol).read(0.0, dt, budget=budget)
         r, reason = _timed(
             gyro, f'the first gyro sample (imu.rate {cfg.imu_rate:g} Hz, time_scale '
             f'{time_scale:g}: {dt:g} s of scene time) cannot be evaluated',
@@ -322,7 +331,7 @@ def trial(sol, values, cfg=None):
         def accel():
             with np.errstate(over='ignore', invalid='ignore'):
                 return Accelerometer(sol, lever_arm=cfg.lever_arm, gravity=cfg.gravity) \
-                    .read(0.0, dt, budget=SAMPLE_BUDGET_S)
+                    .read(0.0, dt, budget=budget)
         r, reason = _timed(
             accel, f'the first accelerometer sample (imu.rate {cfg.imu_rate:g} Hz: {dt:g} s '
             'of scene time) cannot be evaluated',
@@ -406,19 +415,24 @@ def check_run(values):
     return p
 
 
-def prepare_run(values, try_samples=True):
+def prepare_run(values, try_samples=True, timed=True):
     """Validate parameter ``values`` and set a run up: a :class:`RunSetup`.
 
     Each value is checked by its entry of :data:`rigidrot_ros.run.params.PARAMS`, the scene is
     solved, the sensor settings validated, and (``try_samples``) the first samples tried
     (:func:`trial`). The node calls this at start-up, for a parameter change and on
-    ``~/reset``; the offline generator calls it for its run.
+    ``~/reset``; the offline generator calls it for its run, with ``timed`` False.
 
     Parameters
     ----------
     values : dict
         Every parameter of the table by its dotted name (e.g. ``params.defaults()`` updated
         with overrides).
+    try_samples : bool
+        Try the first samples (:func:`trial`).
+    timed : bool
+        Bound the trial's wall time, as the node must (:data:`TRIAL_LIMIT_S`); False for
+        offline generation, whose answer must not depend on the machine's speed.
 
     Raises
     ------
@@ -431,7 +445,7 @@ def prepare_run(values, try_samples=True):
     solution = build_solution(p)
     sensors = sensor_settings(p)
     if try_samples:
-        reason = trial(solution, p, sensors)
+        reason = trial(solution, p, sensors, timed=timed)
         if reason is not None:
             raise TrialError(reason)
     return RunSetup(
