@@ -67,6 +67,9 @@ def score_bag(path, topic, runs=None):
     row = {'count': r['count'], 'nees_count': r['nees_count'], 'anees': r['anees'],
            'anees_lo': r['anees_bounds_95'][0], 'anees_hi': r['anees_bounds_95'][1],
            'rms_rad': r['rms'], 'max_rad': r['max'], 'p95_rad': r['p95']}
+    sensors = [run['sensors'] for run in bag.runs if isinstance(run.get('sensors'), dict)]
+    if sensors:                 # the error model the estimator was fed (run description)
+        row['sensors'] = sensors[0]
     return row, series
 
 

@@ -2,7 +2,8 @@
 
 The node and the offline generator build the same messages through these: the truth of
 one tick (:func:`truth_pair`, :func:`truth_extras`), the run description on ``~/run``
-(:func:`run_description`, :func:`run_message`). Topics are the node's relative names.
+(:func:`run_description`, :func:`run_message`, with the effective sensor configuration of
+:func:`sensor_config`). Topics are the node's relative names.
 """
 
 import json
@@ -12,10 +13,11 @@ from std_msgs.msg import String
 
 from rigidrot_ros import __version__
 from rigidrot_ros.msgs import messages as msgs
+from rigidrot_ros.run.params import PARAMS
 from rigidrot_ros.run.scheduler import timing_of
 
 __all__ = ['truth_pair', 'truth_extras', 'run_description', 'run_message', 'TRUTH_EXTRAS',
-           'RUN_FORMAT']
+           'RUN_FORMAT', 'sensor_config', 'SENSOR_GROUPS']
 
 #: The truth outputs beyond attitude and angular_velocity: (topic, switch parameter).
 TRUTH_EXTRAS = (('transform', 'transform.enable'), ('odom', 'odom.enable'),
@@ -81,6 +83,8 @@ def run_description(setup, start_ns, run_index, node_name, topics):
     ``sensor_timing`` holds each running sensor's timing model
     (:class:`rigidrot_ros.run.scheduler.Timing`: latency, stamp jitter, drop probability,
     clock offset; all 0 when off), so a scorer knows which stamps are not true sample times.
+    ``sensors`` holds each running sensor's whole configuration (:func:`sensor_config`), so
+    the bag says which error model produced it.
     """
     sol = setup.solution
     cfg = setup.sensors
@@ -92,8 +96,56 @@ def run_description(setup, start_ns, run_index, node_name, topics):
         'time_scale': setup.time_scale, 'scene': sol.scene.as_dict(), 'tol': sol.tol,
         'backend': sol.backend, 'model': sol.model, 'method': sol.method,
         'package': f'rigidrot_ros {__version__}', 'node': node_name, 'topics': dict(topics),
-        'sensor_timing': timing,
+        'sensor_timing': timing, 'sensors': sensor_config(setup),
     }
+
+
+#: Each sensor of the run description and the parameter groups it is configured by (the
+#: accelerometer's ``accel.`` parameters belong to ``imu``, whose messages carry it).
+SENSOR_GROUPS = (('imu', ('imu.', 'accel.')), ('star_tracker', ('star_tracker.',)),
+                 ('mag', ('mag.',)))
+
+
+def sensor_config(setup):
+    """Return the effective configuration of each running sensor (a JSON-ready dict).
+
+    For every sensor that runs (``imu``, ``star_tracker``, ``mag``): ``rate_hz``, its rate
+    (``0`` resolved to ``publish_rate``), and ``parameters``, the value of every parameter
+    of its groups (:data:`SENSOR_GROUPS`; all but the ``.enable`` switches, the
+    accelerometer's only where it is on) as the run uses it, after the import of a Kalibr
+    file, by the parameter's name (units: ``attitude_node --help``). The imu adds
+    ``turn_on_bias`` (the gyro's and the accelerometer's bias drawn from the seed,
+    ``*.bias_stddev``, rad/s and m/s^2, in B) and, with ``imu.kalibr_yaml``, ``kalibr``:
+    the values the file supplied.
+    """
+    values, cfg = setup.values, setup.sensors
+    on = {'imu': cfg.imu, 'star_tracker': cfg.star_tracker, 'mag': cfg.mag}
+    rates = {'imu': cfg.imu_rate, 'star_tracker': cfg.star_tracker_rate, 'mag': cfg.mag_rate}
+    out = {}
+    for sensor, groups in SENSOR_GROUPS:
+        if not on[sensor]:
+            continue
+        if not cfg.accel:
+            groups = tuple(g for g in groups if g != 'accel.')
+        entry = {'rate_hz': float(rates[sensor]), 'parameters': {
+            p.name: _plain(values[p.name]) for p in PARAMS
+            if p.name.startswith(groups) and not p.name.endswith('.enable')}}
+        if sensor == 'imu':
+            entry['turn_on_bias'] = {'gyro': cfg.gyro.turn_on_bias.tolist()}
+            if cfg.accel:
+                entry['turn_on_bias']['accel'] = cfg.accel_noise.turn_on_bias.tolist()
+            if values.get('imu.kalibr_yaml'):
+                entry['kalibr'] = {k: _plain(v) for k, v in
+                                   sorted(getattr(setup, 'kalibr', {}).items())}
+        out[sensor] = entry
+    return out
+
+
+def _plain(v):
+    """A parameter value as JSON writes it (tuples and arrays as lists of floats)."""
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [float(x) for x in v]
+    return v
 
 
 def run_message(info):

@@ -8,7 +8,7 @@ set a run up through :func:`prepare_run`, so a scene is validated by one
 piece of code wherever it comes from. :func:`load_defaults` reads a params file.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 import os
 import sys
@@ -387,6 +387,9 @@ class RunSetup:
         Truth rate, Hz.
     frames : tuple of str
         ``(frame_id, body_frame_id)``: the frames N and B of the messages.
+    kalibr : dict
+        The values the Kalibr file of ``imu.kalibr_yaml`` supplied, by parameter name
+        (empty without one); ``values`` holds them too.
     """
 
     values: dict
@@ -399,6 +402,19 @@ class RunSetup:
     frames: Tuple[str, str]
     accel: Optional[Accelerometer] = None
     mag: Optional[Magnetometer] = None
+    kalibr: dict = field(default_factory=dict)
+
+
+def _kalibr_supplied(values):
+    """Return ``{name: value}`` that the Kalibr file of checked ``values`` supplies (or {})."""
+    path = values.get('imu.kalibr_yaml', '')
+    if not path:
+        return {}
+    try:
+        found, _topic = load_kalibr_imu(path)
+    except ValueError:              # read by apply_kalibr a moment ago: changed since
+        return {}
+    return {name: values[name] for name in found if name in values}
 
 
 def check_run(values):
@@ -449,7 +465,7 @@ def prepare_run(values, try_samples=True, timed=True):
         if reason is not None:
             raise TrialError(reason)
     return RunSetup(
-        values=p, solution=solution, sensors=sensors,
+        values=p, solution=solution, sensors=sensors, kalibr=_kalibr_supplied(p),
         gyro=Gyro(solution, sensors.gyro) if sensors.imu else None,
         star_tracker=(StarTracker(solution, sensors.attitude_noise) if sensors.star_tracker
                       else None),

@@ -73,6 +73,12 @@ def main(argv=None):
               f'{100 * mc["fraction_inside"]:.1f} % of {report["steps"]} steps')
     else:
         print(f'{report["runs_ok"]}/{report["runs"]} runs ok: nothing to aggregate')
+    if report.get('sensors'):
+        from rigidrot_ros.scoring.score import describe_sensor
+        print('sensor error models of the runs (report.json "sensors"):')
+        for name, config in report['sensors'].items():
+            if isinstance(config, dict):
+                print(f'  {describe_sensor(dict(config, name=name))}')
     print(f'report: {os.path.join(opts.output, "report.json")}')
     return 0 if report['runs_ok'] else 1
 

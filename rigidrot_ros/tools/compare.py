@@ -17,7 +17,8 @@ import sys
 
 from rigidrot_ros.bag import BagError, read_bag
 from rigidrot_ros.scoring.score import (
-    check_bag, extract_streams, score_against_runs, score_against_stream, ScoreError,
+    check_bag, describe_sensor, extract_streams, score_against_runs, score_against_stream,
+    ScoreError,
 )
 from rigidrot_ros.tools.cli import OneLineParser
 
@@ -54,6 +55,13 @@ def _table(results, skipped):
     for s in skipped:
         lines.append(f'{s["topic"]:36s} {s["type"].split("/")[-1]:26s}  not scored: '
                      f'{s["reason"]}')
+    sensors = {}
+    for r in results:
+        if r.get('sensor'):
+            sensors.setdefault(r['sensor'].get('name'), r['sensor'])
+    if sensors:
+        lines.append('sensor error models (from the run description):')
+        lines += [f'  {describe_sensor(s)}' for s in sensors.values()]
     return '\n'.join(lines)
 
 
