@@ -165,8 +165,30 @@ def bag_files(path):
     else:
         files = present
     if not files:
+        inner = bags_below(path)
+        if inner:
+            raise BagError(f'{path}: a directory with no .mcap file is not a bag; the bags '
+                           f'sit one level down: {", ".join(inner)} (give one of them)')
         raise BagError(f'{path}: a directory with no .mcap file is not a bag')
     return [os.path.join(path, f) for f in files]
+
+
+def bags_below(path):
+    """Return the bag directories one level below ``path`` (those holding a .mcap), sorted.
+
+    A run directory of the README's estimator loop holds the recorder's bag and the
+    node's, side by side.
+    """
+    def has_mcap(d):
+        try:
+            return os.path.isdir(d) and any(f.endswith('.mcap') for f in os.listdir(d))
+        except OSError:
+            return False
+    try:
+        names = sorted(os.listdir(path))
+    except OSError:
+        return []
+    return [os.path.join(path, n) for n in names if has_mcap(os.path.join(path, n))]
 
 
 def listed_files(meta_path):

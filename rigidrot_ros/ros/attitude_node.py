@@ -141,6 +141,9 @@ class AttitudeNode(Node):
         self.get_logger().info(
             f'running model {self.solution.model} ({self.solution.method}) at '
             f'{self._period_hz:g} Hz')
+        self.get_logger().info('publishing ' + ', '.join(
+            f'{p.topic_name} ({p.msg_type.__name__})' for p in self.publishers
+            if p.topic_name not in ('/rosout', '/parameter_events')))
 
     def _make_publishers(self):
         """Create the publishers of the outputs that are on (the switches are read only)."""

@@ -16,6 +16,7 @@ import os
 import sys
 
 from rigidrot_ros.bag import BagError, read_bag
+from rigidrot_ros.bag.metadata import bags_below
 from rigidrot_ros.scoring.score import (
     check_bag, describe_sensor, extract_streams, score_against_runs, score_against_stream,
     ScoreError,
@@ -144,6 +145,17 @@ def _write_csv(results, path):
                             '' if n is None or math.isnan(n) else repr(n)])
 
 
+def _one_bag(path):
+    """Return ``path``, or the one bag one level below a directory that holds no .mcap."""
+    if os.path.isdir(path) and not any(f.endswith('.mcap') for f in os.listdir(path)):
+        inner = bags_below(path)
+        if len(inner) == 1:
+            print(f'note: {path} holds no .mcap file: comparing the bag in it, {inner[0]}',
+                  file=sys.stderr)
+            return inner[0]
+    return path             # several bags below: read_bag says so, naming them
+
+
 def _parser():
     ap = OneLineParser(prog='rigidrot_compare', description=__doc__.splitlines()[0],
                        epilog=CONVENTION)
@@ -175,7 +187,7 @@ def main(argv=None):
             raise ScoreError(f'--plot {opts.plot}: the file name must end in '
                              f'{", ".join(PLOT_SUFFIXES)} (the format is taken from it)')
         plt = _import_pyplot() if opts.plot else None
-        bag = read_bag(opts.bag)
+        bag = read_bag(_one_bag(opts.bag))
         if bag.note:
             print(f'note: {bag.path}: {bag.note}', file=sys.stderr)
         check_bag(bag)
