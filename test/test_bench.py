@@ -169,3 +169,19 @@ def test_node_khz_diagnostics_without_keys_read_na():
          'exit_code': 0, 'stderr_tail': ''})]}, 'footer': {}}
     md = node_khz.render_md(res)
     assert '| 1000 | n/a |' in md and 'off after 4.0 s (too slow)' in md
+
+
+def test_random_access_times_a_scene_cold_in_a_fresh_process():
+    """The cold row: the same scene and times t in a fresh interpreter, labelled as such."""
+    from rigidrot_ros.bench import common, random_access
+    lines = []
+    cold = random_access._cold('torque_free_triaxial', 1e3, 5, lines.append)
+    warm = random_access._one('torque_free_triaxial', common.ratio_scenes()[
+        'torque_free_triaxial'], 1e3, 5, lines.append)
+    assert (cold['process'], warm['process']) == ('cold', 'warm')
+    assert cold['max_error_rad'] == warm['max_error_rad'] and cold['bounds_hold']
+    assert cold['calls'] == random_access.CALLS and cold['p50_us'] > 0
+    assert any(' cold ' in ln for ln in lines) and any(' warm ' in ln for ln in lines)
+    md = random_access.render_md({'random_access': {'rows': [warm, cold], 'tol': 1e-12,
+                                                    'memory_bound_bytes': 1}, 'footer': {}})
+    assert '| torque_free_triaxial | warm |' in md and '| torque_free_triaxial | cold |' in md
