@@ -3,8 +3,10 @@
 - :mod:`rigidrot_ros.core.ddphase` against mpmath at 300 bits, t up to 1e9 s, with its
   stated bound;
 - windowed streams (grid windows chained by float continuation) against single
-  evaluations at tol = 2e-14 (certified Arb balls), on every preset, the spacecraft
-  scene, negative times and a 1e4 s horizon;
+  evaluations at tol = 2e-14 (certified Arb balls, their bounds at most 2e-14), on every
+  preset, the spacecraft scene, negative times and a 1e4 s horizon; and, sharing no
+  formula with the solver, against DOP853 (``conftest.reference``) within the claim
+  (1e-12 rad) plus the integrator's own error;
 - the scalar path against the batch path, in any call order;
 - the method chooser over leaf modules that do not import each other;
 - the memory of a batch against its output.
@@ -19,6 +21,7 @@ import numpy as np
 from numpy.testing import assert_allclose
 import pytest
 
+from conftest import CLAIM, reference
 from rigidrot_ros.bench import common
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
@@ -81,9 +84,11 @@ def test_dd_phase_refuses_what_it_cannot_cover():
 
 
 def _reference(scene, t, monkeypatch):
+    """Single certified evaluations at tol = 2e-14 (no windows): their bounds are that small."""
     monkeypatch.setattr(models, 'DENSE_MIN', 10 ** 9)
     ref = solve(scene, tol=2e-14).at(t)
     monkeypatch.undo()
+    assert np.all(ref.error_bound <= 2e-14)
     return ref
 
 
@@ -101,6 +106,10 @@ def test_stream_windows_against_single_evaluations(name, monkeypatch):
     err = quat.angle_between(s.quaternion[pick], ref.quaternion)
     assert np.all(err <= s.error_bound[pick] + ref.error_bound)
     assert_allclose(s.omega[pick], ref.omega, rtol=0, atol=1e-13)
+    # a reference that shares no formula with the solver: DOP853 on Euler's equations
+    _, q_dop, q_err, _ = reference(scene, t[pick])
+    err = quat.angle_between(s.quaternion[pick], q_dop)
+    assert np.all(err <= CLAIM + q_err), (err - q_err).max()
     if sol._dense is not None:
         # windows chain: far fewer exact anchors than windows
         assert sol._dense.exact_anchors < sol._dense.windows_built / 3
@@ -124,6 +133,7 @@ def test_negative_and_unsorted_times(name, monkeypatch):
     rng = np.random.default_rng(7)
     t = rng.uniform(-30.0, 30.0, 500)
     s = solve(scene).at(t)
+    assert np.all(s.error_bound <= CLAIM)
     ref = _reference(scene, t[::25], monkeypatch)
     err = quat.angle_between(s.quaternion[::25], ref.quaternion)
     assert np.all(err <= s.error_bound[::25] + ref.error_bound)

@@ -681,9 +681,12 @@ def test_sensor_clock_offset_is_removed_and_jitter_is_named(tmp_path):
         assert_allclose(offset[topic]['error'], plain[topic]['error'], rtol=0, atol=1e-12)
         assert offset[topic]['timing']['scored_at'].endswith('(the true sample time)')
     assert offset['/star_tracker']['timing']['clock_offset_s'] == -0.3
-    assert plain['/star_tracker']['max'] < 1e-9           # an ideal star tracker, exact
+    # an ideal star tracker against the truth of the same exact solution at the same time:
+    # nothing but the rounding of the published quaternion (measured 1.7e-16 rad)
+    ideal = 8 * np.finfo(float).eps
+    assert plain['/star_tracker']['max'] <= ideal
     # scored at the stamp, the offset would have cost |omega| * 0.3 s of attitude
-    assert offset['/star_tracker']['max'] < 1e-9
+    assert offset['/star_tracker']['max'] <= ideal
     jitter = _timed_score(tmp_path, 'jitter', {'star_tracker.stamp_jitter': 1e-3,
                                                'star_tracker.clock_offset': 0.1})
     star = jitter['/star_tracker']
