@@ -183,7 +183,7 @@ def _campaign(opts, work):
 
 
 def _live(opts, ros_args):
-    from rigidrot_ros.node.spin import init_ros, spin_until_shutdown
+    from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown
     from rigidrot_ros.view import rr_log
     from rigidrot_ros.view.live import check_topic, LiveView
     estimators = {}
@@ -194,9 +194,14 @@ def _live(opts, ros_args):
     if reason is not None:
         return fail(PROG, reason)
     import rclpy
+    from rclpy.exceptions import NotInitializedException
     rec = _recorder(opts, rr_log.blueprint())
     _announce(opts, rec)
-    node = rclpy.create_node('rigidrot_view')
+    try:
+        node = rclpy.create_node('rigidrot_view')
+    except NotInitializedException:
+        rec.close()                 # Ctrl-C came before the node: nothing to show
+        return 0
     view = LiveView(node, rec, ns=opts.ns, estimators=estimators, run_topic=opts.run_topic,
                     max_rate=opts.max_rate, say=_say)
     _say(f'live: {", ".join(view.types)}; each topic shown at most {opts.max_rate:g} Hz '
@@ -212,7 +217,7 @@ def _live(opts, ros_args):
 
 def main(argv=None):
     """Entry point of ``rigidrot_view``; returns the exit status."""
-    from rigidrot_ros.node.spin import split_ros_args
+    from rigidrot_ros.ros.spin import split_ros_args
     argv = sys.argv[1:] if argv is None else list(argv)
     own, ros_args = split_ros_args(argv)
     opts = _parser().parse_args(own)

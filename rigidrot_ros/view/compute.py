@@ -3,17 +3,17 @@
 Quaternions are (x, y, z, w), active, ``q_NB`` (``v_N = R_NB @ v_B``); rates are omega of
 B relative to N, in B, rad/s; times are integer nanosecond stamps. The truth at a stamp
 is the exact solution of the run that holds it, recomputed from the run description as
-the scorer does (:func:`rigidrot_ros.io.score.scene_times`, the same ``Scene`` and
+the scorer does (:func:`rigidrot_ros.scoring.score.scene_times`, the same ``Scene`` and
 ``solve`` call); errors follow the scorer's conventions:
 
 - attitude error ``e`` in B with ``q_true^-1 ⊗ q_est = exp(e / 2)``
-  (:func:`~rigidrot_ros.io.score.rotation_error`), its angle ``|e|`` in rad;
+  (:func:`~rigidrot_ros.scoring.score.rotation_error`), its angle ``|e|`` in rad;
 - its 3σ: ``3 sqrt(lambda_max(P))`` with ``P`` the orientation covariance of the message
   (the standard deviation along the covariance's longest axis: an isotropic ``P = s^2 I``
   gives ``3 s``);
-- ``NEES = e^T P^-1 e`` (:func:`~rigidrot_ros.io.score.nees`); one sample's 95 % band is
+- ``NEES = e^T P^-1 e`` (:func:`~rigidrot_ros.scoring.score.nees`); one sample's 95 % band is
   that of chi-square with 3 degrees of freedom, ``[0.216, 9.35]``
-  (:func:`~rigidrot_ros.io.score.anees_bounds` with one sample);
+  (:func:`~rigidrot_ros.scoring.score.anees_bounds` with one sample);
 - gyro residual ``omega_meas - omega_true`` in B, rad/s; star tracker residual: the
   attitude error ``e`` of its measurement, rad.
 """
@@ -22,10 +22,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rigidrot_ros.bag import BagContents
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.io.bag import BagContents
-from rigidrot_ros.io.decode import ORIENTATION, RATE
-from rigidrot_ros.io.score import (
+from rigidrot_ros.scoring.decode import ORIENTATION, RATE
+from rigidrot_ros.scoring.score import (
     anees_bounds, nees, rotation_error, scene_times, ScoreError, TRUTH_NAMES,
 )
 
@@ -175,7 +175,7 @@ class Roles:
 def topic_roles(streams, runs):
     """Sort streams into truth, gyro, star tracker, estimates and estimated rates.
 
-    The node's exact topics (:data:`~rigidrot_ros.io.score.TRUTH_NAMES`) are the truth
+    The node's exact topics (:data:`~rigidrot_ros.scoring.score.TRUTH_NAMES`) are the truth
     (the box shows the recomputed solution, which they equal); its ``imu`` rate is the
     gyro and its ``star_tracker`` the star tracker; any other attitude stream is an
     estimate, any other rate stream an estimated rate. Without an estimate, the star

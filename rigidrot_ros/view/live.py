@@ -18,10 +18,10 @@ import time
 
 import numpy as np
 
-from rigidrot_ros.io.bag import run_from_string
-from rigidrot_ros.io.decode import _fields, _stream, ORIENTATION, SUPPORTED
-from rigidrot_ros.io.recorder import msg_class
-from rigidrot_ros.io.score import ScoreError
+from rigidrot_ros.bag import run_from_string
+from rigidrot_ros.ros.recorder import msg_class
+from rigidrot_ros.scoring.decode import _fields, _stream, ORIENTATION, SUPPORTED
+from rigidrot_ros.scoring.score import ScoreError
 from rigidrot_ros.view import compute as cp
 from rigidrot_ros.view.plan import Plan, plan_streams
 from rigidrot_ros.view.rr_log import log_plan

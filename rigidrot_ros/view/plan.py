@@ -1,7 +1,7 @@
 """What to show of a log, as arrays: the plan that :mod:`rigidrot_ros.view.rr_log` draws.
 
 Pure (numpy, the project's decoder and scorer; no rerun, no rclpy): a bag, or a batch of
-live messages decoded into :class:`~rigidrot_ros.io.decode.Stream`, becomes a
+live messages decoded into :class:`~rigidrot_ros.scoring.decode.Stream`, becomes a
 :class:`Plan` with the truth at its stamps and each stream's errors, in the conventions of
 :mod:`rigidrot_ros.view.compute`.
 """
@@ -11,9 +11,9 @@ import math
 
 import numpy as np
 
-from rigidrot_ros.io.bag import BagContents, BagError, read_bag
-from rigidrot_ros.io.decode import decode_bag, ORIENTATION
-from rigidrot_ros.io.score import ScoreError
+from rigidrot_ros.bag import BagContents, BagError, read_bag
+from rigidrot_ros.scoring.decode import decode_bag, ORIENTATION
+from rigidrot_ros.scoring.score import ScoreError
 from rigidrot_ros.view import compute as cp
 
 __all__ = ['Plan', 'read_bags', 'plan_bag', 'plan_streams', 'ViewError', 't0_of',

@@ -18,13 +18,14 @@ from numpy.testing import assert_allclose, assert_array_equal
 import pytest
 import yaml
 
+from rigidrot_ros.bag import read_bag
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.io.bag import read_bag
-from rigidrot_ros.io.decode import decode_bag
+from rigidrot_ros.scoring.decode import decode_bag
+from rigidrot_ros.view.browser import screenshot
 from rigidrot_ros.view.rr_log import ESTIMATE_COLORS
 from ros_helpers import check_as_typed, next_domain_id, ros_env, script, start, stop
 from view_helpers import (
-    browser_shot, colour_mask, columns_with, free_ports, generate, greenish, region,
+    colour_mask, columns_with, free_ports, generate, greenish, region,
     rrd_columns, rrd_entities, rrd_static_text, wait_line, without_run,
 )
 
@@ -80,7 +81,7 @@ def test_a_generated_bag_in_headless_chromium(gen_bag, tmp_path):
         lines = wait_line(proc, 'serving the view at')
         url = lines[-1].split('serving the view at ')[1].split(' (')[0]
         assert url.startswith(f'http://127.0.0.1:{web}/')
-        img, secs, refused = browser_shot(url, tmp_path / 'shot.png', _ready)
+        img, secs, refused = screenshot(url, tmp_path / 'shot.png', _ready)
     finally:
         code, _, err = stop(proc, signal.SIGINT)
     assert code == 0, err
@@ -201,10 +202,13 @@ def test_live_node_with_the_shipped_mekf(tmp_path):
     view = start([script('rigidrot_view'), '--live', '--save', str(rrd), '--max-rate', '50',
                   '--topic', '/estimator/odom:nav_msgs/msg/Odometry',
                   '--topic', '/chatter:std_msgs/msg/String'], env)
+    early = []
     try:
-        time.sleep(9.0)
+        early = wait_line(view, 'live: ', timeout=120)
+        time.sleep(8.0)
     finally:
         code, _, err = stop(view, signal.SIGINT)
+        err = ''.join(early) + err
         stop(mekf, signal.SIGINT)
         stop(node, signal.SIGINT)
     assert code == 0, err

@@ -1,4 +1,4 @@
-"""Helpers for the viewer's tests: bags, free ports, a headless Chromium, .rrd read-back."""
+"""Helpers for the viewer's tests: bags, free ports, pixels, .rrd read-back."""
 
 import socket
 import subprocess
@@ -7,13 +7,6 @@ import time
 import numpy as np
 
 from ros_helpers import script
-
-#: Chromium flags: headless, software WebGL (SwiftShader), nothing fetched in the background.
-CHROMIUM_ARGS = ['--headless', '--no-sandbox', '--enable-unsafe-swiftshader',
-                 '--use-angle=swiftshader', '--disable-background-networking',
-                 '--disable-component-update', '--disable-sync', '--no-first-run',
-                 '--disable-default-apps', '--mute-audio']
-CHROMIUM = '/usr/bin/chromium'
 
 
 def free_ports(n):
@@ -41,7 +34,7 @@ def generate(out, duration, *overrides):
 
 def without_run(src, dst):
     """Copy a bag without its run description (no ``~/run`` topic, no metadata record)."""
-    from rigidrot_ros.io.bag import BagWriter, read_bag
+    from rigidrot_ros.bag import BagWriter, read_bag
     bag = read_bag(src)
     w = BagWriter(None, 'norun', path=str(dst), split_seconds=0.0)
     for topic, (type_name, qos, schema) in bag.topics.items():
@@ -115,48 +108,6 @@ def region(img, x0, x1, y0, y1):
     """Return the part of ``img`` between the fractions x0..x1 of its width, y0..y1 of height."""
     h, w = img.shape[:2]
     return img[int(y0 * h):int(y1 * h), int(x0 * w):int(x1 * w)]
-
-
-def browser_shot(url, path, ready, timeout=60.0, size=(1280, 720)):
-    """Open ``url`` in headless Chromium, screenshot it to ``path`` until ``ready(img)``.
-
-    Every request to a host other than this machine is refused (the view needs none).
-    The page counts as drawn when ``ready`` holds on two screenshots in a row that are
-    the same (the data has all arrived and is drawn). Returns ``(img, seconds, refused)``:
-    the last screenshot (H, W, 4 uint8), the time to it, and the URLs refused.
-    """
-    import os
-    from PIL import Image
-    from playwright.sync_api import sync_playwright
-    assert os.path.exists(CHROMIUM), (f'{CHROMIUM} is missing: apt-get install -y chromium '
-                                      f'(the README test command installs it)')
-    refused = []
-
-    def route(r):
-        host = r.request.url.split('/')[2] if '//' in r.request.url else ''
-        if host.split(':')[0] in ('127.0.0.1', 'localhost') or r.request.url.startswith(
-                ('data:', 'blob:')):
-            r.continue_()
-        else:
-            refused.append(r.request.url)
-            r.abort()
-    t0 = time.monotonic()
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_page(viewport={'width': size[0], 'height': size[1]})
-            page.route('**/*', route)
-            page.goto(url)
-            img = prev = None
-            while time.monotonic() - t0 < timeout:
-                time.sleep(0.5)
-                page.screenshot(path=str(path))
-                prev, img = img, np.asarray(Image.open(path).convert('RGBA'))
-                if ready(img) and prev is not None and np.array_equal(img, prev):
-                    break
-        finally:
-            browser.close()
-    return img, time.monotonic() - t0, refused
 
 
 def wait_line(proc, text, timeout=60.0):
