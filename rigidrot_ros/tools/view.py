@@ -209,7 +209,7 @@ def _live(opts, ros_args):
     try:
         spin_until_shutdown(node)
     finally:
-        view.flush()
+        view.close()
         rec.close()
         _say(f'live summary: {view.summary()}')
     return 0

@@ -14,11 +14,13 @@ import collections
 import json
 import resource
 import struct
+import threading
 import time
 
 import numpy as np
 
 from rigidrot_ros.bag import run_from_string
+from rigidrot_ros.core import engine
 from rigidrot_ros.ros.recorder import msg_class
 from rigidrot_ros.scoring.decode import _fields, _stream, ORIENTATION, SUPPORTED
 from rigidrot_ros.scoring.score import ScoreError
@@ -101,7 +103,8 @@ class LiveView:
         for p in self.problems:
             say(p)
         self.truth = cp.Truth([], 'live')
-        self.buffers = {t: [] for t in self.types}
+        self.buffers = {t: collections.deque() for t in self.types}
+        self.new_runs = collections.deque()
         self.last_kept = {t: None for t in self.types}
         self.received = collections.Counter()
         self.shown = collections.Counter()
@@ -114,7 +117,7 @@ class LiveView:
         self.boxes = []
         self.flush_cost = []
         self.notes_logged = None
-        data_qos = QoSProfile(depth=200, history=HistoryPolicy.KEEP_LAST,
+        data_qos = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
                               reliability=ReliabilityPolicy.BEST_EFFORT)
         self.subs = [node.create_subscription(msg_class(t), topic, self._callback(topic),
                                               data_qos, raw=True)
@@ -126,7 +129,24 @@ class LiveView:
                        durability=DurabilityPolicy.TRANSIENT_LOCAL), raw=True))
         self.run_topic = run_topic
         self.period = period
-        self.timer = node.create_timer(period, self.flush)
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        # the core's compiled kernels (numba) load here, in the main thread: imported first
+        # in the worker while the executor spins, numba's import stalled both threads
+        engine.kernels()
+        self.worker = threading.Thread(target=self._work, name='rigidrot_view', daemon=True)
+        self.worker.start()
+
+    def _work(self):
+        """Flush every ``period`` s, off the executor's thread (callbacks only queue)."""
+        while not self._stop.wait(self.period):
+            self.flush()
+
+    def close(self):
+        """Stop the worker and flush what is left."""
+        self._stop.set()
+        self.worker.join()
+        self.flush(final=True)
 
     def _callback(self, topic):
         period = int(round(1e9 / self.max_rate)) if self.max_rate else 0
@@ -147,11 +167,18 @@ class LiveView:
 
     def _on_run(self, data):
         run = run_from_string(data)
-        if run is not None and 'start_ns' in run and self.truth.add_run(run):
-            self.say(f'run {run.get("run", "?")} of {run.get("node", "?")}: model '
-                     f'{run.get("model", "?")}, inertia {run["scene"].get("inertia")}')
-            self.static_done = False           # a reset may change the body
-            self.rec.runs(self.truth.runs)
+        if run is not None and 'start_ns' in run:
+            self.new_runs.append(run)           # taken by the worker (flush)
+
+    def _take_runs(self):
+        while self.new_runs:
+            run = self.new_runs.popleft()
+            if self.truth.add_run(run):
+                self.say(f'run {run.get("run", "?")} of {run.get("node", "?")}: model '
+                         f'{run.get("model", "?")}, inertia {run["scene"].get("inertia")}')
+                self.static_done = False       # a reset may change the body
+                self.rec.runs(self.truth.runs)
+                self.truth.solution(run)       # solved here, in the worker
 
     # -- batches --------------------------------------------------------------------------------
     def _streams(self):
@@ -160,8 +187,9 @@ class LiveView:
         for topic, buf in self.buffers.items():
             if not buf:
                 continue
-            items, type_name = list(buf), self.types[topic]
-            buf.clear()
+            items, type_name = [], self.types[topic]
+            while buf:                  # the executor appends on the other end meanwhile
+                items.append(buf.popleft())
             cls = msg_class(type_name)
             rows = {}
             for stamp, data in items:
@@ -185,10 +213,16 @@ class LiveView:
                 roles.by_label[s.label] = cp.TRUTH
         return roles
 
-    def flush(self):
+    def flush(self, final=False):
         """Decode, score and log what the decimation kept since the last call."""
-        c0 = time.process_time()
-        if not self.truth.runs and time.monotonic() - self.started < self.wait_run:
+        with self._lock:
+            self._flush(final)
+
+    def _flush(self, final):
+        c0 = time.thread_time()
+        self._take_runs()
+        if (not final and not self.truth.runs
+                and time.monotonic() - self.started < self.wait_run):
             return                              # the run description comes first
         streams = self._streams()
         if not streams:
@@ -218,7 +252,7 @@ class LiveView:
         self._static(plan)
         log_plan(self.rec, plan, static=False)
         self._notes()
-        self.flush_cost.append(time.process_time() - c0)
+        self.flush_cost.append(time.thread_time() - c0)
 
     def _static(self, plan):
         inertia = self.truth.inertia()
