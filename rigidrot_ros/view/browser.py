@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-__all__ = ['screenshot', 'CHROMIUM', 'CHROMIUM_ARGS', 'MISSING']
+__all__ = ['screenshot', 'CHROMIUM', 'CHROMIUM_ARGS', 'MISSING', 'truth_drawn', 'green_surface']
 
 CHROMIUM = '/usr/bin/chromium'
 #: Headless, software WebGL (SwiftShader), nothing fetched in the background.
@@ -23,6 +23,17 @@ MISSING = (f'{CHROMIUM} is missing: apt-get install -y chromium; and pip install
            f'(Playwright drives that Chromium; it downloads no browser of its own here)')
 
 
+def green_surface(img):
+    """Pixels of a lit or shaded green surface (the truth box): a boolean (H, W) mask."""
+    r, g, b = (img[..., k].astype(int) for k in range(3))
+    return (g > 70) & (g > 1.5 * r + 10) & (g > 1.5 * b + 10)
+
+
+def truth_drawn(img, least=1000):
+    """Whether the truth box is drawn: at least ``least`` pixels of a green surface."""
+    return int(green_surface(img).sum()) >= least
+
+
 def _local(url):
     if url.startswith(('data:', 'blob:')):
         return True
@@ -30,11 +41,12 @@ def _local(url):
     return host.rsplit(':', 1)[0].strip('[]') in ('127.0.0.1', 'localhost', '::1')
 
 
-def screenshot(url, path, ready=None, timeout=90.0, size=(1280, 720), settle=0.5):
+def screenshot(url, path, ready=truth_drawn, timeout=90.0, size=(1280, 720), settle=0.5):
     """Open ``url`` and screenshot it to ``path`` until the page is drawn.
 
     The page counts as drawn when two screenshots ``settle`` s apart are the same and
-    ``ready(img)`` holds on them (if given; ``img`` an (H, W, 4) uint8 array).
+    ``ready(img)`` holds on them (``img`` an (H, W, 4) uint8 array; default
+    :func:`truth_drawn`: the viewer's loading screen is still for seconds too).
 
     Returns
     -------

@@ -70,8 +70,9 @@ def campaign_plan(report, problems):
     """Return what the campaign view draws: arrays and notes (a dict)."""
     notes = [f'{report["name"] or "campaign"}: {report["runs_ok"]} of {report["runs"]} '
              f'runs, {report["duration_s"]:g} s each, estimator {report["estimator"]}']
-    out = {'notes': notes + list(problems), 'nees': None, 'per_run': None}
+    out = {'notes': notes, 'nees': None, 'per_run': None}
     if 'mc_nees' not in report:
+        notes.extend(problems)
         return out
     mc = report['mc_nees']
     lo, hi = mc['band_95']
@@ -90,6 +91,7 @@ def campaign_plan(report, problems):
                    'nees': np.asarray(mc['nees']), 'band': (lo, hi)}
     out['per_run'] = {'runs': np.asarray(pr['runs']), 'anees': np.asarray(pr['values']),
                       'band': tuple(pr['bounds_95'])}
+    notes.extend(problems)
     return out
 
 

@@ -277,8 +277,11 @@ def log_plan(rec, plan, static=True):
     for s in plan.star:
         rec.vectors(f'/residual/star_tracker/{entity(s["label"])}', s['stamps'], s['e'],
                     [f'{s["label"]} e_{a}' for a in 'xyz'])
-    for r in plan.rates:
-        rec.scalars(f'/residual/rate/{entity(r["label"])}', r['stamps'], r['error'])
+    for k, r in enumerate(plan.rates):
+        path = f'/residual/rate/{entity(r["label"])}'
+        rec._series(path, ESTIMATE_COLORS[k % len(ESTIMATE_COLORS)],
+                    f'{r["label"]} |ω_est − ω_true|', 2.0)
+        rec.scalars(path, r['stamps'], r['error'])
 
 
 def log_campaign(rec, cplan):

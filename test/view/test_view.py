@@ -21,11 +21,11 @@ import yaml
 from rigidrot_ros.bag import read_bag
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.scoring.decode import decode_bag
-from rigidrot_ros.view.browser import screenshot
+from rigidrot_ros.view.browser import green_surface, screenshot
 from rigidrot_ros.view.rr_log import ESTIMATE_COLORS
 from ros_helpers import check_as_typed, next_domain_id, ros_env, script, start, stop
 from view_helpers import (
-    colour_mask, columns_with, free_ports, generate, greenish, region,
+    colour_mask, columns_with, free_ports, generate, region,
     rrd_columns, rrd_entities, rrd_static_text, wait_line, without_run,
 )
 
@@ -63,7 +63,7 @@ def _pixels(img):
     """Truth-box pixels, estimate-ghost pixels, and the error plot's columns with a line."""
     box = region(img, 0.0, 0.38, 0.08, 0.70)
     err = region(img, 0.60, 1.0, 0.10, 0.25)      # right of the legend
-    return (int(greenish(box).sum()), int(colour_mask(box, ORANGE, 60).sum()),
+    return (int(green_surface(box).sum()), int(colour_mask(box, ORANGE, 60).sum()),
             columns_with(colour_mask(err, ORANGE, 60)))
 
 
@@ -144,7 +144,7 @@ def test_bad_arguments_one_line_exit_2(args, words):
 
 
 SPEC = {
-    'name': 'view test', 'seed': 7, 'runs': 3, 'duration': 4.0,
+    'name': 'view test', 'seed': 7, 'runs': 3, 'duration': 3.0,
     'base': {'overrides': {'imu.enable': True, 'star_tracker.enable': True,
                            'imu.gyro_noise_density': 1.7e-4, 'imu.gyro_random_walk': 2e-5}},
     'dispersions': {'attitude0': 'uniform', 'imu.gyro_bias': {'mean': [0, 0, 0],
@@ -205,7 +205,7 @@ def test_live_node_with_the_shipped_mekf(tmp_path):
     early = []
     try:
         early = wait_line(view, 'live: ', timeout=120)
-        time.sleep(8.0)
+        time.sleep(6.0)
     finally:
         code, _, err = stop(view, signal.SIGINT)
         err = ''.join(early) + err

@@ -93,12 +93,6 @@ def colour_mask(img, rgb, tol):
     return d.max(axis=2) <= tol
 
 
-def greenish(img):
-    """Pixels of a lit or shaded green surface (the truth box): a boolean mask."""
-    r, g, b = (img[..., k].astype(int) for k in range(3))
-    return (g > 70) & (g > 1.5 * r + 10) & (g > 1.5 * b + 10)
-
-
 def columns_with(mask):
     """Return the fraction of a mask's columns that hold at least one pixel."""
     return float(mask.any(axis=0).mean()) if mask.size else 0.0
