@@ -97,7 +97,7 @@ def _wait_for(proc, text, timeout, sink):
     return False
 
 
-def _stop(proc, timeout=20.0):
+def _stop(proc, timeout=60.0):
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
     try:
@@ -190,7 +190,8 @@ def _line(r, log):
     for t, v in topics.items():
         if t in RATES and v['received']:
             log(f'  {t}: {v["received"]} received at {v["rate_hz"] or 0:.4g} Hz (published '
-                f'{RATES[t]:g} Hz), {v["shown"]} shown')
+                f'{RATES[t]:g} Hz), {v["shown"]} shown, {v["dropped_behind"]} dropped by '
+                f'the view (behind)')
 
 
 def run(quick=False, log=print, view_seconds=None, view_browser=False):
@@ -202,8 +203,12 @@ def run(quick=False, log=print, view_seconds=None, view_browser=False):
         f'ROS_DOMAIN_ID={domain}')
     res = {'seconds': seconds, 'runs': [], 'footer': common.footer()}
     for max_rate in (50.0, 0.0):
+        load0 = os.getloadavg()[0]
         r = measure(seconds, max_rate, domain, log, browser=view_browser)
+        r['load_1min'] = [load0, os.getloadavg()[0]]
         _line(r, log)
+        log(f'  machine load (1 min average) {load0:.1f} before, {r["load_1min"][1]:.1f} '
+            f'after, on {os.cpu_count()} cores')
         res['runs'].append(r)
     return res
 

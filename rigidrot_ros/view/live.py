@@ -1,11 +1,13 @@
 """The live view: subscribe to the node's truth, its sensors and estimators, and log them.
 
-Every topic is subscribed raw (serialized CDR): a message's stamp is read from its first
-bytes (every supported type starts with a ``std_msgs/Header``) and only the messages the
-decimation keeps (at most ``max_rate`` Hz a topic, by stamp) are deserialized. Kept
-messages are batched and, every ``period`` seconds, decoded by the scorer's decoder,
-scored against the exact truth of the node's run description (``~/run``, transient
-local: the view can start after the node) and logged in one call per entity. Without a
+Every topic is subscribed raw (serialized CDR) by a node that no executor spins: a
+reader thread takes the waiting messages of each subscription every 10 ms (one C call a
+message, no executor wake-up), reads a message's stamp from its first bytes (every
+supported type starts with a ``std_msgs/Header``), and queues only the messages the
+decimation keeps (at most ``max_rate`` Hz a topic, by stamp). A worker thread, every
+``period`` seconds, deserializes what was kept, decodes it with the scorer's decoder,
+scores it against the exact truth of the node's run description (``~/run``, transient
+local: the view can start after the node) and logs it in one call per entity. Without a
 run description (none after ``wait_run`` s) the box shows the node's ``attitude`` topic
 and the estimates are drawn without errors, which the notes say.
 """
@@ -28,7 +30,14 @@ from rigidrot_ros.view import compute as cp
 from rigidrot_ros.view.plan import Plan, plan_streams
 from rigidrot_ros.view.rr_log import log_plan
 
-__all__ = ['LiveView', 'node_topics_of', 'cdr_stamp', 'check_topic']
+__all__ = ['LiveView', 'node_topics_of', 'cdr_stamp', 'check_topic', 'MAX_BACKLOG']
+
+#: Seconds between two takes of the data subscriptions' messages (their history holds
+#: 1000: a second of a 1 kHz gyro).
+TAKE_PERIOD = 0.01
+#: Messages a topic may wait for the worker; past it the oldest are dropped and counted (the
+#: view is behind: 2 s of a 1 kHz gyro shown in full).
+MAX_BACKLOG = 2000
 
 #: The node's topics the live view reads, by name: (type, role).
 NODE_TOPICS = {
@@ -36,6 +45,10 @@ NODE_TOPICS = {
     'imu': 'sensor_msgs/msg/Imu',
     'star_tracker': 'geometry_msgs/msg/PoseWithCovarianceStamped',
 }
+
+
+def _ignore(_):
+    """Stand in for a callback: the data node is never spun, its messages are taken."""
 
 
 def cdr_stamp(data):
@@ -103,7 +116,8 @@ class LiveView:
         for p in self.problems:
             say(p)
         self.truth = cp.Truth([], 'live')
-        self.buffers = {t: collections.deque() for t in self.types}
+        self.buffers = {t: collections.deque(maxlen=MAX_BACKLOG) for t in self.types}
+        self.overflow = collections.Counter()
         self.new_runs = collections.deque()
         self.last_kept = {t: None for t in self.types}
         self.received = collections.Counter()
@@ -119,14 +133,20 @@ class LiveView:
         self.notes_logged = None
         data_qos = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
                               reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.subs = [node.create_subscription(msg_class(t), topic, self._callback(topic),
-                                              data_qos, raw=True)
+        # the data subscriptions belong to a node no executor spins: the reader thread
+        # takes their messages in batches (no executor wake-up per message)
+        import rclpy
+        self.data_node = rclpy.create_node(f'{node.get_name()}_data',
+                                           context=node.context)
+        self.subs = [(self.data_node.create_subscription(msg_class(t), topic, _ignore,
+                                                         data_qos, raw=True),
+                      self._callback(topic))
                      for topic, t in self.types.items()]
         from std_msgs.msg import String
-        self.subs.append(node.create_subscription(
+        self.run_sub = node.create_subscription(
             String, run_topic, self._on_run,
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL), raw=True))
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL), raw=True)
         self.run_topic = run_topic
         self.period = period
         self._stop = threading.Event()
@@ -134,19 +154,40 @@ class LiveView:
         # the core's compiled kernels (numba) load here, in the main thread: imported first
         # in the worker while the executor spins, numba's import stalled both threads
         engine.kernels()
+        self.reader = threading.Thread(target=self._read, name='rigidrot_view_read',
+                                       daemon=True)
         self.worker = threading.Thread(target=self._work, name='rigidrot_view', daemon=True)
+        self.reader.start()
         self.worker.start()
 
+    def _read(self):
+        """Take every subscription's waiting messages each :data:`TAKE_PERIOD` s."""
+        while not self._stop.wait(TAKE_PERIOD):
+            self.take()
+
+    def take(self):
+        """Take the messages waiting on the data subscriptions (raw CDR) into the queues."""
+        for sub, on_message in self.subs:
+            with sub.handle:
+                while True:
+                    got = sub.handle.take_message(sub.msg_type, True)
+                    if got is None:
+                        break
+                    on_message(got[0])
+
     def _work(self):
-        """Flush every ``period`` s, off the executor's thread (callbacks only queue)."""
+        """Flush every ``period`` s, off the executor's thread."""
         while not self._stop.wait(self.period):
             self.flush()
 
     def close(self):
-        """Stop the worker and flush what is left."""
+        """Stop the threads, flush what is left, destroy the data node."""
         self._stop.set()
+        self.reader.join()
         self.worker.join()
+        self.take()
         self.flush(final=True)
+        self.data_node.destroy_node()
 
     def _callback(self, topic):
         period = int(round(1e9 / self.max_rate)) if self.max_rate else 0
@@ -159,6 +200,8 @@ class LiveView:
             last = self.last_kept[topic]
             if last is None or stamp - last >= period or stamp < last:
                 self.last_kept[topic] = stamp
+                if len(buf) == MAX_BACKLOG:
+                    self.overflow[topic] += 1       # the oldest goes: the view is behind
                 buf.append((stamp, data))
             if topic not in self.first_seen:
                 self.first_seen[topic] = (time.monotonic(), stamp)
@@ -293,7 +336,9 @@ class LiveView:
                 continue
             rate = self.rate(topic)
             out.append(f'{topic}: {n} received' + (f' ({rate:.4g} Hz)' if rate else '')
-                       + f', {self.shown[topic]} shown')
+                       + f', {self.shown[topic]} shown'
+                       + (f', {self.overflow[topic]} dropped: the view fell behind'
+                          if self.overflow[topic] else ''))
         return out + self.problems
 
     def rate(self, topic):
@@ -316,7 +361,8 @@ class LiveView:
                  for t in self.types if self.received[t]]
         cost = np.array(self.flush_cost) if self.flush_cost else np.zeros(1)
         return json.dumps({'topics': {t: {'received': self.received[t],
-                                          'shown': self.shown[t], 'rate_hz': self.rate(t)}
+                                          'shown': self.shown[t], 'rate_hz': self.rate(t),
+                                          'dropped_behind': self.overflow[t]}
                                       for t in self.types},
                            'cpu_s': use.ru_utime + use.ru_stime,
                            'flushes': len(self.flush_cost),
