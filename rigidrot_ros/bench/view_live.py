@@ -17,6 +17,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 
@@ -101,20 +102,21 @@ def _stop(proc, timeout=60.0):
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
     try:
-        out, err = proc.communicate(timeout=timeout)
+        proc.wait(timeout)
     except subprocess.TimeoutExpired:
         proc.kill()
-        out, err = proc.communicate()
-    return proc.returncode, err
+        proc.wait()
+    return proc.returncode
 
 
 def measure(seconds, max_rate, domain, log, warmup=5.0, browser=False):
     """Run node, MEKF and view for ``warmup + seconds``; return the figures (a dict)."""
     env = _env(domain)
     web, grpc = _free_port(), _free_port()
+    node_err = tempfile.TemporaryFile(mode='w+')
     procs = {
         'node': subprocess.Popen([common.script('attitude_node'), '--ros-args'] + NODE,
-                                 env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL),
+                                 env=env, stdout=subprocess.DEVNULL, stderr=node_err),
         'mekf': subprocess.Popen([common.script('rigidrot_mekf')] + MEKF, env=env,
                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL),
         'view': subprocess.Popen([common.script('rigidrot_view'), '--live', '--topic', ESTIMATE,
@@ -122,7 +124,7 @@ def measure(seconds, max_rate, domain, log, warmup=5.0, browser=False):
                                   '--grpc-port', str(grpc)], env=env, text=True,
                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE),
     }
-    lines, shot = [], {}
+    lines, shot, drain = [], {}, None
     try:
         if not _wait_for(procs['view'], 'live: ', 120, lines):
             raise RuntimeError(f'rigidrot_view did not start: {"".join(lines)[-800:]}')
@@ -136,15 +138,26 @@ def measure(seconds, max_rate, domain, log, warmup=5.0, browser=False):
                                                                     shot), daemon=True)
             shot['thread'].start()
         time.sleep(warmup)
+        _alive(procs, node_err)
         c0 = {k: _cpu_s(p.pid) for k, p in procs.items()}
         b0 = _browser_cpu_s() if browser else None
         t0 = time.monotonic()
         time.sleep(seconds)
         wall = time.monotonic() - t0
+        _alive(procs, node_err)
         c1 = {k: _cpu_s(p.pid) for k, p in procs.items()}
         b1 = _browser_cpu_s() if browser else None
     finally:
-        code, _ = _stop(procs['view'])
+        view = procs['view']
+        if view.poll() is None:
+            view.send_signal(signal.SIGINT)
+        try:
+            code = view.wait(60)
+        except subprocess.TimeoutExpired:
+            view.kill()
+            code = view.wait()
+        if drain is not None:
+            drain.join(10)          # it reads the view's stderr to its end
         for k in ('mekf', 'node'):
             _stop(procs[k])
     if 'thread' in shot:
@@ -161,6 +174,19 @@ def measure(seconds, max_rate, domain, log, warmup=5.0, browser=False):
            'flush_cpu_ms_median': summary['flush_cpu_ms_median'],
            'flush_cpu_ms_max': summary['flush_cpu_ms_max']}
     return out
+
+
+class NodeExited(RuntimeError):
+    """The node or the MEKF ended during the measurement (its last words)."""
+
+
+def _alive(procs, node_err):
+    for k in ('node', 'mekf'):
+        if procs[k].poll() is not None:
+            node_err.seek(0)
+            said = node_err.read().strip().splitlines()[-3:] if k == 'node' else []
+            raise NodeExited(f'{k} exited with status {procs[k].returncode} during the '
+                             f'measurement: {" / ".join(said)}')
 
 
 def _browse(url, seconds, shot):
@@ -204,7 +230,14 @@ def run(quick=False, log=print, view_seconds=None, view_browser=False):
     res = {'seconds': seconds, 'runs': [], 'footer': common.footer()}
     for max_rate in (50.0, 0.0):
         load0 = os.getloadavg()[0]
-        r = measure(seconds, max_rate, domain, log, browser=view_browser)
+        for attempt in range(3):    # the node's start-up trial can fail on a loaded machine
+            try:
+                r = measure(seconds, max_rate, domain, log, browser=view_browser)
+                break
+            except NodeExited as exc:
+                log(f'view_live: {exc}' + ('; again' if attempt < 2 else ''))
+                if attempt == 2:
+                    raise
         r['load_1min'] = [load0, os.getloadavg()[0]]
         _line(r, log)
         log(f'  machine load (1 min average) {load0:.1f} before, {r["load_1min"][1]:.1f} '
