@@ -42,8 +42,9 @@ def _parser():
     ap.add_argument('--topic', action='append', default=[], metavar='NAME:TYPE',
                     help='live: an estimator topic, e.g. '
                          '/estimator/odom:nav_msgs/msg/Odometry (repeatable)')
-    ap.add_argument('--run-topic', default='/attitude_node/run',
-                    help="live: the node's run description (default /attitude_node/run)")
+    ap.add_argument('--run-topic',
+                    help="live: the node's run description (default "
+                         '<ns>/attitude_node/run)')
     ap.add_argument('--max-rate', type=float, default=50.0, metavar='HZ',
                     help='live: show each topic at most this often (default 50 Hz; 0: all)')
     ap.add_argument('--run', type=int, metavar='I', help='campaign: open run I')
@@ -202,7 +203,9 @@ def _live(opts, ros_args):
     except NotInitializedException:
         rec.close()                 # Ctrl-C came before the node: nothing to show
         return 0
-    view = LiveView(node, rec, ns=opts.ns, estimators=estimators, run_topic=opts.run_topic,
+    ns = '/' + opts.ns.strip('/') if opts.ns.strip('/') else ''
+    run_topic = opts.run_topic or f'{ns}/attitude_node/run'
+    view = LiveView(node, rec, ns=opts.ns, estimators=estimators, run_topic=run_topic,
                     max_rate=opts.max_rate, say=_say)
     _say(f'live: {", ".join(view.types)}; each topic shown at most {opts.max_rate:g} Hz '
          f'(--max-rate)')

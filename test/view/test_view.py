@@ -132,17 +132,6 @@ def test_a_port_in_use_is_named_exit_2(gen_bag, tmp_path):
     check_as_typed(out, 'rigidrot_view', 2, [f'port {web}', 'in use', '--port'])
 
 
-@pytest.mark.parametrize('args, words', [
-    (['--live', 'x'], ['--live takes no']),
-    (['nowhere'], ['nowhere', 'no such file']),
-    (['--port', '0', 'x'], ['--port 0']),
-])
-def test_bad_arguments_one_line_exit_2(args, words):
-    out = subprocess.run([script('rigidrot_view')] + args, capture_output=True, text=True,
-                         timeout=60)
-    check_as_typed(out, 'rigidrot_view', 2, words)
-
-
 SPEC = {
     'name': 'view test', 'seed': 7, 'runs': 3, 'duration': 3.0,
     'base': {'overrides': {'imu.enable': True, 'star_tracker.enable': True,
