@@ -83,7 +83,7 @@ def test_a_generated_bag_in_headless_chromium(gen_bag, tmp_path):
         assert url.startswith(f'http://127.0.0.1:{web}/')
         img, secs, refused = screenshot(url, tmp_path / 'shot.png', _ready)
     finally:
-        code, _, err = stop(proc, signal.SIGINT)
+        code, _, err = stop(proc, signal.SIGINT, timeout=90)
     assert code == 0, err
     assert 'Traceback' not in err
     green, ghost, line = _pixels(img)
@@ -196,7 +196,7 @@ def test_live_node_with_the_shipped_mekf(tmp_path):
         early = wait_line(view, 'live: ', timeout=120)
         time.sleep(6.0)
     finally:
-        code, _, err = stop(view, signal.SIGINT)
+        code, _, err = stop(view, signal.SIGINT, timeout=90)
         err = ''.join(early) + err
         stop(mekf, signal.SIGINT)
         stop(node, signal.SIGINT)
