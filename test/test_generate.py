@@ -1,6 +1,5 @@
 """rigidrot_generate: byte identity with the recording node, streaming, SIGINT, bad input."""
 
-import json
 import os
 from pathlib import Path
 import signal
@@ -11,10 +10,10 @@ import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
-from rosbags.typesys import get_typestore, Stores
 
 from rigidrot_ros.run.generate import generate_bag, GenerationError, iter_run
 from ros_helpers import next_domain_id, ros_env, script, start, stop, wait_for
+from run_helpers import canonical, payloads as _payloads
 
 SENSORS = ['-p', 'imu.enable:=true', '-p', 'imu.rate:=200.0', '-p', 'imu.seed:=11',
            '-p', 'star_tracker.enable:=true', '-p', 'star_tracker.seed:=5']
@@ -40,37 +39,6 @@ ACCEL_MAG = [
 #: the torque-free triaxial preset (config/torque_free_triaxial.yaml): its own model
 TRIAXIAL = ['-p', 'inertia:=[1.0, 2.0, 3.0]', '-p', 'torque:=[0.0, 0.0, 0.0]',
             '-p', 'omega0:=[0.02, 1.0, 0.03]']
-
-
-_STORE = get_typestore(Stores.ROS2_JAZZY)
-
-
-def canonical(raw, msgtype):
-    """CDR bytes re-serialized by rosbags: the same values, padding bytes zero.
-
-    rclpy's serializer (Fast CDR) leaves the alignment padding after a string
-    uninitialized, so two serializations of one message may differ there; every value
-    byte is kept.
-    """
-    return bytes(_STORE.serialize_cdr(_STORE.deserialize_cdr(raw, msgtype), msgtype))
-
-
-def _payloads(bag):
-    """``{topic: {stamp_ns: raw CDR bytes}}`` and the ``~/run`` JSON, read by rosbags."""
-    out, run = {}, None
-    types = _payloads.types = {}
-    with AnyReader([Path(bag)]) as reader:
-        for conn, _, raw in reader.messages():
-            msg = reader.deserialize(raw, conn.msgtype)
-            types[conn.topic] = conn.msgtype
-            if conn.topic.endswith('/run'):
-                run = json.loads(msg.data)
-                out.setdefault(conn.topic, {})[0] = bytes(raw)
-                continue
-            ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            assert ns not in out.setdefault(conn.topic, {}), (conn.topic, ns)
-            out[conn.topic][ns] = bytes(raw)
-    return out, run
 
 
 def _values(args):

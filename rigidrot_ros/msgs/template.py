@@ -79,9 +79,11 @@ def _times(q, b):
     """Return ``q ⊗ b`` row by row, in the operations and order of ``multiply_floats``."""
     ax, ay, az, aw = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
     bx, by, bz, bw = b
-    return np.stack([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz],
-                    axis=1)
+    with np.errstate(all='ignore'):     # inf and NaN as the float operations give them
+        return np.stack([aw * bx + ax * bw + ay * bz - az * by,
+                         aw * by - ax * bz + ay * bw + az * bx,
+                         aw * bz + ax * by - ay * bx + az * bw,
+                         aw * bw - ax * bx - ay * by - az * bz], axis=1)
 
 
 def markers(stamps_ns, q, frame_id, inertia, namespace='body'):
