@@ -154,3 +154,28 @@ def test_the_increment_quanta_publish_the_quantised_increments_residual_carried(
     measured = _xyz([m.vector for m in _messages(quant['/delta_angle_measured'], VECTOR)])
     assert np.abs(exact - measured).max() > 1e-4
     assert np.any(np.abs(exact / QUANTA['imu.gyro_increment_quantum'] % 1 - 0.5) < 0.45)
+
+
+@pytest.mark.ros
+@pytest.mark.usefixtures('ros_context')
+def test_a_quantum_set_at_run_time_brings_its_topic_at_the_reset_and_takes_it_away():
+    from rclpy.parameter import Parameter
+    node = attitude_node(**{'imu.enable': True, 'imu.rate': 50.0})
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+
+    def topics():
+        return {p.topic_name for p in node.publishers}
+    try:
+        assert '/delta_angle_measured' not in topics()
+        for quantum, present in ((1e-4, True), (0.0, False)):
+            name = 'imu.gyro_increment_quantum'
+            assert node.set_parameters([Parameter(name, value=quantum)])[0].successful
+            assert ('/delta_angle_measured' in topics()) is not present    # at the reset
+            assert node._on_reset(None, type('R', (), {})()).success
+            assert ('/delta_angle_measured' in topics()) is present
+            n = node._counters.published
+            spin_until(ex, lambda: node._counters.published >= n + 20, timeout=30.0)
+            assert not node._counters.errors
+    finally:
+        node.destroy_node()
