@@ -117,7 +117,7 @@ class AttitudeNode(Node):
             f'{self._period_hz:g} Hz; publishing {topics}')
 
     def _make_publishers(self):
-        """Create the publishers of the table's outputs that are on, ``/diagnostics``, ``~/run``.
+        """Create the publishers of the topics of the run's outputs (the table's), ``~/run`` too.
 
         At ``~/reset`` only those of topics that come or go with the new run are created or
         destroyed (a topic that needs an increment quantum set).
