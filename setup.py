@@ -32,7 +32,9 @@ setup(
     extras_require={
         'plot': ['matplotlib>=3.7'],
         'estimator': ['ahrs>=0.3'],
-        'campaign': ['dask[distributed]>=2023.1', 'matplotlib>=3.7', 'scipy>=1.10'],
+        'campaign': ['dask[distributed]>=2023.1', 'cryptography>=3.1', 'matplotlib>=3.7',
+                     'scipy>=1.10'],
+        'docs': ['sphinx>=7.2', 'myst-parser>=2'],
         'bench': ['scipy>=1.10', 'matplotlib>=3.7', 'rosbags>=0.10'],
         'test': [
             'pytest>=7',
@@ -55,6 +57,7 @@ setup(
             'sphinx>=7.2',
             'myst-parser>=2',
             'dask[distributed]>=2023.1',
+            'cryptography>=3.1',
         ],
     },
     zip_safe=True,
