@@ -85,7 +85,7 @@ def test_an_output_that_cannot_be_made_is_one_line(tmp_path, capsys, monkeypatch
 
 def test_a_million_runs_are_checked_lazily_with_progress(tmp_path, monkeypatch):
     calls = []
-    from rigidrot_ros.io import generate
+    from rigidrot_ros.run import generate
     real = generate.prepare_run
     monkeypatch.setattr(generate, 'prepare_run', lambda v: calls.append(1) or real(v))
     monkeypatch.setattr(spec_mod, 'EAGER_DRAWS', 12)

@@ -103,7 +103,7 @@ def test_scale_misalignment_is_imported_as_kalibr_defines_it(tmp_path):
                                    atol=8 * np.finfo(float).eps)
     assert params['imu.gyro_misalignment'][::4] == [0.0, 0.0, 0.0]
     # through the node's settings: the sensors carry it
-    from rigidrot_ros import params as table, settings
+    from rigidrot_ros.run import params as table, settings
     values = table.defaults()
     values.update({'imu.enable': True, 'accel.enable': True,
                    'imu.kalibr_yaml': str(tmp_path / 'imu.yaml')})

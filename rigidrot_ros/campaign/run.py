@@ -8,8 +8,8 @@ client), so the same spec and seed give the same result bytes on any engine.
 
 Scoring is the project's scorer, on a bag: the estimator's messages (in process) or the
 recorder's bag (ROS) with the run's description (``~/run``), read back by
-:func:`rigidrot_ros.io.bag.read_bag` and scored by
-:func:`rigidrot_ros.io.score.score_against_runs`.
+:func:`rigidrot_ros.bag.read_bag` and scored by
+:func:`rigidrot_ros.scoring.score.score_against_runs`.
 """
 
 import contextlib
@@ -25,7 +25,7 @@ import traceback
 
 from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, load_factory, run_values
 from rigidrot_ros.campaign.workdir import claim_work_dir
-from rigidrot_ros.io.generate import GenerationError
+from rigidrot_ros.run.generate import GenerationError
 
 __all__ = ['run_one', 'RunFailed', 'score_bag']
 
@@ -47,8 +47,8 @@ def score_bag(path, topic, runs=None):
     ``runs`` (the run descriptions of the input bag) give the truth when the bag holds
     none (a recorder that joined after the replay published ``~/run``).
     """
-    from rigidrot_ros.io.bag import BagError, read_bag
-    from rigidrot_ros.io.score import extract_streams, score_against_runs, ScoreError
+    from rigidrot_ros.bag import BagError, read_bag
+    from rigidrot_ros.scoring.score import extract_streams, score_against_runs, ScoreError
     try:
         bag = read_bag(path)
         if not bag.runs and runs:
@@ -76,9 +76,9 @@ def _inproc(spec, values, work):
     """Feed the run's messages to the factory's object; bag its answers; score them."""
     from rclpy.serialization import serialize_message
 
-    from rigidrot_ros.io.bag import BagWriter
-    from rigidrot_ros.io.generate import iter_run, RUN_TOPIC
-    from rigidrot_ros.io.recorder import type_name_of
+    from rigidrot_ros.bag import BagWriter
+    from rigidrot_ros.run.generate import iter_run, RUN_TOPIC
+    from rigidrot_ros.ros.recorder import type_name_of
     est = spec['estimator']
     topic = est['topic']
     deadline = time.monotonic() + spec['timeout']
@@ -176,10 +176,10 @@ def _tail(path, lines=40):
 
 def _ros(spec, values, work):
     """Generate the bag, replay it (with /clock) into the command, record and score it."""
-    from rigidrot_ros.io.generate import generate_bag
+    from rigidrot_ros.run.generate import generate_bag
     est = spec['estimator']
     bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
-    from rigidrot_ros.io.bag import read_bag
+    from rigidrot_ros.bag import read_bag
     contents = read_bag(bag)
     names = sorted(t for t in contents.topics
                    if t.rsplit('/', 1)[-1] in ('imu', 'star_tracker', 'run'))

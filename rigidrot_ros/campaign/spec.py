@@ -164,7 +164,7 @@ def _dispersion(name, d):
 
 def check_spec(doc, base_dir='.'):
     """Validate a spec mapping; return it normalised (a plain dict). SpecError otherwise."""
-    from rigidrot_ros.io.generate import GenerationError, load_values, prepare_run
+    from rigidrot_ros.run.generate import GenerationError, load_values, prepare_run
     _keys('spec', doc, TOP_KEYS)
     for k in ('seed', 'runs', 'duration', 'estimator'):
         if k not in doc:
@@ -353,7 +353,7 @@ def check_draws(spec, limit=None, progress=None):
     """Validate the runs' parameters as the node would; SpecError names the first bad run.
 
     The node's checks (model constraints such as a torque along the symmetry axis, the
-    start-up trial) are those of :func:`rigidrot_ros.io.generate.prepare_run`, about 5 ms
+    start-up trial) are those of :func:`rigidrot_ros.run.generate.prepare_run`, about 5 ms
     a draw. The first ``limit`` runs (default :data:`EAGER_DRAWS`) are checked here, so
     an impossible dispersion is found before anything is written; the draws of a larger
     campaign's further runs are checked by the runs themselves (the generator runs the
@@ -361,7 +361,7 @@ def check_draws(spec, limit=None, progress=None):
     rather than hours of checking before the first run. ``progress(done, total)``, if
     given, is called after each draw. Returns the number of runs checked.
     """
-    from rigidrot_ros.io.generate import GenerationError, prepare_run
+    from rigidrot_ros.run.generate import GenerationError, prepare_run
     if not spec['dispersions'].keys() - {'attitude0'} and spec['sensor_seeds'] == 'fixed':
         return 0
     total = min(spec['runs'], EAGER_DRAWS if limit is None else limit)
