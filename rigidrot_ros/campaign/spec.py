@@ -44,6 +44,7 @@ run's row. A box where no draw can satisfy it is refused when the spec is read.
 import importlib
 import math
 import os
+import reprlib
 import shlex
 import shutil
 
@@ -87,9 +88,17 @@ def _num(where, v, lo=-math.inf, hi=math.inf, integer=False, strict_lo=False):
     return v
 
 
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxdict, _REPR.maxstring, _REPR.maxother = 3, 6, 4, 60, 60
+
+
 def _short(v, limit=80):
-    """``repr(v)``, cut to ``limit`` characters (a refused value can be a whole file)."""
-    text = repr(v)
+    """Return ``repr(v)`` within ``limit`` characters, however big or nested ``v`` is.
+
+    A refused value can be a whole file, or YAML aliases nested into a structure whose
+    full repr would not fit in memory.
+    """
+    text = _REPR.repr(v)
     return text if len(text) <= limit else text[:limit - 3] + '...'
 
 
@@ -198,6 +207,8 @@ def check_spec(doc, base_dir='.'):
         prepare_run(values)
     except GenerationError as exc:
         raise SpecError(f'base: {exc}') from None
+    except RecursionError:
+        raise SpecError(f'base: {pf or "base.overrides"}: nested too deeply to read') from None
     spec['base'] = {'params_file': pf, 'values': values}
     disp = doc.get('dispersions') or {}
     _keys('dispersions', disp, DISPERSIONS)
@@ -290,6 +301,8 @@ def load_spec(path, progress=None):
             from None
     except yaml.YAMLError as exc:
         raise SpecError(f'{path}: not YAML ({" ".join(str(exc).split())})') from None
+    except RecursionError:
+        raise SpecError(f'{path}: nested too deeply to read') from None
     spec = check_spec(doc, os.path.dirname(os.path.abspath(path)))
     check_draws(spec, progress=progress)
     return spec

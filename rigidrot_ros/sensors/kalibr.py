@@ -53,6 +53,7 @@ message naming the file and the key.
 import math
 import numbers
 import re
+import reprlib
 
 import numpy as np
 import yaml
@@ -80,6 +81,15 @@ KALIBR_SOURCES.update({
     'accel.misalignment': 'off-diagonal of accelerometers.M',
 })
 _BLOCK = re.compile(r'^imu\d+$')
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxdict, _REPR.maxstring, _REPR.maxother = 3, 6, 4, 60, 60
+
+
+def _short(v):
+    """Return ``repr(v)``, bounded however big or nested ``v`` is (YAML aliases)."""
+    return _REPR.repr(v)
+
+
 _INTRINSICS = ('model', 'gyroscopes', 'accelerometers')
 
 
@@ -115,7 +125,7 @@ _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
 def _value(path, key, raw):
     name, unit, upper = KALIBR_KEYS[key]
     if isinstance(raw, bool) or not isinstance(raw, numbers.Real):
-        raise ValueError(f'{path}: {key} must be a number ({unit}), got {raw!r}')
+        raise ValueError(f'{path}: {key} must be a number ({unit}), got {_short(raw)}')
     try:
         v = float(raw)
     except OverflowError:
@@ -124,7 +134,7 @@ def _value(path, key, raw):
     if not math.isfinite(v) or not low_ok or not v <= upper:
         kind = 'positive' if key == 'update_rate' else 'nonnegative'
         raise ValueError(f'{path}: {key} must be a {kind} finite number <= {upper:g} '
-                         f'{unit} (for {name}), got {raw!r}')
+                         f'{unit} (for {name}), got {_short(raw)}')
     return v
 
 
@@ -143,7 +153,7 @@ def _matrix(path, key, raw):
             ok = bool(np.all(np.isfinite(m)))
     if not ok:
         raise ValueError(f'{path}: {key} must be a 3x3 matrix of finite numbers (three rows '
-                         f'of three), got {raw!r}')
+                         f'of three), got {_short(raw)}')
     return m
 
 
@@ -151,7 +161,7 @@ def _block(path, doc, key, fields):
     block = doc.get(key)
     if not isinstance(block, dict):
         raise ValueError(f'{path}: model scale-misalignment needs {key}: '
-                         f'{{{", ".join(fields)}}} (Kalibr\'s intrinsics), got {block!r}')
+                         f'{{{", ".join(fields)}}} (Kalibr\'s intrinsics), got {_short(block)}')
     missing = [f for f in fields if f not in block]
     if missing:
         raise ValueError(f'{path}: missing key {key}.{missing[0]} (model scale-misalignment '
@@ -185,7 +195,7 @@ def _intrinsics(path, merged):
     if model != 'scale-misalignment':
         why = (' (its per-axis accelerometer lever arms are not modelled here)'
                if model == 'scale-misalignment-size-effect' else '')
-        raise ValueError(f'{path}: model {model!r} cannot be imported{why}; this package '
+        raise ValueError(f'{path}: model {_short(model)} cannot be imported{why}; this package '
                          f'reads {" or ".join(KALIBR_MODELS)}')
     acc = _block(path, merged, 'accelerometers', ('M',))
     gyro = _block(path, merged, 'gyroscopes', ('M', 'A', 'C_gyro_i'))
@@ -232,12 +242,14 @@ def load_kalibr_imu(path):
     try:
         with open(path, encoding='utf-8') as f:
             text = f.read()
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, ValueError) as exc:        # ValueError: not UTF-8, a NUL in the path
         raise ValueError(f'cannot read Kalibr file {path}: {exc}') from None
     try:
         doc = yaml.load(text, Loader=_UniqueKeyLoader)
     except _DuplicateKey as exc:
         raise ValueError(f'{path}: {exc}') from None
+    except RecursionError:
+        raise ValueError(f'{path} is not valid YAML: nested too deeply to read') from None
     except yaml.YAMLError as exc:
         where = getattr(exc, 'problem_mark', None)
         line = f' at line {where.line + 1}' if where is not None else ''
@@ -263,12 +275,12 @@ def load_kalibr_imu(path):
             raise ValueError(f'{path}: missing key {key} (Kalibr imu.yaml needs '
                              f'{", ".join(list(KALIBR_KEYS) + ["rostopic"])})')
         if len(found) == 2 and found[0][1] != found[1][1]:
-            raise ValueError(f'{path}: contradictory {key}: {found[0][1]!r} at the top '
-                             f'level, {found[1][1]!r} in {found[1][0]}')
+            raise ValueError(f'{path}: contradictory {key}: {_short(found[0][1])} at the '
+                             f'top level, {_short(found[1][1])} in {found[1][0]}')
         merged[key] = found[0][1]
     topic = merged['rostopic']
     if not isinstance(topic, str) or not topic.strip():
-        raise ValueError(f'{path}: rostopic must be a topic name, got {topic!r}')
+        raise ValueError(f'{path}: rostopic must be a topic name, got {_short(topic)}')
     params = {KALIBR_KEYS[k][0]: _value(path, k, merged[k]) for k in KALIBR_KEYS}
     params.update(_intrinsics(path, merged))
     return params, topic
