@@ -237,7 +237,7 @@ def test_dask_local_cluster_and_tls_scheduler_match_the_process_pool(
         capsys.readouterr()
         # a client without a certificate, or with one the cluster's CA did not sign, is
         # refused in one line, and writes nothing
-        monkeypatch.setattr(engine, 'CONNECT_TIMEOUT', '5s')
+        monkeypatch.setattr(engine, 'CONNECT_TIMEOUT', '2s')
         stranger = _tls_files(tmp_path / 'stranger')
         for extra, word in (([], 'a TLS scheduler needs --tls-ca-file'),
                             (['--tls-ca-file', ca, '--tls-cert', stranger[1], '--tls-key',

@@ -105,6 +105,20 @@ def test_a_million_runs_are_checked_lazily_with_progress(tmp_path, monkeypatch):
     assert row['status'] == 'failed' and 'torque' in row['reason'], row
 
 
+def test_the_check_of_the_draws_says_how_far_it_is_once_it_takes_a_second(capsys):
+    from rigidrot_ros.tools.campaign import _CheckProgress
+    bar = _CheckProgress()
+    bar(5, 1000)
+    assert capsys.readouterr().err == ''          # quick checks say nothing
+    bar.t0 -= 2.0
+    bar.last -= 1.0
+    bar(500, 1000)
+    bar(1000, 1000)
+    err = capsys.readouterr().err
+    assert 'checking the draws as the node would: 500/1000, ~' in err and 's left' in err
+    assert err.endswith('1000/1000   \n'), err
+
+
 # -- work directories outlive no owner ------------------------------------------------------
 def test_a_killed_owner_leaves_no_work_directory(tmp_path):
     code = ('import sys, time; sys.path.insert(0, sys.argv[1]); '
