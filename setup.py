@@ -32,7 +32,9 @@ setup(
     extras_require={
         'plot': ['matplotlib>=3.7'],
         'estimator': ['ahrs>=0.3'],
-        'campaign': ['dask[distributed]>=2023.1', 'matplotlib>=3.7', 'scipy>=1.10'],
+        'campaign': ['dask[distributed]>=2023.1', 'cryptography>=3.1', 'matplotlib>=3.7',
+                     'scipy>=1.10'],
+        'docs': ['sphinx>=7.2', 'myst-parser>=2'],
         'bench': ['scipy>=1.10', 'matplotlib>=3.7', 'rosbags>=0.10'],
         'view': ['rerun-sdk>=0.41,<0.42'],
         'test': [
@@ -58,6 +60,7 @@ setup(
             'dask[distributed]>=2023.1',
             'rerun-sdk>=0.41,<0.42',
             'playwright>=1.50',
+            'cryptography>=3.1',
         ],
     },
     zip_safe=True,

@@ -263,7 +263,10 @@ SENSOR_PARAMS = _imu_terms('imu.gyro_', 'rad/s', 'rad', 10.0, 1.0, 'gyro',
     Param('imu.kalibr_yaml', 'string', '', "a Kalibr imu.yaml ('' = none) whose noise "
           'densities, random walks and update_rate replace the defaults of '
           'imu.gyro_noise_density, imu.gyro_random_walk, accel.noise_density, '
-          'accel.random_walk and imu.rate; a value set both ways and different is refused',
+          'accel.random_walk and imu.rate (with model: scale-misalignment, its M and '
+          'C_gyro_i also those of imu.gyro_scale_factor, imu.gyro_misalignment, '
+          'accel.scale_factor and accel.misalignment); a value set both ways and different '
+          'is refused',
           'reset', _string),
     _switch('accel.enable', 'add the accelerometer to imu (linear_acceleration, the specific '
             'force in B, m/s^2, with its covariance) and publish delta_velocity '

@@ -25,7 +25,7 @@ from rigidrot_ros.sensors import (
     Accelerometer, AttitudeNoise, Gyro, ImuNoise, load_kalibr_imu, Magnetometer, StarTracker,
 )
 from rigidrot_ros.sensors.accel import check_gravity, check_lever_arm
-from rigidrot_ros.sensors.kalibr import KALIBR_KEYS
+from rigidrot_ros.sensors.kalibr import KALIBR_SOURCES
 
 __all__ = ['PACKAGE', 'SCENE_KEYS', 'OUTPUT_KEYS', 'find_config', 'load_defaults',
            'scene_from_params', 'solver_options', 'sensor_settings', 'SensorSettings',
@@ -122,16 +122,16 @@ def apply_kalibr(params):
         found, _topic = load_kalibr_imu(path)
     except ValueError as exc:
         raise ValueError(f'parameter imu.kalibr_yaml: {exc}') from None
-    keys = {name: key for key, (name, _, _) in KALIBR_KEYS.items()}
     out = dict(params)
     for name, value in found.items():
         value = BY_NAME[name].check(value)
-        current, default = params[name], BY_NAME[name].default
+        current, default = params[name], BY_NAME[name].check(BY_NAME[name].default)
         if current == default or current == value:
             out[name] = value
         else:
             raise ValueError(f'parameter {name} = {current!r} contradicts imu.kalibr_yaml '
-                             f'({path}: {keys[name]} = {value!r}); set it one way only')
+                             f'({path}: {KALIBR_SOURCES[name]} = {value!r}); set it one '
+                             'way only')
     return out
 
 
