@@ -34,3 +34,44 @@ def flaky(params):
 def silent(params):
     """Make a :class:`Silent`."""
     return Silent()
+
+
+def counted(params):
+    """Make the MEKF, each call counted in the file ``params['counter']`` (a line a call).
+
+    Inside a worker (Dask's, or a process pool's), the call numbered ``params['kill_at']``
+    (counting only those made in workers) SIGKILLs its own worker process, as an OOM
+    killer would, once the
+    client has saved all runs but the two under way (``params['out']``: the output
+    directory), so that no result is lost but those of the runs under way.
+    """
+    import fcntl
+    import glob
+    import os
+    import re
+    import signal
+    import time
+    params = dict(params)
+    counter, kill_at = params.pop('counter'), params.pop('kill_at', None)
+    out = params.pop('out', None)
+    import multiprocessing
+    try:
+        from distributed import get_worker
+        get_worker()
+        where = 'worker'
+    except (ImportError, ValueError):
+        where = 'client' if multiprocessing.parent_process() is None else 'worker'
+    with open(counter, 'a+') as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        fh.seek(0)
+        calls = sum(1 for line in fh if line.startswith('worker')) + (where == 'worker')
+        fh.write(f'{where} {os.getpid()}\n')
+        fh.flush()
+    if where == 'worker' and calls == kill_at:
+        end = time.monotonic() + 30
+        while time.monotonic() < end and sum(
+                1 for p in glob.glob(os.path.join(out, 'runs', '*.json'))
+                if re.search(r'/\d{6}\.json$', p)) < kill_at - 2:
+            time.sleep(0.05)
+        os.kill(os.getpid(), signal.SIGKILL)
+    return MEKF(params)

@@ -181,38 +181,72 @@ def _free_port():
         return s.getsockname()[1]
 
 
-def test_dask_local_cluster_and_scheduler_match_the_process_pool(tmp_path):
+def _tls_files(d):
+    """A temporary CA certificate, certificate and key (PEM files), made here."""
+    from distributed.security import Security
+    sec = Security.temporary()
+    d.mkdir()
+    for name, text in (('ca.pem', sec.tls_ca_file), ('cert.pem', sec.tls_client_cert),
+                       ('key.pem', sec.tls_client_key)):
+        (d / name).write_text(text)
+    return [str(d / n) for n in ('ca.pem', 'cert.pem', 'key.pem')]
+
+
+def test_dask_local_cluster_and_tls_scheduler_match_the_process_pool(
+        tmp_path, capsys, monkeypatch):
     pytest.importorskip('distributed')
-    spec = load_spec(_write(tmp_path, SPEC))
+    pytest.importorskip('cryptography')
+    spec_path = _write(tmp_path, SPEC)
+    spec = load_spec(spec_path)
     run_campaign(spec, str(tmp_path / 'pool'), workers=2, progress=False)
     run_campaign(spec, str(tmp_path / 'local'), workers=2, dask_local=True, progress=False)
     assert _bytes(tmp_path / 'pool') == _bytes(tmp_path / 'local')
+    # the documented cluster: a TLS scheduler and workers with certificates of one CA
+    ca, cert, key = _tls_files(tmp_path / 'pki')
+    tls = ['--tls-ca-file', ca, '--tls-cert', cert, '--tls-key', key]
     port = _free_port()
     bindir = os.path.dirname(sys.executable)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [os.path.dirname(__file__)] + os.environ.get('PYTHONPATH', '').split(os.pathsep)))
-    addr = f'tcp://127.0.0.1:{port}'
+    addr = f'tls://127.0.0.1:{port}'
     procs = [subprocess.Popen([os.path.join(bindir, 'dask'), 'scheduler', '--host',
-                               '127.0.0.1', '--port', str(port), '--no-dashboard'],
+                               '127.0.0.1', '--port', str(port), '--protocol', 'tls',
+                               '--no-dashboard'] + tls,
                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
         for _ in range(2):
             procs.append(subprocess.Popen(
                 [os.path.join(bindir, 'dask'), 'worker', addr, '--nthreads', '1',
-                 '--nworkers', '1', '--no-dashboard', '--host', '127.0.0.1'],
+                 '--nworkers', '1', '--no-dashboard', '--host', '127.0.0.1'] + tls,
                 env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         from distributed import Client
+        from rigidrot_ros.campaign import engine
+        security = engine.dask_security(ca, cert, key)
         end = time.monotonic() + 60
         while True:
             try:
-                with Client(addr, timeout='5s') as c:
+                with Client(addr, timeout='5s', security=security) as c:
                     c.wait_for_workers(2, timeout=60)
                     break
             except OSError:
                 if time.monotonic() > end:
                     raise
                 time.sleep(0.5)
-        run_campaign(spec, str(tmp_path / 'cluster'), scheduler=addr, progress=False)
+        assert main([spec_path, '-o', str(tmp_path / 'cluster'), '--scheduler', addr,
+                     '--quiet'] + tls) == 0
+        capsys.readouterr()
+        # a client without a certificate, or with one the cluster's CA did not sign, is
+        # refused in one line, and writes nothing
+        monkeypatch.setattr(engine, 'CONNECT_TIMEOUT', '2s')
+        stranger = _tls_files(tmp_path / 'stranger')
+        for extra, word in (([], 'a TLS scheduler needs --tls-ca-file'),
+                            (['--tls-ca-file', ca, '--tls-cert', stranger[1], '--tls-key',
+                              stranger[2]], 'cannot connect')):
+            assert main([spec_path, '-o', str(tmp_path / 'refused'), '--scheduler', addr,
+                         '--quiet'] + extra) == 2
+            err = capsys.readouterr().err.strip()
+            assert len(err.splitlines()) == 1 and word in err, err
+            assert not (tmp_path / 'refused').exists()
     finally:
         for p in procs[::-1]:
             p.terminate()

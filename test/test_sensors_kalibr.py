@@ -1,5 +1,6 @@
 """Kalibr imu.yaml import: the mapping, and refusals that name the key."""
 
+import numpy as np
 import pytest
 
 from rigidrot_ros.sensors import ImuNoise, load_kalibr_imu
@@ -62,3 +63,91 @@ def test_bad_files_are_refused_naming_the_key(tmp_path, text, words):
 def test_a_missing_file_is_refused(tmp_path):
     with pytest.raises(ValueError, match='cannot read Kalibr file'):
         load_kalibr_imu(tmp_path / 'absent.yaml')
+
+
+# -- Kalibr's scale-misalignment model (its result file, imu-*.yaml) ------------------------
+# Kalibr (IccSensors.py, IccScaledMisalignedImu): a_meas = M_a f + b_a and
+# w_meas = M_g C_gyro_i w + A C_gyro_i f + b_g, M lower triangular about the identity.
+M_ACCEL = [[1.002, 0.0, 0.0], [0.0013, 0.998, 0.0], [-0.0021, 0.0007, 1.001]]
+M_GYRO = [[0.9991, 0.0, 0.0], [0.0024, 1.0012, 0.0], [0.0005, -0.0018, 1.0003]]
+C_GYRO_I = [[0.9999950000058334, -0.003000992998838234, -0.0009969976701682984],
+            [0.002998993001171566, 0.9999935000075835, -0.002001495331586601],
+            [0.0010029976631683018, 0.0019984953350865994, 0.9999975000029168]]
+
+
+def _rows(m, indent='      '):
+    return ''.join(f'{indent}- [{", ".join(repr(x) for x in row)}]\n' for row in m)
+
+
+def _scale_misalignment(a=((0.0,) * 3,) * 3, m_gyro=M_GYRO, rot=C_GYRO_I,
+                        model='scale-misalignment'):
+    return ('imu0:\n  T_i_b:\n' + _rows(np.eye(4).tolist(), '    ')
+            + ''.join('  ' + line + '\n' for line in GOOD.splitlines()
+                      if line.strip() and not line.startswith('#'))
+            + '  accelerometers:\n    M:\n' + _rows(M_ACCEL)
+            + '  gyroscopes:\n    A:\n' + _rows(a) + '    C_gyro_i:\n' + _rows(rot)
+            + '    M:\n' + _rows(m_gyro) + f'  model: {model}\n  time_offset: 0.0\n')
+
+
+def test_scale_misalignment_is_imported_as_kalibr_defines_it(tmp_path):
+    params, topic = load_kalibr_imu(_write(tmp_path, _scale_misalignment()))
+    assert topic == '/imu0' and {k: params[k] for k in EXPECTED} == EXPECTED
+    rng = np.random.default_rng(5)
+    for kind, prefix, kalibr in (('gyro', 'imu.gyro_', np.array(M_GYRO) @ C_GYRO_I),
+                                 ('accel', 'accel.', np.array(M_ACCEL))):
+        noise = ImuNoise(scale_factor=params[prefix + 'scale_factor'],
+                         misalignment=params[prefix + 'misalignment'], kind=kind)
+        u = rng.standard_normal((50, 3))
+        # the error model, noiseless, against Kalibr's measurement equation
+        np.testing.assert_allclose(noise.apply(u, 0.005).value, u @ kalibr.T, rtol=0,
+                                   atol=8 * np.finfo(float).eps)
+    assert params['imu.gyro_misalignment'][::4] == [0.0, 0.0, 0.0]
+    # through the node's settings: the sensors carry it
+    from rigidrot_ros.run import params as table, settings
+    values = table.defaults()
+    values.update({'imu.enable': True, 'accel.enable': True,
+                   'imu.kalibr_yaml': str(tmp_path / 'imu.yaml')})
+    setup = settings.prepare_run(values)
+    np.testing.assert_allclose(setup.gyro.noise.matrix, np.array(M_GYRO) @ C_GYRO_I,
+                               rtol=0, atol=4 * np.finfo(float).eps)
+    np.testing.assert_allclose(setup.accel.noise.matrix, M_ACCEL, rtol=0,
+                               atol=4 * np.finfo(float).eps)
+    # set both ways and different: refused naming both
+    values['accel.scale_factor'] = [1e-3, 0.0, 0.0]
+    with pytest.raises(ValueError, match=r'accel.scale_factor .* contradicts imu.kalibr_yaml '
+                                         r'.*diag\(accelerometers.M\) - 1'):
+        settings.prepare_run(values)
+
+
+@pytest.mark.parametrize('text, words', [
+    (_scale_misalignment(a=[[1e-4, 0, 0], [0, 0, 0], [0, 0, 0]]),
+     'gyroscopes.A (g-sensitivity'),
+    (_scale_misalignment(model='scale-misalignment-size-effect'),
+     'lever arms are not modelled'),
+    (_scale_misalignment(model='affine'), "model 'affine' cannot be imported"),
+    (_scale_misalignment(model='calibrated'), 'the model is calibrated'),
+    (_scale_misalignment(rot=M_GYRO), 'C_gyro_i must be a rotation'),
+    (_scale_misalignment(m_gyro=[[1.6, 0, 0], [0, 1, 0], [0, 0, 1]]),
+     'beyond this package'),
+    (_scale_misalignment(m_gyro=[[1, 0, 0], [0.3, 1, 0], [0, 0, 1]]),
+     'beyond this package'),
+    (_scale_misalignment(m_gyro=[[1, 0], [0, 1]]), 'gyroscopes.M must be a 3x3 matrix'),
+    (_scale_misalignment(m_gyro=[[1, 0, 0], [0, '.nan', 0], [0, 0, 1]]),
+     'gyroscopes.M must be a 3x3 matrix'),
+    (_scale_misalignment().replace('    C_gyro_i:', '    C_gyro:'),
+     'missing key gyroscopes.C_gyro_i'),
+    (_scale_misalignment().replace('  accelerometers:\n    M:\n' + _rows(M_ACCEL), ''),
+     'needs accelerometers'),
+])
+def test_intrinsics_it_cannot_simulate_are_refused(tmp_path, text, words):
+    with pytest.raises(ValueError) as err:
+        load_kalibr_imu(_write(tmp_path, text))
+    assert words in str(err.value) and str(tmp_path / 'imu.yaml') in str(err.value)
+
+
+def test_every_refusal_names_the_file(tmp_path):
+    for text in (GOOD + 'update_rate: 100.0\n', 'imu0: {a: 1, a: 2}\n', '? [1, 2]\n: 3\n',
+                 GOOD.replace('200.0', '1' + '0' * 400)):
+        with pytest.raises(ValueError) as err:
+            load_kalibr_imu(_write(tmp_path, text))
+        assert str(err.value).startswith(str(tmp_path / 'imu.yaml')), err.value

@@ -24,6 +24,7 @@ import time
 import traceback
 
 from rigidrot_ros.campaign.spec import draw_run, load_factory, run_values
+from rigidrot_ros.campaign.workdir import claim_work_dir
 
 __all__ = ['run_one', 'RunFailed', 'score_bag']
 
@@ -273,8 +274,8 @@ def run_one(spec, index, bag_root=None):
     row = {'run': int(index), 'status': 'ok', 'reason': '', 'redraws': redraws}
     row.update({k: v for k, v in draws.items()})
     out = {'row': row, 'series': None, 'log': ''}
-    work = os.path.join(bag_root, f'run_{index:06d}') if bag_root else \
-        tempfile.mkdtemp(prefix=f'rigidrot_campaign_{index}_')
+    owned = None if bag_root else claim_work_dir(index)   # removed even if we are killed
+    work = os.path.join(bag_root, f'run_{index:06d}') if bag_root else owned.path
     if bag_root:
         shutil.rmtree(work, ignore_errors=True)
         os.makedirs(work)
@@ -297,7 +298,7 @@ def run_one(spec, index, bag_root=None):
                                            f'{" ".join(str(exc).split())}'[:300])
         out['log'] = traceback.format_exc()
     finally:
-        if not bag_root:
-            shutil.rmtree(work, ignore_errors=True)
+        if owned is not None:
+            owned.release()
     out['timing'] = {'wall_s': time.perf_counter() - t0}
     return out

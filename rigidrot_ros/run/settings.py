@@ -18,13 +18,13 @@ from typing import Optional, Tuple
 import numpy as np
 
 from rigidrot_ros.core import NoExactSolution, PrecisionError, Scene, solve
-from rigidrot_ros.run import rclyaml
+from rigidrot_ros.run import rclyaml, table
 from rigidrot_ros.run.params import BY_NAME, check_values
 from rigidrot_ros.sensors import (
     Accelerometer, AttitudeNoise, Gyro, ImuNoise, load_kalibr_imu, Magnetometer, StarTracker,
 )
 from rigidrot_ros.sensors.accel import check_gravity, check_lever_arm
-from rigidrot_ros.sensors.kalibr import KALIBR_KEYS
+from rigidrot_ros.sensors.kalibr import KALIBR_SOURCES
 
 __all__ = ['PACKAGE', 'SCENE_KEYS', 'OUTPUT_KEYS', 'find_config', 'load_defaults',
            'scene_from_params', 'solver_options', 'sensor_settings', 'SensorSettings',
@@ -125,16 +125,16 @@ def apply_kalibr(params):
         found, _topic = load_kalibr_imu(path)
     except ValueError as exc:
         raise ValueError(f'parameter imu.kalibr_yaml: {exc}') from None
-    keys = {name: key for key, (name, _, _) in KALIBR_KEYS.items()}
     out = dict(params)
     for name, value in found.items():
         value = BY_NAME[name].check(value)
-        current, default = params[name], BY_NAME[name].default
+        current, default = params[name], BY_NAME[name].check(BY_NAME[name].default)
         if current == default or current == value:
             out[name] = value
         else:
             raise ValueError(f'parameter {name} = {current!r} contradicts imu.kalibr_yaml '
-                             f'({path}: {keys[name]} = {value!r}); set it one way only')
+                             f'({path}: {KALIBR_SOURCES[name]} = {value!r}); set it one '
+                             'way only')
     return out
 
 
@@ -390,6 +390,9 @@ class RunSetup:
     kalibr : dict
         The values the Kalibr file of ``imu.kalibr_yaml`` supplied, by parameter name
         (empty without one); ``values`` holds them too.
+    outputs : tuple
+        The kinds of output of :data:`rigidrot_ros.run.table.OUTPUTS` that the values
+        switch on, in rank order.
     """
 
     values: dict
@@ -403,6 +406,7 @@ class RunSetup:
     accel: Optional[Accelerometer] = None
     mag: Optional[Magnetometer] = None
     kalibr: dict = field(default_factory=dict)
+    outputs: tuple = ()
 
 
 def _kalibr_supplied(values):
@@ -473,4 +477,5 @@ def prepare_run(values, try_samples=True, timed=True):
         frames=(p['frame_id'], p['body_frame_id']),
         accel=(Accelerometer(solution, sensors.accel_noise, sensors.lever_arm, sensors.gravity)
                if sensors.imu and sensors.accel else None),
-        mag=Magnetometer(solution, **sensors.mag_options) if sensors.mag else None)
+        mag=Magnetometer(solution, **sensors.mag_options) if sensors.mag else None,
+        outputs=table.kinds_on(p))
