@@ -57,11 +57,6 @@ CONTEXT = {
     'record_path': {'record': True},
     'record_topics': {'record': True},
 }
-#: Parameters that do nothing today (issue 31, item 1); a fix turns this into a failure.
-KNOWN_IDLE = {
-    'imu.gyro_increment_quantum': 'issue 31 item 1: no topic carries the quantised increment',
-    'accel.increment_quantum': 'issue 31 item 1: no topic carries the quantised increment',
-}
 
 
 def _kalibr(tmp):
@@ -145,15 +140,7 @@ def _node(values, cwd):
         os.chdir(before)
 
 
-def _cases():
-    for p in params.PARAMS:
-        marks = []
-        if p.name in KNOWN_IDLE:
-            marks.append(pytest.mark.xfail(reason=KNOWN_IDLE[p.name], strict=True))
-        yield pytest.param(p.name, marks=marks, id=p.name)
-
-
-@pytest.mark.parametrize('name', list(_cases()))
+@pytest.mark.parametrize('name', [p.name for p in params.PARAMS])
 def test_a_parameter_away_from_its_default_changes_the_run(name, tmp_path, request):
     p = params.BY_NAME[name]
     value = away(p, str(tmp_path))
@@ -178,5 +165,5 @@ def test_a_parameter_away_from_its_default_changes_the_run(name, tmp_path, reque
 def test_every_parameter_is_checked_one_way():
     """The node-only list and the table of values name parameters that exist."""
     names = set(params.BY_NAME)
-    for table in (NODE_ONLY, AWAY, CONTEXT, KNOWN_IDLE, DURATIONS):
+    for table in (NODE_ONLY, AWAY, CONTEXT, DURATIONS):
         assert set(table) <= names, set(table) - names
