@@ -54,6 +54,7 @@ def main(argv=None):
     from rclpy.executors import ExternalShutdownException
 
     from rigidrot_ros.bag import BagWriter
+    from rigidrot_ros.bag.metadata import uninterrupted
     from rigidrot_ros.ros.recorder import check_type, Recorder
     from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown
 
@@ -120,7 +121,7 @@ def main(argv=None):
     try:
         spin_until_shutdown(node, loop)
     finally:
-        path, counts = rec.close()
+        path, counts = uninterrupted(rec.close)     # the bag whole, whatever signal arrives
         print(f'rigidrot_record: bag finished: {path} {counts}', file=sys.stderr)
     return 0
 
