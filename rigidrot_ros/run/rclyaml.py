@@ -27,6 +27,7 @@ table's validators accept it (:mod:`rigidrot_ros.run.params`), as the node does.
 import ctypes
 import ctypes.util
 import math
+import re
 
 import yaml
 
@@ -37,6 +38,7 @@ _FALSE = ('N', 'n', 'no', 'No', 'NO', 'false', 'False', 'FALSE', 'off', 'Off', '
 _SPECIAL = ('.nan', '.NaN', '.NAN', '.inf', '.Inf', '.INF', '+.inf', '+.Inf', '+.INF',
             '-.inf', '-.Inf', '-.INF')
 _NULLS = ('', '~', 'null', 'Null', 'NULL')
+_DECIMAL = re.compile(r'[-+]?[0-9]+')
 #: One line of help for a sequence of mixed types (rcl's "Sequence should be of same type").
 MIXED_HINT = ('ROS reads a list as one type: write every number of a list of doubles with '
               'a decimal point, e.g. [0.1, 0.0, 0.0], not [0.1, 0, 0]')
@@ -120,7 +122,10 @@ class _Loader(yaml.SafeLoader):
                 return None
             if node.value == '':
                 raise ParameterValueError(f'no value at line {node.start_mark.line + 1}')
-        return scalar(node.value, quoted)
+        value = scalar(node.value, quoted)
+        if self.spec and not quoted and isinstance(value, str) and _DECIMAL.fullmatch(value):
+            return int(value)           # past int64: a number all the same (its range named)
+        return value
 
     def construct_rcl_map(self, node):
         """Return a mapping whose keys are strings, as rcl's parameter names are."""
@@ -186,9 +191,11 @@ def load(text, spec=False):
         The document.
     spec : bool
         A campaign spec, which rcl never reads: its scalars are typed by rcl's rules, but
-        an empty value, ``~`` and ``null`` are None (its optional keys) and a list may mix
-        integers and doubles (a dispersion's ``low: [0, 0, 0.04]``); rcl itself has no
-        null (``~`` is a string, an empty value is refused) and refuses mixed lists.
+        an empty value, ``~`` and ``null`` are None (its optional keys), a list may mix
+        integers and doubles (a dispersion's ``low: [0, 0, 0.04]``) and a decimal integer
+        past int64 is an integer (so that its range is named); rcl itself has no null
+        (``~`` is a string, an empty value is refused), refuses mixed lists and reads
+        such an integer as a double or a string.
 
     Raises
     ------
