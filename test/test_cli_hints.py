@@ -26,6 +26,14 @@ def _run(prog, args, timeout=120):
                           text=True, timeout=timeout, env=ros_env(next_domain_id()))
 
 
+def _compare(args, capsys):
+    """``rigidrot_compare`` in this process: ``(status, stdout, stderr)``."""
+    from rigidrot_ros.tools.compare import main
+    code = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
 @pytest.mark.ros
 def test_the_start_up_log_names_the_topics_it_publishes():
     proc = start([script('attitude_node'), '--ros-args', '-p', 'imu.enable:=true',
@@ -49,18 +57,18 @@ def test_the_start_up_log_names_the_topics_it_publishes():
     assert '/rosout' not in line and '/parameter_events' not in line
 
 
-def test_compare_on_a_run_directory_takes_its_one_bag_or_names_them(bag, tmp_path):
+def test_compare_on_a_run_directory_takes_its_one_bag_or_names_them(bag, tmp_path, capsys):
     run = tmp_path / 'loop_1'
     run.mkdir()
     shutil.copytree(bag, run / 'attitude_node_1')
-    out = _run('rigidrot_compare', [run])
-    assert out.returncode == 0, out.stderr
-    assert f'comparing the bag in it, {run / "attitude_node_1"}' in out.stderr
-    assert '/star_tracker' in out.stdout
+    code, out, err = _compare([run], capsys)
+    assert code == 0, err
+    assert f'comparing the bag in it, {run / "attitude_node_1"}' in err
+    assert '/star_tracker' in out
     shutil.copytree(bag, run / 'rec')                # the README loop: two bags side by side
-    out = _run('rigidrot_compare', [run])
-    lines = out.stderr.strip().splitlines()
-    assert out.returncode == 2 and len(lines) == 1 and 'Traceback' not in out.stderr
+    code, out, err = _compare([run], capsys)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith('rigidrot_compare: ')
     assert 'the bags sit one level down' in lines[0]
     assert str(run / 'attitude_node_1') in lines[0] and str(run / 'rec') in lines[0]
 
@@ -74,11 +82,11 @@ def torn(bag, tmp_path):
     return path
 
 
-def test_compare_on_a_torn_bag_names_rigidrot_reindex(torn):
-    out = _run('rigidrot_compare', [torn])
-    assert out.returncode == 0, out.stderr
-    assert 'unfinished file' in out.stderr
-    assert f'rigidrot_reindex {torn} finishes it in place' in out.stderr
+def test_compare_on_a_torn_bag_names_rigidrot_reindex(torn, capsys):
+    code, _, err = _compare([torn], capsys)
+    assert code == 0, err
+    assert 'unfinished file' in err
+    assert f'rigidrot_reindex {torn} finishes it in place' in err
 
 
 @pytest.mark.ros
