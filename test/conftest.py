@@ -133,7 +133,7 @@ def _integrate_lean(scene, t_eval, tol):
 
 
 def rate_claim(omega):
-    """The rate accuracy the package states, rad/s: 32 eps |omega| (odometry's 1-sigma).
+    """Return the rate accuracy the package states, rad/s: 32 eps |omega| (odometry's 1-sigma).
 
     ``|omega|`` at its largest over the samples: a rate that passes through zero keeps the
     rounding of the terms that cancel there.

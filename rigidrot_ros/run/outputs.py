@@ -101,7 +101,7 @@ def sensor_config(setup):
 
 
 def _plain(v):
-    """A parameter value as JSON writes it (tuples and arrays as lists of floats)."""
+    """Return a parameter value as JSON writes it (tuples and arrays: lists of floats)."""
     if isinstance(v, (list, tuple, np.ndarray)):
         return [float(x) for x in v]
     return v
