@@ -25,7 +25,7 @@ source_suffix = {'.md': 'markdown'}
 root_doc = 'index'
 # doc/bench holds the benchmark's results (csv, json, svg, png) and the Markdown fragments
 # it generates for benchmarks.md to {include}: data and fragments, not pages of their own
-# ('*' stops at a '/'); doc/bench/log/ holds pages: the timing logs and investigations.
+# ('*' stops at a '/'); doc/bench/history/ holds pages: the timing logs and investigations.
 exclude_patterns = ['_build', 'bench/*.md', 'bench/ratios', '**/.ipynb_checkpoints']
 
 myst_enable_extensions = ['dollarmath', 'colon_fence']
