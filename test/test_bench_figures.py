@@ -71,6 +71,8 @@ def test_a_run_footer_names_the_commit_it_measured(tmp_path):
     got = common.measured_commit()
     if (ROOT / '.git').exists():
         assert len(got['commit']) == 40 and isinstance(got['changes'], bool)
+        # a folder inside a checkout (an installed copy in a venv there) is not one
+        assert common.measured_commit(str(ROOT / 'doc')) == {}
     assert common.measured_commit(str(tmp_path)) == {}
     assert common.commit_text({}) == 'commit not recorded'
     assert common.commit_text({'commit': 'a' * 40, 'changes': True}) == (

@@ -91,6 +91,9 @@ def measured_commit(cwd=CHECKOUT):
     ``commit``: the checkout's HEAD (40 hex digits); ``changes``: whether ``rigidrot_ros/``
     differed from it (uncommitted changes: the run measured code no commit holds).
     """
+    top = _git('rev-parse', '--show-toplevel', cwd=cwd)
+    if not top or os.path.realpath(top) != os.path.realpath(cwd):
+        return {}           # not a checkout of its own (an installed copy, maybe in a venv)
     head = _git('rev-parse', 'HEAD', cwd=cwd)
     if not head:
         return {}
