@@ -34,6 +34,7 @@ setup(
         'estimator': ['ahrs>=0.3'],
         'campaign': ['dask[distributed]>=2023.1', 'matplotlib>=3.7', 'scipy>=1.10'],
         'bench': ['scipy>=1.10', 'matplotlib>=3.7', 'rosbags>=0.10'],
+        'view': ['rerun-sdk>=0.41,<0.42'],
         'test': [
             'pytest>=7',
             'rosbags>=0.10',
@@ -55,6 +56,8 @@ setup(
             'sphinx>=7.2',
             'myst-parser>=2',
             'dask[distributed]>=2023.1',
+            'rerun-sdk>=0.41,<0.42',
+            'playwright>=1.50',
         ],
     },
     zip_safe=True,
@@ -76,6 +79,7 @@ setup(
             'rigidrot_generate = rigidrot_ros.tools.generate:main',
             'rigidrot_mekf = rigidrot_ros.estimators.mekf_node:main',
             'rigidrot_campaign = rigidrot_ros.tools.campaign:main',
+            'rigidrot_view = rigidrot_ros.tools.view:main',
         ],
     },
 )

@@ -126,3 +126,25 @@ def test_batch_shapes_and_errors():
         cdr.vector([2 ** 31 * 1_000_000_000], np.zeros((1, 3)), 'body')
     with pytest.raises(ValueError, match='frame ids'):
         cdr.transform([1], np.zeros((1, 4)), 'n', None)
+
+
+@pytest.mark.parametrize('frame', FRAMES)
+def test_body_markers_from_their_template(frame):
+    """msgs.template.markers against rclpy's bytes of messages.body_markers, row by row."""
+    from rigidrot_ros.msgs import template
+    rng = np.random.default_rng(len(frame) + 7)
+    n = 12
+    st, q = _stamps(rng, n), _values(rng, n, 4)
+    for inertia in ((2.0, 2.0, 1.0), (1.0, 2.0, 3.0)):
+        _check(template.markers(st, q, frame, inertia),
+               [msgs.body_markers(msgs.stamp(s), frame, qq, inertia) for s, qq in zip(st, q)])
+    with pytest.raises(ValueError, match=r'\(2, 4\)'):
+        template.markers([1, 2], np.zeros((3, 4)), frame, (1.0, 1.0, 1.0))
+
+
+@pytest.mark.parametrize('text', ['', 'a', 'abcd', 'é', '{"rigidrot_run": 1}' * 50])
+def test_a_string_message(text):
+    from std_msgs.msg import String
+    raw = cdr.string(text)
+    assert raw == serialize_message(String(data=text))
+    assert _STORE.deserialize_cdr(raw, 'std_msgs/msg/String').data == text

@@ -122,12 +122,26 @@ CASES = [
     # rigidrot_mekf (the filter: test_mekf.py, test_campaign_ros.py)
     row('rigidrot_mekf', ['--help'], 0, ['usage: rigidrot_mekf', '--sigma-v']),
     row('rigidrot_mekf', ['--bogus'], 2, ['unrecognized arguments: --bogus']),
+    # rigidrot_view (the views, a port in use: test/view/test_view.py)
+    row('rigidrot_view', ['--help'], 0, ['usage: rigidrot_view', '--live', '--save', '--run',
+                                         '--port', '--max-rate']),
+    row('rigidrot_view', [], 2, ['give bag directories, a campaign directory, or --live']),
+    row('rigidrot_view', ['--live', '{tmp}'], 2, ['--live takes no']),
+    row('rigidrot_view', ['{tmp}/nope'], 2, ['nope', 'no such file']),
+    row('rigidrot_view', ['{tmp}/garbage.yaml'], 2, ['garbage.yaml', 'not an MCAP file']),
+    row('rigidrot_view', ['{tmp}/garbage.yaml', '--save', '{tmp}/x.txt'], 2, ['.rrd']),
+    row('rigidrot_view', ['{tmp}/garbage.yaml', '--run', '1'], 2, ['campaign directory']),
+    row('rigidrot_view', ['--port', '0', '{tmp}/garbage.yaml'], 2, ['--port 0']),
+    row('rigidrot_view', ['--live', '--topic', 'odom'], 2, ['expected /name:pkg/msg/Type']),
+    row('rigidrot_view', ['{tmp}/garbage.yaml'], 2, ['pip install "rigidrot_ros[view]"'],
+        block=('rerun',), id='rigidrot_view without the view extra'),
 ]
 
 #: The ``module:func`` of each script that a row runs with modules blocked.
 ENTRY = {'attitude_node': 'rigidrot_ros.ros.attitude_node:main',
          'rigidrot_echo': 'rigidrot_ros.tools.echo:main',
-         'rigidrot_bench': 'rigidrot_ros.bench.run:main'}
+         'rigidrot_bench': 'rigidrot_ros.bench.run:main',
+         'rigidrot_view': 'rigidrot_ros.tools.view:main'}
 
 
 @pytest.fixture

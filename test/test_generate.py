@@ -1,6 +1,5 @@
 """rigidrot_generate: byte identity with the recording node, streaming, SIGINT, bad input."""
 
-import json
 import os
 from pathlib import Path
 import signal
@@ -11,21 +10,23 @@ import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
-from rosbags.typesys import get_typestore, Stores
 
 from rigidrot_ros.run.generate import generate_bag, GenerationError, iter_run
 from ros_helpers import next_domain_id, ros_env, script, start, stop, wait_for
+from run_helpers import canonical, payloads as _payloads
 
 SENSORS = ['-p', 'imu.enable:=true', '-p', 'imu.rate:=200.0', '-p', 'imu.seed:=11',
            '-p', 'star_tracker.enable:=true', '-p', 'star_tracker.seed:=5']
 TRUTH = ['-p', 'odom.enable:=true', '-p', 'transform.enable:=true']
-#: accelerometer (gravity, lever arm, every error term of note) and magnetometer, with every
-#: sensor's timing model on: latency, stamp jitter, drops, clock offset
+#: accelerometer (gravity, lever arm, every error term of note, both increment quanta: the
+#: measured increments published) and magnetometer, with every sensor's timing model on:
+#: latency, stamp jitter, drops, clock offset
 ACCEL_MAG = [
     '-p', 'accel.enable:=true', '-p', 'accel.gravity:=[0.0, 0.0, -9.80665]',
     '-p', 'accel.lever_arm:=[0.1, -0.05, 0.2]', '-p', 'accel.noise_density:=0.002',
     '-p', 'accel.random_walk:=0.0001', '-p', 'accel.scale_factor:=[0.001, -0.002, 0.0005]',
     '-p', 'accel.bias_instability:=0.001', '-p', 'accel.increment_quantum:=0.00001',
+    '-p', 'imu.gyro_increment_quantum:=1.0e-7',
     '-p', 'mag.enable:=true', '-p', 'mag.rate:=50.0', '-p', 'mag.noise_density:=1.0e-8',
     '-p', 'mag.hard_iron:=[1.0e-6, 0.0, -2.0e-6]', '-p', 'mag.seed:=9',
     '-p', 'imu.latency:=0.003', '-p', 'imu.stamp_jitter:=0.0001',
@@ -38,37 +39,6 @@ ACCEL_MAG = [
 #: the torque-free triaxial preset (config/torque_free_triaxial.yaml): its own model
 TRIAXIAL = ['-p', 'inertia:=[1.0, 2.0, 3.0]', '-p', 'torque:=[0.0, 0.0, 0.0]',
             '-p', 'omega0:=[0.02, 1.0, 0.03]']
-
-
-_STORE = get_typestore(Stores.ROS2_JAZZY)
-
-
-def canonical(raw, msgtype):
-    """CDR bytes re-serialized by rosbags: the same values, padding bytes zero.
-
-    rclpy's serializer (Fast CDR) leaves the alignment padding after a string
-    uninitialized, so two serializations of one message may differ there; every value
-    byte is kept.
-    """
-    return bytes(_STORE.serialize_cdr(_STORE.deserialize_cdr(raw, msgtype), msgtype))
-
-
-def _payloads(bag):
-    """``{topic: {stamp_ns: raw CDR bytes}}`` and the ``~/run`` JSON, read by rosbags."""
-    out, run = {}, None
-    types = _payloads.types = {}
-    with AnyReader([Path(bag)]) as reader:
-        for conn, _, raw in reader.messages():
-            msg = reader.deserialize(raw, conn.msgtype)
-            types[conn.topic] = conn.msgtype
-            if conn.topic.endswith('/run'):
-                run = json.loads(msg.data)
-                out.setdefault(conn.topic, {})[0] = bytes(raw)
-                continue
-            ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            assert ns not in out.setdefault(conn.topic, {}), (conn.topic, ns)
-            out[conn.topic][ns] = bytes(raw)
-    return out, run
 
 
 def _values(args):
@@ -115,7 +85,8 @@ def test_generated_bag_matches_the_recording_node(tmp_path, extra):
     if extra is TRIAXIAL:
         assert run['model'] == 'torque-free-triaxial', run
     if extra is ACCEL_MAG:
-        assert {'/delta_velocity', '/mag'} <= set(recorded)
+        assert {'/delta_velocity', '/mag', '/delta_angle_measured',
+                '/delta_velocity_measured'} <= set(recorded)
         # the same drops: within the span the node recorded, the generator has no sample
         # the node left out (the node loses no sensor sample short of a clock jump)
         for topic in ('/imu', '/delta_velocity', '/star_tracker', '/mag'):
@@ -277,8 +248,7 @@ def test_write_many_writes_the_bytes_of_write_one_by_one(tmp_path):
 
 
 def test_vectorised_stamps_are_the_node_grid():
-    """io.generate._stamps (numpy) against node.grid.stamp_ns (Python ints), index by index."""
-    from rigidrot_ros.run.generate import _stamps
+    """grid.stamps_ns (numpy) against grid.stamp_ns (Python ints), index by index."""
     from rigidrot_ros.run import grid
     rng = np.random.default_rng(3)
     for rate in [1000.0, 100.0, 10.0, 3.0, 7.3, 333.3, 999.9999] + list(rng.uniform(1, 2000, 5)):
@@ -286,21 +256,4 @@ def test_vectorised_stamps_are_the_node_grid():
             k0 = int(rng.integers(0, 4_000_000))
             ks = range(k0, k0 + 3000)
             want = [grid.stamp_ns(origin, rate, k) for k in ks]
-            assert _stamps(origin, rate, ks).tolist() == want, (rate, origin, k0)
-
-
-def test_the_helper_process_gives_the_same_bag(tmp_path, monkeypatch):
-    """Attitudes evaluated ahead in a second process: the same .mcap, byte for byte."""
-    from rigidrot_ros.run import generate as gen
-    values = _values(SENSORS + ['-p', 'imu.rate:=1000.0'] + ACCEL_MAG)
-    used = []
-    block = gen._Run.block
-    monkeypatch.setattr(gen._Run, 'block', lambda self, lo, hi, pre=None: (
-        used.append(pre is not None), block(self, lo, hi, pre))[1])
-    out = {}
-    for helper in (False, True):
-        used.clear()
-        path = generate_bag(values, 3.5, tmp_path / str(helper), start_ns=77, helper=helper)
-        out[helper] = [f.read_bytes() for f in sorted(Path(path).glob('*.mcap'))]
-        assert used == [helper] * 4                   # every block from the helper, or none
-    assert len(out[True]) == 1 and out[True] == out[False]
+            assert grid.stamps_ns(origin, rate, ks).tolist() == want, (rate, origin, k0)

@@ -117,17 +117,19 @@ def test_reset_applies_an_atomic_scene_change_and_restarts_at_t0():
     ex.add_node(client_node)
     cli = client_node.create_client(Trigger, '/attitude_node/reset')
     assert cli.wait_for_service(timeout_sec=10.0)
+    count = len(lis.att)        # before the call: the new run's first tick may come first
+
+    def first_new():            # the new run's first attitude, and its rate
+        att = [m for m in lis.att[count:]
+               if abs(m.quaternion.z - 0.6) < 1e-12 and abs(m.quaternion.w - 0.8) < 1e-12]
+        return [(a, r) for a in att[:1] for r in lis.rate if r.header.stamp == a.header.stamp]
     future = cli.call_async(Trigger.Request())
     _spin_until(ex, future.done)
     assert future.result().success
     assert 'sphere' in future.result().message
-    count = len(lis.att)
-    _spin_until(ex, lambda: len(lis.att) > count + 2 and len(lis.rate) > count + 2)
-    first_new = [m for m in lis.att[count:]
-                 if abs(m.quaternion.z - 0.6) < 1e-12 and abs(m.quaternion.w - 0.8) < 1e-12]
-    assert first_new, 'no message at t = 0 of the new scene'
-    stamp = first_new[0].header.stamp
-    rate = [m for m in lis.rate if m.header.stamp == stamp][0]
+    _spin_until(ex, first_new)
+    assert first_new(), 'no message at t = 0 of the new scene'
+    rate = first_new()[0][1]
     assert_allclose([rate.vector.x, rate.vector.y, rate.vector.z], new['omega0'], atol=1e-15)
     node.destroy_node()
     client_node.destroy_node()
@@ -173,21 +175,22 @@ def test_stamps_lie_on_the_timer_grid_from_t_start():
     """Tick k is stamped t_start + k / publish_rate exactly; the first tick is t = 0."""
     node, ex, lis = _listening(publish_rate=100.0)
     _spin_until(ex, lambda: len(lis.att) >= 60)
-    start = node._t_start.nanoseconds
+    start = node._schedule.t_start_ns
     stamps = np.array([stamp_ns(m) for m in lis.att])
     assert stamps[0] == start
     offsets = stamps - start
     assert np.all(offsets % 10_000_000 == 0), offsets[offsets % 10_000_000 != 0][:5]
     assert np.all(np.diff(stamps) > 0)
     # most samples came from the look-ahead buffer, built ahead
-    assert node._ahead.size >= 8, node._ahead.off_reason     # on (AHEAD_MIN or more)
+    ahead = node._schedule.truth.ahead
+    assert ahead.size >= 8, ahead.off_reason     # on (AHEAD_MIN or more)
     node.destroy_node()
 
 
 def test_frame_id_change_applies_at_once_to_messages_built_ahead():
     node, ex, lis = _listening(publish_rate=100.0)
     _spin_until(ex, lambda: len(lis.att) >= 40)     # the buffer holds built messages now
-    assert len(node._ahead) > 0
+    assert len(node._schedule.truth.ahead) > 0
     assert node.set_parameters([Parameter('frame_id', value='world'),
                                 Parameter('body_frame_id', value='base_link')])[0].successful
     n0 = len(lis.att)
@@ -200,11 +203,11 @@ def test_frame_id_change_applies_at_once_to_messages_built_ahead():
 def test_rate_change_anchors_a_new_grid_on_the_same_scene_clock():
     node, ex, lis = _listening(publish_rate=100.0, time_scale=1.0)
     _spin_until(ex, lambda: len(lis.att) >= 10)
-    start = node._t_start.nanoseconds
+    start = node._schedule.t_start_ns
     assert node.set_parameters([Parameter('publish_rate', value=40.0)])[0].successful
     n0 = len(lis.att)
     _spin_until(ex, lambda: len(lis.att) >= n0 + 8)
-    assert node._t_start.nanoseconds == start        # the scene time runs on
+    assert node._schedule.t_start_ns == start        # the scene time runs on
     later = np.array([stamp_ns(m) for m in lis.att[n0 + 1:]])
     assert np.all(np.diff(later) % 25_000_000 == 0) and np.all(np.diff(later) > 0)
     sol = node.solution
@@ -231,7 +234,7 @@ def test_sim_time_stamps_are_on_the_grid_of_the_sim_clock():
         pub.publish(msg)
         ex.spin_once(timeout_sec=0.005)
     assert len(lis.att) >= 25
-    start = node._t_start.nanoseconds
+    start = node._schedule.t_start_ns
     assert 100e9 <= start <= sim_ns
     stamps = np.array([stamp_ns(m) for m in lis.att])
     assert stamps[0] == start and np.all((stamps - start) % 10_000_000 == 0)

@@ -20,9 +20,12 @@ from sensor_msgs.msg import Imu, MagneticField
 from rigidrot_ros.msgs import messages as msgs
 from rigidrot_ros.ros.attitude_node import SceneError
 from rigidrot_ros.run import grid, params, settings
-from rigidrot_ros.run.streams import ImuStream, MagStream, make_streams, scene_time
+from rigidrot_ros.run.imu_output import ImuOutput
+from rigidrot_ros.run.mag_output import MagOutput
+from rigidrot_ros.run.output import scene_time
 from rigidrot_ros.sensors import Gyro, GyroNoise
 from ros_helpers import attitude_node, node_and_listener, NODE_SCENE, spin_until, stamp_ns
+from run_helpers import per_sample, sensors
 
 FRAMES = ('inertial', 'body')
 G = [0.0, 0.0, -9.80665]
@@ -38,16 +41,16 @@ def _values(**over):
 
 
 def _msgs(stream, ks, scale=1.0):
-    return [m for k in ks for m in stream.messages(k, 0, scale, FRAMES)]
+    return [m for k in ks for m in per_sample(stream, k, 0, scale, FRAMES)]
 
 
 def test_every_new_term_off_by_default_keeps_todays_imu_stream_bit_identical():
     values = _values(**{'imu.enable': True, 'imu.seed': 11, 'imu.gyro_bias': [1e-3, 0.0, -2e-3],
                         'imu.rate': 50.0, 'time_scale': 2.0})
     setup = settings.prepare_run(values)
-    streams = make_streams(setup)
+    streams = sensors(setup)
     assert [s.name for s in streams] == ['imu']
-    assert [t for t, _ in streams[0].topics] == ['imu', 'delta_angle', 'delta_rotation']
+    assert [t.name for t in streams[0].active] == ['imu', 'delta_angle', 'delta_rotation']
     new = _msgs(streams[0], range(1, 60), 2.0)
     # the former path: Gyro with GyroNoise, messages built as before
     old_gyro = Gyro(setup.solution, GyroNoise(1.7e-4, 2e-5, [1e-3, 0.0, -2e-3], 11))
@@ -67,18 +70,18 @@ def test_every_new_term_off_by_default_keeps_todays_imu_stream_bit_identical():
     assert imu.linear_acceleration_covariance[0] == -1.0          # not provided, as before
     # a gyro term switched on changes the stream (the comparison above can fail)
     on = settings.prepare_run({**values, 'imu.gyro_scale_factor': [1e-3, 0.0, 0.0]})
-    assert _msgs(make_streams(on)[0], [1])[0][1] != \
-        _msgs(make_streams(settings.prepare_run(values))[0], [1])[0][1]
+    assert _msgs(sensors(on)[0], [1])[0][1] != \
+        _msgs(sensors(settings.prepare_run(values))[0], [1])[0][1]
 
 
 def test_accelerometer_rides_in_imu_and_mag_stream_match_hand_rotated_references():
     setup = settings.prepare_run(_values(**AIR))
-    imu_s, mag_s = make_streams(setup)
-    assert isinstance(imu_s, ImuStream) and isinstance(mag_s, MagStream)
-    assert [t for t, _ in imu_s.topics][-1] == 'delta_velocity'
+    imu_s, mag_s = sensors(setup)
+    assert isinstance(imu_s, ImuOutput) and isinstance(mag_s, MagOutput)
+    assert [t.name for t in imu_s.active][-1] == 'delta_velocity'
     sol, r_arm = setup.solution, np.array(AIR['accel.lever_arm'])
     for k in (1, 7, 40):
-        got = dict(imu_s.messages(k, 0, 1.0, FRAMES))
+        got = dict(per_sample(imu_s, k, 0, 1.0, FRAMES))
         imu, dv = got['imu'], got['delta_velocity']
         assert isinstance(imu, Imu) and isinstance(dv, Vector3Stamped)
         assert imu.header.frame_id == 'body' and dv.header.frame_id == 'body'
@@ -98,7 +101,7 @@ def test_accelerometer_rides_in_imu_and_mag_stream_match_hand_rotated_references
         cov = np.asarray(imu.linear_acceleration_covariance).reshape(3, 3)
         assert cov[0, 0] > 0 and np.all(cov == np.diag(np.diag(cov)))
     for k in (0, 3, 20):
-        (topic, m), = mag_s.messages(k, 0, 1.0, FRAMES)
+        (topic, m), = per_sample(mag_s, k, 0, 1.0, FRAMES)
         assert topic == 'mag' and isinstance(m, MagneticField) and m.header.frame_id == 'body'
         assert stamp_ns(m) == round(k * 1e9 / 25.0)
         rot = Rotation.from_quat(sol.at(k / 25.0).quaternion)
@@ -111,9 +114,9 @@ def test_accelerometer_rides_in_imu_and_mag_stream_match_hand_rotated_references
 def test_noise_terms_reach_the_messages_seeded_and_stated():
     over = dict(AIR, **{'accel.noise_density': 2e-3, 'accel.bias': [0.05, 0.0, 0.0],
                         'mag.noise_density': 1e-8, 'mag.seed': 4, 'imu.seed': 9})
-    a = make_streams(settings.prepare_run(_values(**over)))
-    b = make_streams(settings.prepare_run(_values(**over)))
-    ideal = make_streams(settings.prepare_run(_values(**AIR)))
+    a = sensors(settings.prepare_run(_values(**over)))
+    b = sensors(settings.prepare_run(_values(**over)))
+    ideal = sensors(settings.prepare_run(_values(**AIR)))
     for s1, s2, s0 in zip(a, b, ideal):
         ks = range(s1.first, s1.first + 30)
         m1, m2, m0 = _msgs(s1, ks), _msgs(s2, ks), _msgs(s0, ks)
@@ -162,7 +165,7 @@ def test_bad_values_are_refused_at_run_time_and_the_node_keeps_its_configuration
     assert (list(kept) if isinstance(before[name], list) else kept) == before[name]
     response = node._on_reset(None, type('R', (), {})())       # the last good one restarts
     assert response.success, response.message
-    assert [s.name for s in node._streams] == ['imu', 'mag']
+    assert [s.name for s in node._schedule.streams] == ['imu', 'mag']
     node.destroy_node()
 
 

@@ -69,22 +69,23 @@ def test_due_truth_ticks_a_late_call_a_clock_jump_and_a_clock_that_went_back():
 
 
 def test_a_run_is_set_up_and_sampled_without_a_node():
-    """prepare_run -> sensor streams -> messages and the run description, no rclpy node."""
+    """prepare_run -> the table's outputs -> messages and the run description, no rclpy node."""
     import pytest
     from rigidrot_ros.run import params, settings
-    from rigidrot_ros.run import outputs, streams
+    from rigidrot_ros.run import outputs
+    from run_helpers import per_sample, sensors
     values = params.defaults()
     values.update({'imu.enable': True, 'star_tracker.enable': True, 'imu.rate': 200.0})
     setup = settings.prepare_run(values)
-    imu, star = streams.make_streams(setup)
-    assert (imu.rate, star.rate, imu.last, star.last) == (200.0, 10.0, 0, -1)
+    imu, star = sensors(setup)
+    assert (imu.rate, star.rate, imu.first, star.first) == (200.0, 10.0, 1, 0)
     t0 = 7_000_000_000
-    msgs = imu.messages(1, t0, setup.time_scale, setup.frames)
+    msgs = per_sample(imu, 1, t0, setup.time_scale, setup.frames)
     assert [topic for topic, _ in msgs] == ['imu', 'delta_angle', 'delta_rotation']
     stamp = msgs[0][1].header.stamp
     assert stamp.sec * 10 ** 9 + stamp.nanosec == t0 + 5_000_000
     assert msgs[0][1].header.frame_id == 'body'
-    (topic, st), = star.messages(0, t0, setup.time_scale, setup.frames)
+    (topic, st), = per_sample(star, 0, t0, setup.time_scale, setup.frames)
     assert topic == 'star_tracker' and st.header.frame_id == 'inertial'
     info = outputs.run_description(setup, t0, 1, '/attitude_node', {'/attitude': 'x'})
     assert info['start_ns'] == t0 and info['model'] == setup.solution.model

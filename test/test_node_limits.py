@@ -147,7 +147,7 @@ def test_diagnostics_keep_every_warn_reason():
     try:
         node._rate_window = (time.monotonic() - 1.0, node._counters.published, node._period_hz)
         node._counters.skipped = 7
-        node._last_sample = (0.0, 1.0)
+        node._schedule.truth.last_sample = (0.0, 1.0)
         st = _diagnostics_of(node)
         assert st.level == DiagnosticStatus.WARN
         for words in ('delivering 0 Hz', 'sensor samples skipped', 'error bound above tol'):

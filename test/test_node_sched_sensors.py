@@ -1,8 +1,8 @@
 """Accelerometer and magnetometer through the node's look-ahead, with the timing models.
 
-Oracle: the streams' own per-sample path (:meth:`ImuStream.messages`,
-:meth:`MagStream.messages`, messages built one by one by :mod:`rigidrot_ros.msgs.messages`
-and serialized by rclpy), on a fresh run set-up from the same parameters. The node's
+Oracle: the kinds' per-sample path (each sample read alone, messages built one by one by
+:mod:`rigidrot_ros.msgs.messages` and serialized by rclpy), on a fresh run set-up from the
+same parameters. The node's
 messages (read in blocks, serialized by the vectorised CDR writer, published as bytes)
 must equal them field for field, every sample once and in order; the magnetometer's
 timing model (drops, clock offset, jitter, latency) must act as the scheduler's seeded
@@ -17,9 +17,9 @@ from sensor_msgs.msg import Imu, MagneticField
 from rigidrot_ros.msgs import messages as msgs
 from rigidrot_ros.run import grid, outputs, params, settings
 from rigidrot_ros.run.scheduler import timing_of, Track
-from rigidrot_ros.run.streams import make_streams
 from rigidrot_ros.runtime.lookahead import AHEAD_MIN
 from ros_helpers import node_and_listener, NODE_SCENE, spin_until, stamp_ns
+from run_helpers import per_sample, sensors
 
 IMU_RATE, MAG_RATE = 200.0, 50.0
 MAG_TIMING = {'mag.drop_probability': 0.3, 'mag.clock_offset': 0.0042,
@@ -63,22 +63,21 @@ def test_accel_and_mag_batched_equal_the_per_sample_messages_with_the_mag_timing
     spin_until(ex, lambda: len(got['imu']) >= 120 and len(got['mag']) >= 25 and
                len(got['delta_velocity']) >= 120)
     # both sensors went through the batched path, look-ahead on
-    by_name = {s.stream.name: s for s in node._sensors}
-    assert by_name['imu']._read == by_name['imu']._read_imu
-    assert by_name['mag']._read == by_name['mag']._read_mag
+    by_name = {s.output.name: s for s in node._schedule.sensors}
+    assert set(by_name) == {'imu', 'mag'}
     assert all(s.ahead.size >= AHEAD_MIN for s in by_name.values())
-    t0 = node._t_start.nanoseconds
+    t0 = node._schedule.t_start_ns
     values = dict(node._values)
     frames = (values['frame_id'], values['body_frame_id'])
     node.destroy_node()
     lis.destroy_node()
 
     # the oracle: a fresh run from the same parameters, sample by sample
-    streams = {s.name: s for s in make_streams(settings.prepare_run(values))}
+    streams = {s.name: s for s in sensors(settings.prepare_run(values))}
     scale = values['time_scale']
     n_imu = min(len(got[t]) for t in ('imu', 'delta_angle', 'delta_rotation',
                                       'delta_velocity'))
-    ref = [dict(streams['imu'].messages(k, t0, scale, frames)) for k in range(1, n_imu + 1)]
+    ref = [dict(per_sample(streams['imu'], k, t0, scale, frames)) for k in range(1, n_imu + 1)]
     for topic in ('imu', 'delta_angle', 'delta_rotation', 'delta_velocity'):
         for i in range(n_imu):          # every sample once, in order, field for field
             assert got[topic][i] == ref[i][topic], (topic, i)
@@ -90,7 +89,7 @@ def test_accel_and_mag_batched_equal_the_per_sample_messages_with_the_mag_timing
     marks, keep = track.marks(range(n_read))
     kept = [k for k in range(n_read) if keep[k]][:len(got['mag'])]
     assert len(kept) == len(got['mag']) and len(kept) < kept[-1] + 1    # some dropped
-    mag_ref = [streams['mag'].messages(k, t0, scale, frames)[0][1] for k in range(n_read)]
+    mag_ref = [per_sample(streams['mag'], k, t0, scale, frames)[0][1] for k in range(n_read)]
     for msg, k in zip(got['mag'], kept):
         want = mag_ref[k]
         want.header.stamp = msgs.stamp(int(marks[k]))      # grid + offset + jitter

@@ -76,7 +76,7 @@ def test_every_output_arrives_typed_framed_stamped_and_equal_to_the_core():
     spin_until(ex, lambda: len(got['imu']) >= 40 and len(got['star_tracker']) >= 8
                and len(got['attitude']) >= 40 and len(got['/diagnostics']) >= 2)
     sol = node.solution
-    t0 = node._t_start.nanoseconds
+    t0 = node._schedule.t_start_ns
     scale = 2.0
 
     # the truth: one stamp per tick on every truth topic, values of the core at that t
@@ -178,7 +178,7 @@ def _imu_stream(seed, count=25):
     ex.add_node(node)
     lis = Listener(ex, {'imu': Imu})
     spin_until(ex, lambda: len(lis.got['imu']) >= count)
-    t0 = node._t_start.nanoseconds
+    t0 = node._schedule.t_start_ns
     out = [(stamp_ns(m) - t0, tuple(_v(m.angular_velocity))) for m in lis.got['imu'][:count]]
     node.destroy_node()
     lis.node.destroy_node()
@@ -245,14 +245,14 @@ def test_reset_restarts_the_sensors_with_new_values():
         .successful
     response = node._on_reset(None, type('R', (), {})())
     assert response.success, response.message
-    start = node._t_start
+    start = node._schedule.t_start_ns
     n0 = len(lis.got['imu'])
-    spin_until(ex, lambda: len(lis.got['imu']) >= n0 + 5 and node._t_start is not None)
-    new = [m for m in lis.got['imu'][n0:] if stamp_ns(m) > node._t_start.nanoseconds]
+    spin_until(ex, lambda: len(lis.got['imu']) >= n0 + 5 and node._schedule.t_start_ns is not None)
+    new = [m for m in lis.got['imu'][n0:] if stamp_ns(m) > node._schedule.t_start_ns]
     assert start is None and new
     da = {stamp_ns(m): _v(m.vector) for m in lis.got['delta_angle']}
     first = new[0]
-    assert stamp_ns(first) - node._t_start.nanoseconds == 10_000_000          # k = 1 at 100 Hz
+    assert stamp_ns(first) - node._schedule.t_start_ns == 10_000_000          # k = 1 at 100 Hz
     dt = 0.01 * 2.0
     assert_allclose(_v(first.angular_velocity), da[stamp_ns(first)] / dt + [0.5, 0.0, 0.0],
                     rtol=1e-13)
@@ -278,25 +278,28 @@ def test_unknown_override_is_named_not_dropped_in_silence():
 
 
 def test_a_clock_jump_restarts_the_sensor_grid_and_is_counted():
-    """5 s of backlog at 100 Hz: the stream jumps to the newest sample, 499 counted."""
+    """5 s of backlog at 100 Hz: the sensor jumps to the newest sample, 499 counted."""
+    from rigidrot_ros.run import params, settings
+    from rigidrot_ros.run.sensor_ahead import Sensor
     from rigidrot_ros.runtime.diagnostics import Counters
-    from rigidrot_ros.run.streams import ImuStream
-    node = _node(**{'imu.enable': True, 'imu.rate': 100.0})
-    stream = node._streams[0]
-    assert isinstance(stream, ImuStream) and stream.last == 0
-    counters, failed = Counters(), []
+    from run_helpers import sensors
+    values = params.defaults()
+    values.update(NODE_SCENE, **{'imu.enable': True, 'imu.rate': 100.0, 'time_scale': 2.0})
+    setup = settings.prepare_run(values)
+    counters, failed, groups = Counters(), [], []
     t0 = 1_000_000_000
-    items = stream.take(t0, t0 + 5_000_000_000, 2.0, ('inertial', 'body'), counters,
-                        lambda t, exc: failed.append(exc))
+    sensor = Sensor(sensors(setup)[0], t0, setup, counters, lambda: ('inertial', 'body'))
+    assert sensor.track.last == 0
+    sensor.due(t0 + 5_000_000_000, groups, lambda t, exc: failed.append(exc))
     assert not failed and counters.skipped == 499 and counters.samples == {'imu': 1}
-    assert stream.last == 500 and [topic for topic, _ in items] == \
-        ['imu', 'delta_angle', 'delta_rotation']
-    assert stamp_ns(items[0][1]) == t0 + 5_000_000_000
-    stream.take(t0, t0 + 5_029_999_999, 2.0, ('inertial', 'body'), counters, failed.append)
-    assert stream.last == 502 and counters.samples == {'imu': 3}
-    assert stream.take(t0, 0, 2.0, ('inertial', 'body'), counters, failed.append) == []
-    assert stream.last == 502 and counters.skipped == 499       # clock before t_start
-    node.destroy_node()
+    assert sensor.track.last == 500 and len(groups) == 1
+    true_ns, _, items = groups[0]
+    assert true_ns == t0 + 5_000_000_000
+    assert [topic for topic, _ in items] == ['imu', 'delta_angle', 'delta_rotation']
+    sensor.due(t0 + 5_029_999_999, groups, failed.append)
+    assert sensor.track.last == 502 and counters.samples == {'imu': 3} and len(groups) == 3
+    sensor.due(0, groups, failed.append)                        # clock before t_start
+    assert sensor.track.last == 502 and counters.skipped == 499 and len(groups) == 3
 
 
 IMU_SUBSCRIBER = '''
@@ -385,7 +388,7 @@ def test_an_infinite_gyro_bound_is_refused_and_the_bound_is_per_run(monkeypatch)
         assert 'omega0' in result.reason and 'no finite error bound' in result.reason, \
             result.reason
         # a bound seen in one run is reported (WARN) and forgotten at ~/reset
-        node._streams[0].bound = math.inf
+        node._schedule.streams[0].bound = math.inf
         sent = []
         node._pub_diag.publish = sent.append
         node._publish_diagnostics(wait=True)
@@ -393,7 +396,7 @@ def test_an_infinite_gyro_bound_is_refused_and_the_bound_is_per_run(monkeypatch)
         assert st.level == DiagnosticStatus.WARN and 'gyro increment' in st.message, st.message
         response = node._on_reset(None, type('R', (), {})())
         assert response.success, response.message
-        assert node._streams[0].bound == 0.0
+        assert node._schedule.streams[0].bound == 0.0
     finally:
         node.destroy_node()
     with pytest.raises(SceneError, match='no finite error bound'):

@@ -50,21 +50,21 @@ def test_a_stall_is_caught_up_from_one_batch_nothing_missed_nothing_alone():
         assert node._worker is not None
         for _ in range(400):
             _step(node, clock, 1_000_000)
-        imu = node._sensors[0].ahead
-        truth_misses, imu_misses = node._ahead.misses, imu.misses
-        catch_ups = node._ahead.catch_ups + imu.catch_ups
+        imu = node._schedule.sensors[0].ahead
+        truth_misses, imu_misses = node._schedule.truth.ahead.misses, imu.misses
+        catch_ups = node._schedule.truth.ahead.catch_ups + imu.catch_ups
         published = node._counters.published
-        assert max(node._ahead.ahead_of(node._tick_k), imu.ahead_of(imu._last)) <= \
-            2 * AHEAD_MAX < 900
+        truth = node._schedule.truth
+        assert max(truth.ahead.ahead_of(truth.k), imu.ahead_of(imu._last)) <= 2 * AHEAD_MAX < 900
         _step(node, clock, 900_000_000)                 # the process was held 0.9 s
         assert node._counters.published == published + 900
         for _ in range(400):
             _step(node, clock, 1_000_000)
         assert node._counters.published == published + 1300
         assert node._counters.missed == 0 and node._counters.skipped == 0
-        assert node._ahead.catch_ups + imu.catch_ups >= catch_ups + 2
-        assert (node._ahead.misses, imu.misses) == (truth_misses, imu_misses)
-        assert node._ahead.off_reason == '' and imu.off_reason == ''
+        assert node._schedule.truth.ahead.catch_ups + imu.catch_ups >= catch_ups + 2
+        assert (node._schedule.truth.ahead.misses, imu.misses) == (truth_misses, imu_misses)
+        assert node._schedule.truth.ahead.off_reason == '' and imu.off_reason == ''
     finally:
         node.destroy_node()
         lis.destroy_node()

@@ -45,6 +45,7 @@ PARTS = (
     'random_access',
     'generate',
     'node_khz',
+    'view_live',
 )
 
 

@@ -19,6 +19,7 @@ import numpy as np
 import yaml
 
 from rigidrot_ros.core import NoExactSolution, PrecisionError, Scene, solve
+from rigidrot_ros.run import table
 from rigidrot_ros.run.params import BY_NAME, check_values
 from rigidrot_ros.sensors import (
     Accelerometer, AttitudeNoise, Gyro, ImuNoise, load_kalibr_imu, Magnetometer, StarTracker,
@@ -374,6 +375,9 @@ class RunSetup:
         Truth rate, Hz.
     frames : tuple of str
         ``(frame_id, body_frame_id)``: the frames N and B of the messages.
+    outputs : tuple
+        The kinds of output of :data:`rigidrot_ros.run.table.OUTPUTS` that the values
+        switch on, in rank order.
     """
 
     values: dict
@@ -386,6 +390,7 @@ class RunSetup:
     frames: Tuple[str, str]
     accel: Optional[Accelerometer] = None
     mag: Optional[Magnetometer] = None
+    outputs: tuple = ()
 
 
 def check_run(values):
@@ -439,4 +444,5 @@ def prepare_run(values, try_samples=True):
         frames=(p['frame_id'], p['body_frame_id']),
         accel=(Accelerometer(solution, sensors.accel_noise, sensors.lever_arm, sensors.gravity)
                if sensors.imu and sensors.accel else None),
-        mag=Magnetometer(solution, **sensors.mag_options) if sensors.mag else None)
+        mag=Magnetometer(solution, **sensors.mag_options) if sensors.mag else None,
+        outputs=table.kinds_on(p))
