@@ -5,8 +5,7 @@
   malformed ``-p``) into one line of text instead of rcl's log line and a traceback; it
   makes the first Ctrl-C shut ROS down without a KeyboardInterrupt (:func:`_quiet_sigint`).
 - :func:`spin_until_shutdown` spins until Ctrl-C, SIGTERM or a shutdown, then cleans up,
-  on the executor :func:`make_executor` chooses (:data:`EXECUTOR`; the environment
-  variable ``RIGIDROT_EXECUTOR`` = ``single`` or ``events`` overrides it, for measuring).
+  on the executor :func:`make_executor` makes.
 """
 
 import os
@@ -17,11 +16,10 @@ import tempfile
 import threading
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ['split_ros_args', 'init_ros', 'spin_until_shutdown', 'make_executor', 'EXECUTOR',
-           'EXECUTORS']
+__all__ = ['split_ros_args', 'init_ros', 'spin_until_shutdown', 'make_executor']
 
 
 def split_ros_args(argv):
@@ -146,27 +144,14 @@ def init_ros(prog, ros_args):
     return reason
 
 
-#: The executors :func:`make_executor` knows, by name.
-EXECUTORS = ('single', 'events')
-#: The executor the console scripts spin on (see doc/node.md for the measurement).
-EXECUTOR = 'single'
+def make_executor():
+    """Return a new executor: rclpy's ``SingleThreadedExecutor``.
 
-
-def make_executor(name=None):
-    """Return a new executor: ``name``, else ``$RIGIDROT_EXECUTOR``, else :data:`EXECUTOR`.
-
-    ``'single'`` is rclpy's ``SingleThreadedExecutor``; ``'events'`` its
-    ``rclpy.experimental.EventsExecutor`` (experimental in Jazzy). Anything else raises
-    ValueError naming the variable.
+    rclpy's ``EventsExecutor`` (experimental in Jazzy) was measured and left out: its
+    ``spin()`` stopped firing the node's timer after the first calls, and the node then
+    ignored SIGINT and SIGTERM (CHANGELOG, issue 28).
     """
-    name = name or os.environ.get('RIGIDROT_EXECUTOR') or EXECUTOR
-    if name == 'single':
-        from rclpy.executors import SingleThreadedExecutor
-        return SingleThreadedExecutor()
-    if name == 'events':
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor()
-    raise ValueError(f'RIGIDROT_EXECUTOR must be one of {", ".join(EXECUTORS)}, got {name!r}')
+    return SingleThreadedExecutor()
 
 
 def _spin(node):
