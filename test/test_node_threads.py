@@ -1,4 +1,4 @@
-"""The node's threads: catch-ups from one batch, the look-ahead worker, the recorder thread."""
+"""The node's threads: catch-ups from one batch, the look-ahead worker serving resets."""
 
 import functools
 import re
@@ -15,7 +15,7 @@ from ros_helpers import node_and_listener, read_node_bag, reset_twice, spin_unti
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
 _spin_until = functools.partial(spin_until, timeout=30.0)
-_THREADS = ('rigidrot-lookahead', 'rigidrot-recorder')
+_WORKER = 'rigidrot-lookahead'
 
 
 def _alive(name):
@@ -70,26 +70,21 @@ def test_a_stall_is_caught_up_from_one_batch_nothing_missed_nothing_alone():
         lis.destroy_node()
 
 
-@pytest.mark.parametrize('record_thread', ['0', '1'])
-def test_threads_serve_resets_and_stop_with_the_node(tmp_path, monkeypatch, record_thread):
-    monkeypatch.setenv('RIGIDROT_RECORD_THREAD', record_thread)
-    threads = _THREADS if record_thread == '1' else _THREADS[:1]
+def test_the_worker_serves_resets_and_stops_with_the_node(tmp_path):
     node, ex, lis = node_and_listener(publish_rate=500.0, record=True,
                                       record_path=str(tmp_path), **{'imu.enable': True,
                                                                     'imu.rate': 500.0})
     ex.add_node(lis)
     try:
         worker = node._worker
-        for name in _THREADS:
-            assert len(_alive(name)) == (name in threads), name
+        assert len(_alive(_WORKER)) == 1
         reset_twice(node, ex)
         assert node._worker is worker and worker.alive      # one worker for every run
         counts = node._runs.recorder.counts
     finally:
         node.destroy_node()
         lis.destroy_node()
-    for name in _THREADS:
-        assert not _alive(name), name
+    assert not _alive(_WORKER)
     bag = next(tmp_path.iterdir())
     imu, logs, runs, _ = read_node_bag(bag)
     assert len(imu) >= counts['/imu'] >= 200        # everything queued before the close

@@ -27,6 +27,8 @@ __all__ = ['NAME', 'NEEDS', 'run', 'main', 'render_md', 'add_arguments', 'SCENE'
 
 NAME = 'generate'
 NEEDS = ('rclpy', 'mcap')
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.tools.generate',)
 #: The issue's benchmark scene (overrides of the node's defaults).
 SCENE = ['imu.enable:=true', 'imu.rate:=1000.0', 'star_tracker.enable:=true',
          'star_tracker.rate:=10.0', 'publish_rate:=100.0']

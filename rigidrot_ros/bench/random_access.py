@@ -38,6 +38,8 @@ from rigidrot_ros.core.dense import BLOCK_BYTES, CHECKPOINT_BYTES, GRID_BYTES
 
 NAME = 'random_access'
 NEEDS = ('numpy', 'yaml')
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.core',)
 
 CALLS = 200
 TOL = 1e-12

@@ -25,6 +25,8 @@ __all__ = ['soak', 'rss_mb', 'slope_mb_per_min', 'run']
 
 NAME = 'soak'
 NEEDS = ()
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.ros.cli', 'rigidrot_ros.ros.attitude_node')
 KEYS = ('soak',)
 
 

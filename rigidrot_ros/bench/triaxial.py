@@ -31,6 +31,8 @@ __all__ = ['taylor_reference', 'SCENE', 'run', 'draw', 'draw_charts', 'render_md
 
 NAME = 'triaxial'
 NEEDS = ('scipy',)
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.core',)
 KEYS = ('triaxial',)
 
 #: The work-precision and horizon scene: a generic triaxial body, m = 0.37.

@@ -22,7 +22,6 @@ ahead in batches; a call reads the clock and publishes the bytes.
 """
 
 import contextlib
-import os
 import sys
 import time
 
@@ -44,7 +43,7 @@ from rigidrot_ros.run import settings, table
 from rigidrot_ros.run.params import BY_NAME, PARAMS
 from rigidrot_ros.run.schedule import Schedule
 from rigidrot_ros.run.sensor_ahead import Sensor
-from rigidrot_ros.runtime import collector, diagnostics, realtime
+from rigidrot_ros.runtime import collector, diagnostics, realtime, switches
 from rigidrot_ros.runtime.lookahead import BatchWorker
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
@@ -55,14 +54,6 @@ _CATCH_UP = 1.0
 #: A call that ended within this share of its timer period after its due time runs the
 #: collector's pending pass (collector.Passes; a pass takes 0.3 to 1 ms under load).
 _GC_ROOM = 0.4
-
-
-def _use_worker():
-    """Whether look-ahead batches run in a worker thread (``RIGIDROT_LOOKAHEAD_WORKER=0``: not).
-
-    The variable is for measuring the two against each other; anything but ``0`` means on.
-    """
-    return os.environ.get('RIGIDROT_LOOKAHEAD_WORKER', '1').strip() != '0'
 
 
 class AttitudeNode(Node):
@@ -94,7 +85,7 @@ class AttitudeNode(Node):
         #: The publishing thread's scheduling policy (realtime.request; diagnostics)
         self._scheduling = realtime.describe()
         #: Runs the look-ahead batches off the executor's thread (lookahead.BatchWorker)
-        self._worker = BatchWorker() if _use_worker() else None
+        self._worker = BatchWorker() if switches.lookahead_worker() else None
         self._gate_last = (0, 0)        # the worker gate's holds and ns at the last report
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._on_post_set)

@@ -6,10 +6,9 @@
   makes the first Ctrl-C shut ROS down without a KeyboardInterrupt (:func:`_quiet_sigint`),
   and SIGINTs within :data:`SIGNAL_MERGE_S` of the first one request.
 - :func:`spin_until_shutdown` spins until Ctrl-C, SIGTERM or a shutdown, then cleans up,
-  on the executor :func:`make_executor` chooses (:data:`EXECUTOR`; the environment
-  variable ``RIGIDROT_EXECUTOR`` = ``single`` or ``events`` overrides it, for measuring).
-  The clean-up (the node's ``destroy_node``: a recorder finishes its bag) runs to its end
-  whatever signal arrives meanwhile.
+  on the executor :func:`make_executor` makes.
+  The clean-up (the node's ``destroy_node``: a recorder finishes its bag) runs to
+  its end whatever signal arrives meanwhile.
 """
 
 import os
@@ -21,14 +20,14 @@ import threading
 import time
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
 from rigidrot_ros.bag.metadata import uninterrupted
 from rigidrot_ros.run.rclyaml import MIXED_HINT
 
-__all__ = ['split_ros_args', 'init_ros', 'spin_until_shutdown', 'make_executor', 'EXECUTOR',
-           'EXECUTORS', 'SIGNAL_MERGE_S']
+__all__ = ['split_ros_args', 'init_ros', 'spin_until_shutdown', 'make_executor',
+           'SIGNAL_MERGE_S']
 
 #: SIGINTs that arrive within this many seconds of the first are one request to stop: ``kill
 #: -INT`` of ``timeout``, or of a shell's job, reaches the process twice within microseconds
@@ -166,27 +165,14 @@ def init_ros(prog, ros_args):
     return reason
 
 
-#: The executors :func:`make_executor` knows, by name.
-EXECUTORS = ('single', 'events')
-#: The executor the console scripts spin on (see doc/node.md for the measurement).
-EXECUTOR = 'single'
+def make_executor():
+    """Return a new executor: rclpy's ``SingleThreadedExecutor``.
 
-
-def make_executor(name=None):
-    """Return a new executor: ``name``, else ``$RIGIDROT_EXECUTOR``, else :data:`EXECUTOR`.
-
-    ``'single'`` is rclpy's ``SingleThreadedExecutor``; ``'events'`` its
-    ``rclpy.experimental.EventsExecutor`` (experimental in Jazzy). Anything else raises
-    ValueError naming the variable.
+    rclpy's ``EventsExecutor`` (experimental in Jazzy) was measured and left out: its
+    ``spin()`` stopped firing the node's timer after the first calls, and the node then
+    ignored SIGINT and SIGTERM (CHANGELOG, issue 28).
     """
-    name = name or os.environ.get('RIGIDROT_EXECUTOR') or EXECUTOR
-    if name == 'single':
-        from rclpy.executors import SingleThreadedExecutor
-        return SingleThreadedExecutor()
-    if name == 'events':
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor()
-    raise ValueError(f'RIGIDROT_EXECUTOR must be one of {", ".join(EXECUTORS)}, got {name!r}')
+    return SingleThreadedExecutor()
 
 
 def _spin(node):

@@ -1,5 +1,8 @@
-"""The recorder's writer thread, and the node's chunk writes in its worker: nothing lost."""
+"""The node's recorder: chunk writes in its worker, nothing lost; Ctrl-C and SIGTERM finish it."""
 
+import os
+import signal
+import subprocess
 import threading
 import time
 
@@ -9,89 +12,22 @@ from rigidrot_ros.bag import BagWriter, read_bag
 from rigidrot_ros.bag import writer as bagmod
 from rigidrot_ros.ros.recorder import Recorder
 
-from ros_helpers import node_and_listener, read_node_bag, reset_twice  # noqa: I100, I201
+from record_helpers import published_calls, publishing_node, rosbags_rows  # noqa: I100, I201
+from ros_helpers import (next_domain_id, node_and_listener, read_node_bag,  # noqa: I100, I201
+                         reset_twice, ros_env, script, start, stop, wait_for)
 from test_bag_offload import _Disk, _Thread  # noqa: I100, I201 - test modules beside it
-from test_record_process import _calls, _node, _read  # noqa: I100, I201
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
 
-class _SlowWriter(BagWriter):
-    """A BagWriter whose writes wait (a stalled disk): the recorder falls behind."""
-
-    delay = 0.0
-
-    def write_many(self, topics, datas, log_times_ns):
-        time.sleep(self.delay)
-        return super().write_many(topics, datas, log_times_ns)
-
-    def write(self, topic, data, log_time_ns, publish_time_ns=None):
-        time.sleep(self.delay / 10)
-        return super().write(topic, data, log_time_ns, publish_time_ns)
-
-
-def _record(tmp_path, name, threaded, delay, calls):
-    node = _node(f'rec_{name}')
-    try:
-        writer = _SlowWriter(str(tmp_path), name, flush_period=0.01)
-        writer.delay = delay
-        rec = Recorder(node, writer, exclude_own=True, threaded=threaded)
-        queued, c0 = 0, time.perf_counter()
-        for i, (now_ns, items) in enumerate(calls):
-            rec.record_published(now_ns, items)
-            if i == len(calls) // 2:
-                rec.add_run({'index': '1', 'note': 'half way'})
-                rec._flush()                        # as the flush timer would
-            queued = max(queued, rec.queued)
-        handed = time.perf_counter() - c0
-        path, counts = rec.close()
-        return path, counts, queued, handed
-    finally:
-        node.destroy_node()
-
-
-def test_a_writer_that_falls_behind_loses_and_reorders_nothing(tmp_path):
-    calls = _calls(300)
-    ref, ref_counts, _, _ = _record(tmp_path / 'a', 'direct', False, 0.0, calls)
-    path, counts, queued, handed = _record(tmp_path / 'b', 'threaded', True, 0.002, calls)
-    assert queued > 10                      # it fell behind: the calls only queued
-    assert counts == ref_counts == {'/rate': 300, '/note': 300}
-    got, want = _read(path), _read(ref)
-    assert got == want                      # every message, same bytes, same order
-    assert [t for _, t, _ in got] == sorted(t for _, t, _ in got)
-    assert not any(t.name == 'rigidrot-recorder' and t.is_alive()
-                   for t in threading.enumerate())
-
-
-def test_a_failing_disk_stops_the_threaded_recording_with_one_event(tmp_path):
-    node = _node('rec_fail')
-    events = []
-    try:
-        writer = BagWriter(str(tmp_path), 'fail', flush_period=0.01)
-
-        def broken(*args):
-            raise OSError(28, 'No space left on device')
-        writer.write_many = broken
-        rec = Recorder(node, writer, exclude_own=True, threaded=True,
-                       on_event=lambda level, text: events.append((level, text)))
-        for now_ns, items in _calls(20):
-            rec.record_published(now_ns, items[:1])
-        rec.close()
-        assert not rec.active
-        assert [lv for lv, _ in events] == ['error']
-        assert 'No space left on device' in events[0][1]
-    finally:
-        node.destroy_node()
-
-
 def test_a_disk_error_of_an_offloaded_chunk_stops_the_recording_with_one_event(tmp_path):
-    node = _node('rec_offload_fail')
+    node = publishing_node('rec_offload_fail')
     events, worker = [], _Thread()
     try:
         writer = BagWriter(str(tmp_path), 'full', flush_period=0.01, offload=worker)
         rec = Recorder(node, writer, exclude_own=True,
                        on_event=lambda level, text: events.append((level, text)))
-        calls = _calls(60)
+        calls = published_calls(60)
         for now_ns, items in calls[:20]:
             rec.record_published(now_ns, items)
         writer.flush()
@@ -121,8 +57,6 @@ def test_a_disk_error_of_an_offloaded_chunk_stops_the_recording_with_one_event(t
 @pytest.mark.parametrize('offload', ['1', '0'])
 def test_the_node_at_1_khz_writes_its_chunks_in_its_worker(tmp_path, monkeypatch, offload):
     monkeypatch.setenv('RIGIDROT_RECORD_OFFLOAD', offload)
-    monkeypatch.delenv('RIGIDROT_RECORD_THREAD', raising=False)
-    monkeypatch.delenv('RIGIDROT_RECORD_PROCESS', raising=False)
     threads = []
     write_chunk = bagmod._write_chunk
 
@@ -154,3 +88,35 @@ def test_the_node_at_1_khz_writes_its_chunks_in_its_worker(tmp_path, monkeypatch
     assert all(b > a for a, b in zip(imu, imu[1:]))         # every sample, in order
     assert runs == 3                                        # start-up and two resets
     assert len(read_bag(writer.path).runs) == 3
+
+
+@pytest.mark.parametrize('sig', ['group-SIGINT', 'SIGTERM'])
+def test_ctrl_c_or_sigterm_of_the_node_finishes_its_bag(tmp_path, sig):
+    """The console script, its chunks written in its worker: Ctrl-C to the whole group (a
+    terminal's job) or SIGTERM stop the worker after its queued writes, then finish the bag:
+    rosbags reads the summary, and every tick the node says it published is in it."""
+    env = ros_env(next_domain_id())
+    proc = start([script('attitude_node'), '--ros-args', '-p', 'publish_rate:=200.0',
+                  '-p', 'record:=true', '-p', f'record_path:={tmp_path}'], env,
+                 start_new_session=True)            # its own group, as a terminal's job
+    try:
+        assert wait_for(lambda: list(tmp_path.glob('*/*.mcap'))
+                        and list(tmp_path.glob('*/*.mcap'))[0].stat().st_size > 4096,
+                        timeout=60)
+    finally:
+        if sig == 'group-SIGINT':
+            os.killpg(proc.pid, signal.SIGINT)      # Ctrl-C
+            # once: a second SIGINT right behind it is a forced stop (KeyboardInterrupt
+            # wherever the main thread is), which may lose the tick being recorded
+            try:
+                out, err = proc.communicate(timeout=20)
+            except subprocess.TimeoutExpired:
+                code, out, err = stop(proc, signal.SIGKILL)
+            code = proc.returncode
+        else:
+            code, out, err = stop(proc, signal.SIGTERM)
+    assert code == 0, err
+    assert 'bag finished' in err and 'Traceback' not in err, err
+    rows = rosbags_rows(next(tmp_path.iterdir()))   # rosbags: the summary is there
+    ticks = int(err.split('published ')[1].split(' ticks')[0])
+    assert sum(t == '/attitude' for t, _, _ in rows) == ticks > 0
