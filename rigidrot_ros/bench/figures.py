@@ -197,8 +197,7 @@ def _env_first(res):
 # -- random access ----------------------------------------------------------------------------
 
 def _access(res, horizon):
-    """Return the warm rows at ``horizon`` (the scenes in turn in one process; the prose
-    quotes those, and says a fresh process pays more)."""
+    """Return the warm rows at ``horizon``: the prose quotes those (and says what is cold)."""
     return [r for r in res['random_access']['rows'] if r['horizon_s'] == horizon
             and r.get('process', 'warm') == 'warm']
 
