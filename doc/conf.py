@@ -1,6 +1,6 @@
 """Sphinx configuration of the rigidrot_ros documentation (MyST Markdown pages, autodoc).
 
-Build: ``sphinx-build -W --keep-going -b html doc <out>`` (``test/test_docs.py`` runs it).
+Build: ``sphinx-build -W --keep-going -b html doc <out>`` (``test/project/test_docs.py`` runs it).
 The API page (``api.md``) is filled in here from the package's modules, so a module added
 to one of the public subpackages appears there without editing the page.
 """

@@ -1,7 +1,7 @@
 """rigidrot_ros: exact analytic attitude of rotating rigid bodies, for ROS 2.
 
 The packages, from the ground up (a package imports only those at or below its floor;
-``test/test_node_imports.py`` checks it):
+``test/project/test_layering.py`` checks it):
 
 - ``core`` (the exact solutions, pure math) and ``runtime`` (the mechanisms of a live
   run: the look-ahead worker and its gate, the collector, real-time scheduling, the

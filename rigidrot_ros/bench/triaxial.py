@@ -12,7 +12,7 @@
 Reference: :func:`taylor_reference`, a 42-digit Taylor-series integration of Euler's
 equations and the quaternion kinematics in the time domain (no elliptic function); where
 it would take too long (streams, T > 1e3 s) the exact model itself, whose agreement with
-that integration is shown by the query rows and by ``test/test_core_triaxial.py``.
+that integration is shown by the query rows and by ``test/core/test_core_triaxial.py``.
 """
 
 import math

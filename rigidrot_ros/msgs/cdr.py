@@ -7,7 +7,7 @@ each primitive aligned to its size counted from after those 4 bytes) such a mess
 constant template in which only the stamp (two 32-bit words) and a run of doubles change.
 A batch is therefore one ``(n, size)`` byte array: the template repeated, the stamps and
 the doubles written in as columns. Padding bytes are zero (rclpy's serializer leaves them
-as they were in its buffer; every value byte is the same, see ``test/test_cdr.py``).
+as they were in its buffer; every value byte is the same, see ``test/msgs/test_cdr.py``).
 
 API
 ---

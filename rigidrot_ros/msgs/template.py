@@ -7,7 +7,7 @@ type's schema text (:mod:`rigidrot_ros.msgs.msgdefs`), with a distinct sentinel 
 place that changes; the sentinels' offsets in those bytes are the holes that a batch fills
 in as columns, as :mod:`rigidrot_ros.msgs.cdr` fills its fixed templates. The bytes are the
 canonical CDR (padding zero) of the messages ``body_markers`` builds, field for field
-(``test/test_cdr.py``); no rclpy.
+(``test/msgs/test_cdr.py``); no rclpy.
 """
 
 import struct

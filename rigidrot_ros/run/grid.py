@@ -41,7 +41,7 @@ def stamps_ns(origin_ns, rate, ks):
 
     ``origin + round(k * 1e9 / rate)``: the same float64 product and quotient, and
     ``np.rint`` rounds half to even as Python's ``round`` does, so every stamp is the
-    scalar function's (``test/test_generate.py`` compares them index by index).
+    scalar function's (``test/run/test_generate.py`` compares them index by index).
     """
     k = np.arange(ks.start, ks.stop, dtype=np.int64)
     return int(origin_ns) + np.rint(k * 1e9 / rate).astype(np.int64)
