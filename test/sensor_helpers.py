@@ -6,7 +6,7 @@ from mpmath import mp
 
 # -- exact increments -------------------------------------------------------------------------
 def _mp_rate(scene):
-    """Return the closed-form body rate at 30 digits, written from Romano (2008) Eq. 39, 47, 56, 58.
+    """Return the closed-form body rate at 30 digits (Romano 2008, Eq. 39, 47, 56, 58).
 
     In body axes B' (symmetry axis third): omega_S = omega_S(0) + (m / I) t in the
     virtual sphere, omega_B' = (Rz(-f) omega_S transverse, r0 + (m3 / I3) t),
