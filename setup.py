@@ -39,6 +39,7 @@ setup(
         'view': ['rerun-sdk>=0.41,<0.42'],
         'test': [
             'pytest>=7',
+            'pytest-xdist>=3.5',
             'rosbags>=0.10',
             'ahrs>=0.3',
             'allantools>=2019.9',
