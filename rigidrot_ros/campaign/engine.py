@@ -199,6 +199,9 @@ def finish(spec, out_dir):
     for i in range(spec['runs']):
         with open(_run_path(out_dir, i), encoding='utf-8') as fh:
             results.append(json.load(fh))
+    if 'estimators' in spec:                # several on the same runs
+        from rigidrot_ros.campaign.multi import finish_multi
+        return finish_multi(spec, out_dir, results)
     report = aggregate(results, spec)
     write_atomic(os.path.join(out_dir, 'report.json'), _dumps(report))
     header, rows = csv_rows(results)

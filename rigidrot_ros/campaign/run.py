@@ -173,11 +173,12 @@ def _tail(path, lines=40):
         return ''
 
 
-def _ros(spec, values, work):
-    """Generate the bag, replay it (with /clock) into the command, record and score it."""
+def _ros(spec, values, work, bag=None):
+    """Replay the run's bag (generated unless given) into the command; record, score it."""
     from rigidrot_ros.io.generate import generate_bag
     est = spec['estimator']
-    bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
+    if bag is None:
+        bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
     from rigidrot_ros.io.bag import read_bag
     contents = read_bag(bag)
     names = sorted(t for t in contents.topics
@@ -266,6 +267,9 @@ def run_one(spec, index, bag_root=None):
     A failure of the estimator (crash, timeout, no output) is a result too: ``row`` has
     ``status: failed`` and the ``reason``, and ``log`` the details.
     """
+    if 'estimators' in spec:                # several on the same runs
+        from rigidrot_ros.campaign.multi import run_one_multi
+        return run_one_multi(spec, index, bag_root)
     t0 = time.perf_counter()
     draws, redraws = draw_run(spec, index)
     row = {'run': int(index), 'status': 'ok', 'reason': '', 'redraws': redraws}
