@@ -124,12 +124,11 @@ def summarise(t, errors, window_start, cpu_s=None):
         'p95_deg': d * float(np.percentile(w_tot[finite], 95)) if finite.any() else math.nan,
         'max_deg': d * float(np.max(w_tot[finite])) if finite.any() else math.nan,
     }
-    curve = np.sqrt(np.nanmean(tot ** 2, axis=0)) if np.isfinite(tot).any() else \
-        np.full(len(t), np.nan)
+    curve = _rms_over_runs(tot)
     out['t_converge_s'] = time_to_converge(t, curve, out['rmse_deg']['total'] / d)
     out['rms_curve_deg'] = (d * curve).tolist()
-    out['incl_curve_deg'] = (d * np.sqrt(np.nanmean(inc ** 2, axis=0))).tolist()
-    out['head_curve_deg'] = (d * np.sqrt(np.nanmean(hed ** 2, axis=0))).tolist()
+    out['incl_curve_deg'] = (d * _rms_over_runs(inc)).tolist()
+    out['head_curve_deg'] = (d * _rms_over_runs(hed)).tolist()
     if errors and errors[0]['nees'] is not None:
         from rigidrot_ros.io.score import anees_bounds
         nees = np.array([e['nees'] for e in errors])[:, win]
@@ -150,6 +149,14 @@ def summarise(t, errors, window_start, cpu_s=None):
     if cpu_s is not None:
         out['us_per_sample'] = 1e6 * float(np.median(cpu_s)) / len(t)
     return out
+
+
+def _rms_over_runs(x):
+    """RMS over the runs (axis 0) of the finite values at each step; NaN where none."""
+    ok = np.isfinite(x)
+    n = ok.sum(axis=0)
+    total = np.where(ok, x, 0.0) ** 2
+    return np.where(n > 0, np.sqrt(total.sum(axis=0) / np.maximum(n, 1)), np.nan)
 
 
 def _rms(x):

@@ -51,6 +51,12 @@ class SensorRun:
         Rate (rad/s) and specific force (m/s^2).
     mag : (N, 3) array
         The latest magnetometer sample at each imu sample (zero-order hold), T.
+    mag_new : (N,) bool array
+        Whether a magnetometer sample was taken at the imu sample's time: the filters fuse
+        each magnetometer sample once, at its own time (both grids start at 0).
+    start : int
+        The first imu sample with a magnetometer sample at its time, where every filter
+        starts (the e-compass of the ahrs filters needs both at one instant).
     var_gyr, var_acc, var_mag : float
         Per-axis variance of one sample as the messages state it.
     field_n, gravity_n : (3,) arrays
@@ -63,12 +69,19 @@ class SensorRun:
     """
 
     def __init__(self, t, gyr, acc, mag, var_gyr, var_acc, var_mag, field_n, gravity_n,
-                 star=None, q_true=None):
+                 star=None, q_true=None, mag_new=None):
         self.t = np.asarray(t, dtype=float)
         self.dt = float(np.median(np.diff(self.t))) if len(self.t) > 1 else 0.0
         self.gyr = np.ascontiguousarray(gyr, dtype=float)
         self.acc = np.ascontiguousarray(acc, dtype=float)
         self.mag = np.ascontiguousarray(mag, dtype=float)
+        self.mag_new = np.ones(len(self.t), dtype=bool) if mag_new is None else \
+            np.asarray(mag_new, dtype=bool)
+        if not self.mag_new.any():
+            raise ValueError('no magnetometer sample falls on an imu sample time')
+        self.start = int(np.argmax(self.mag_new))
+        self.mag_dt = self.dt * (float(np.median(np.diff(np.nonzero(self.mag_new)[0])))
+                                 if self.mag_new.sum() > 1 else 1.0)
         self.var_gyr, self.var_acc, self.var_mag = float(var_gyr), float(var_acc), \
             float(var_mag)
         self.field_n = np.asarray(field_n, dtype=float)
@@ -81,7 +94,8 @@ class SensorRun:
         """Build from :func:`rigidrot_ros.io.generate.run_arrays` and the run's values.
 
         The imu must run on the truth's grid (``imu.rate`` 0 or ``publish_rate``), so each
-        imu sample has its exact attitude; the magnetometer is held between its samples.
+        imu sample has its exact attitude; the magnetometer is held between its samples,
+        and flagged where it has a sample at the imu sample's time.
         """
         from rigidrot_ros import params
         p = params.defaults()
@@ -101,9 +115,10 @@ class SensorRun:
         if '/star_tracker' in arrays:
             s = arrays['/star_tracker']
             star = (s['t'], s['q'], s['cov'])
+        new = mag['true_ns'][held] == imu['true_ns']
         return cls(imu['t'], imu['w'], imu['f'], mag['m'][held], float(imu['var'][0]),
                    float(imu['avar'][0]), float(mag['cov'][0][0, 0]), p['mag.field'],
-                   p['accel.gravity'], star, truth['q'][rows])
+                   p['accel.gravity'], star, truth['q'][rows], new)
 
 
 class Estimate:
@@ -155,18 +170,25 @@ def _to_n(q_eb_xyzw, turn):
 
 def _start_e(s, turn):
     """Return the e-compass start ``q_EB`` (w, x, y, z) in E, where ``q_NE = Rz(turn)``."""
-    q_nb = ecompass(s.acc[0], s.mag[0], s.gravity_n, s.field_n)
+    k = s.start
+    q_nb = ecompass(s.acc[k], s.mag[k], s.gravity_n, s.field_n)
     return _wxyz(quat.multiply(quat.about_z(-turn), q_nb))
 
 
+def _nan_before_start(s, q):
+    q[:s.start] = np.nan
+    return q
+
+
 # -- the ahrs filters ----------------------------------------------------------------------
-def _ahrs_loop(s, step, q0_wxyz):
-    out = np.empty((len(s.t), 4))
-    q = q0_wxyz
-    gyr, acc, mag, dt = s.gyr, s.acc, s.mag, s.dt
+def _ahrs_loop(s, marg, imu, q0_wxyz):
+    """Run from ``s.start`` (``q0`` there): ``marg`` at magnetometer samples, else ``imu``."""
+    out = np.full((len(s.t), 4), np.nan)
+    q = out[s.start] = q0_wxyz
+    gyr, acc, mag, new, dt = s.gyr, s.acc, s.mag, s.mag_new, s.dt
     c = time.process_time()
-    for k in range(len(s.t)):
-        q = step(q, gyr[k], acc[k], mag[k], dt)
+    for k in range(s.start + 1, len(s.t)):
+        q = marg(q, gyr[k], acc[k], mag[k], dt) if new[k] else imu(q, gyr[k], acc[k], dt)
         out[k] = q
     return out, time.process_time() - c
 
@@ -176,7 +198,7 @@ def _madgwick(s, p):
     turn = _psi(s.field_n)
     f = af.Madgwick(frequency=1.0 / s.dt, gain=float(p['gain']))
     q, cpu = _ahrs_loop(s, lambda q, g, a, m, dt: f.updateMARG(q, g, a, m, dt=dt),
-                        _start_e(s, turn))
+                        lambda q, g, a, dt: f.updateIMU(q, g, a, dt=dt), _start_e(s, turn))
     return Estimate(_to_n(_xyzw(q), turn), None, cpu)
 
 
@@ -185,7 +207,7 @@ def _mahony(s, p):
     turn = _psi(s.field_n) - math.pi / 2
     f = af.Mahony(k_P=float(p['k_P']), k_I=float(p['k_I']), frequency=1.0 / s.dt)
     q, cpu = _ahrs_loop(s, lambda q, g, a, m, dt: f.updateMARG(q, g, a, m, dt=dt),
-                        _start_e(s, turn))
+                        lambda q, g, a, dt: f.updateIMU(q, g, a, dt=dt), _start_e(s, turn))
     return Estimate(_to_n(_xyzw(q), turn), None, cpu)
 
 
@@ -195,7 +217,8 @@ def _aqua(s, p):
     f = af.AQUA(frequency=1.0 / s.dt, alpha=float(p['alpha']), beta=float(p['beta']),
                 adaptive=bool(p['adaptive']))
     q0 = _start_e(s, turn) * np.array([1.0, -1.0, -1.0, -1.0])        # AQUA's q is q_BE
-    q, cpu = _ahrs_loop(s, lambda q, g, a, m, dt: f.updateMARG(q, g, a, m, dt=dt), q0)
+    q, cpu = _ahrs_loop(s, lambda q, g, a, m, dt: f.updateMARG(q, g, a, m, dt=dt),
+                        lambda q, g, a, dt: f.updateIMU(q, g, a, dt=dt), q0)
     return Estimate(_to_n(quat.conjugate(_xyzw(q)), turn), None, cpu)
 
 
@@ -220,14 +243,15 @@ def _ekf(s, p):
     field = s.field_n / np.linalg.norm(s.field_n)
     f = af.EKF(frame='NED', magnetic_ref=field, frequency=1.0 / s.dt,
                noises=_ekf_noises(s, p))
-    f.mag = True                              # its measurement model asks self.mag
     n = len(s.t)
-    out, cov = np.empty((n, 4)), np.empty((n, 4, 4))
-    q = _start_e(s, 0.0)
-    gyr, acc, mag, dt = s.gyr, s.acc, s.mag, s.dt
+    out, cov = np.full((n, 4), np.nan), np.full((n, 4, 4), np.nan)
+    q = out[s.start] = _start_e(s, 0.0)
+    cov[s.start] = f.P
+    gyr, acc, mag, new, dt = s.gyr, s.acc, s.mag, s.mag_new, s.dt
     c = time.process_time()
-    for k in range(n):
-        q = f.update(q, gyr[k], acc[k], mag[k], dt=dt)
+    for k in range(s.start + 1, n):
+        f.mag = True if new[k] else None       # its measurement model asks self.mag
+        q = f.update(q, gyr[k], acc[k], mag[k] if new[k] else None, dt=dt)
         out[k] = q
         cov[k] = f.P
     cpu = time.process_time() - c
@@ -235,7 +259,8 @@ def _ekf(s, p):
     xi = np.stack([np.stack([-x, -y, -z], -1), np.stack([w, -z, y], -1),
                    np.stack([z, w, -x], -1), np.stack([-y, x, w], -1)], axis=1)
     P = 4.0 * np.einsum('nki,nkl,nlj->nij', xi, cov, xi)
-    return Estimate(_to_n(_xyzw(out), 0.0), 0.5 * (P + np.swapaxes(P, 1, 2)), cpu)
+    return Estimate(_nan_before_start(s, _to_n(_xyzw(out), 0.0)),
+                    0.5 * (P + np.swapaxes(P, 1, 2)), cpu)
 
 
 # -- Fusion and VQF -------------------------------------------------------------------------
@@ -255,27 +280,33 @@ def _fusion(s, p):
     gyr = np.ascontiguousarray(np.degrees(s.gyr))
     acc = np.ascontiguousarray(s.acc / GRAVITY)
     mag = np.ascontiguousarray(s.mag * 1e6)
+    # a zero field is no sample to Fusion (update_no_magnetometer would zero the heading
+    # during its start-up)
+    mag[~s.mag_new] = 0.0
     n = len(s.t)
-    out = np.empty((n, 4))
+    out = np.full((n, 4), np.nan)
     c = time.process_time()
-    for k in range(n):
+    for k in range(s.start, n):
         f.update(gyr[k], acc[k], mag[k])
         out[k] = f.get_quaternion()
     cpu = time.process_time() - c
-    return Estimate(_to_n(_xyzw(out), turn), None, cpu)
+    return Estimate(_nan_before_start(s, _to_n(_xyzw(out), turn)), None, cpu)
 
 
 def _vqf(s, p):
     import vqf
     turn = _psi(s.field_n) - math.pi / 2
-    f = vqf.VQF(s.dt, s.dt, s.dt, tauAcc=float(p['tauAcc']), tauMag=float(p['tauMag']),
+    f = vqf.VQF(s.dt, s.dt, s.mag_dt, tauAcc=float(p['tauAcc']), tauMag=float(p['tauMag']),
                 motionBiasEstEnabled=bool(p['motionBiasEstEnabled']),
                 magDistRejectionEnabled=bool(p['magDistRejectionEnabled']))
-    mag = np.ascontiguousarray(s.mag * 1e6)
+    k = s.start
+    mag = np.where(s.mag_new[k:, None], s.mag[k:] * 1e6, 0.0)   # VQF skips a zero sample
+    gyr, acc, mag = (np.ascontiguousarray(a) for a in (s.gyr[k:], s.acc[k:], mag))
+    out = np.full((len(s.t), 4), np.nan)
     c = time.process_time()
-    out = f.updateBatch(s.gyr, s.acc, mag)['quat9D']
+    out[k:] = f.updateBatch(gyr, acc, mag)['quat9D']
     cpu = time.process_time() - c
-    return Estimate(_to_n(_xyzw(out), turn), None, cpu)
+    return Estimate(_nan_before_start(s, _to_n(_xyzw(out), turn)), None, cpu)
 
 
 # -- the shipped MEKF -----------------------------------------------------------------------
