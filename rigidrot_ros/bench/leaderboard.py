@@ -404,6 +404,17 @@ def _params_text(p, ref=None):
                      for k in keys)
 
 
+def _edge(f):
+    """Return ' (grid edge)' when a tuned value is the smallest or largest tried."""
+    for key, value in f['tuned_params'].items():
+        tried = [r['params'][key] for r in f['tuning'] if key in r['params']
+                 and isinstance(r['params'][key], (int, float))]
+        if value != f['default_params'].get(key) and tried and \
+                value in (min(tried), max(tried)):
+            return ' (grid edge)'
+    return ''
+
+
 def _nees_text(s):
     if s.get('anees') is None:
         return 'no covariance'
@@ -437,7 +448,8 @@ def _cell_table(c):
         s, d = f['tuned'], f['default']
         tag = ' **(leads)**' if lead and lead[0] == name else ''
         rows.append([
-            f['label'] + tag, f['sensors'], _params_text(f['tuned_params'], f['default_params']),
+            f['label'] + tag, f['sensors'],
+            _params_text(f['tuned_params'], f['default_params']) + _edge(f),
             common.fmt(s['rmse_deg']['incl']), common.fmt(s['rmse_deg']['head']),
             common.fmt(s['rmse_deg']['total']), common.fmt(s['p95_deg']),
             common.fmt(s['t_converge_s']), _nees_text(s),
