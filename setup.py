@@ -69,7 +69,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'attitude_node = rigidrot_ros.node.attitude_node:main',
+            'attitude_node = rigidrot_ros.ros.attitude_node:main',
             'rigidrot_echo = rigidrot_ros.tools.echo:main',
             'rigidrot_compare = rigidrot_ros.tools.compare:main',
             'rigidrot_replay = rigidrot_ros.tools.replay:main',

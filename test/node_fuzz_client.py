@@ -27,7 +27,7 @@ import rclpy
 from rclpy.parameter import parameter_value_to_python
 from std_srvs.srv import Trigger
 
-from rigidrot_ros.params import BY_NAME, PARAMS
+from rigidrot_ros.run.params import BY_NAME, PARAMS
 
 #: Changes that take effect at the next ~/reset (the sensor settings too).
 SCENE = ('inertia', 'torque', 'torque_frame', 'omega0', 'attitude0', 'tol', 'backend') + \

@@ -133,7 +133,7 @@ def attitude_node(**params):
     """Start an in-process AttitudeNode on :data:`NODE_SCENE` at 100 Hz; ``params`` override."""
     from rclpy.parameter import Parameter
 
-    from rigidrot_ros.node.attitude_node import AttitudeNode
+    from rigidrot_ros.ros.attitude_node import AttitudeNode
     values = dict(NODE_SCENE, publish_rate=100.0)
     values.update(params)
     return AttitudeNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])

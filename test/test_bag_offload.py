@@ -12,9 +12,10 @@ from mcap.reader import make_reader
 import pytest
 from rosbags.highlevel import AnyReader
 
-from rigidrot_ros.io import bag as bagmod
-from rigidrot_ros.io.bag import BagWriter, MAX_PENDING_CHUNKS, read_bag
-from rigidrot_ros.node.lookahead import BatchWorker
+from rigidrot_ros.bag import BagWriter, read_bag
+from rigidrot_ros.bag import writer as bagmod
+from rigidrot_ros.bag.metadata import MAX_PENDING_CHUNKS
+from rigidrot_ros.runtime.lookahead import BatchWorker
 
 _NEVER = 1e9                    # no flush by the clock: chunks close by size and by flush()
 

@@ -120,8 +120,8 @@ def _khz_bag(tmp_path, late_imu, missing_ticks):
     ``late_imu`` (logged 2.5 periods after their stamp)."""
     from rclpy.serialization import serialize_message
 
-    from rigidrot_ros.io import messages as msgs
-    from rigidrot_ros.io.bag import BagWriter
+    from rigidrot_ros.msgs import messages as msgs
+    from rigidrot_ros.bag import BagWriter
     w = BagWriter(str(tmp_path), 'khz')
     w.add_topic('/attitude', 'geometry_msgs/msg/QuaternionStamped')
     w.add_topic('/imu', 'sensor_msgs/msg/Imu')

@@ -5,8 +5,8 @@ import pytest
 from rclpy.serialization import serialize_message
 from rosbags.typesys import get_typestore, Stores
 
-from rigidrot_ros.io import cdr
-from rigidrot_ros.io import messages as msgs
+from rigidrot_ros.msgs import cdr
+from rigidrot_ros.msgs import messages as msgs
 
 _STORE = get_typestore(Stores.ROS2_JAZZY)
 #: frame ids of every length mod 8 (each shifts the alignment of what follows), non-ASCII,

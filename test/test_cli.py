@@ -125,7 +125,7 @@ CASES = [
 ]
 
 #: The ``module:func`` of each script that a row runs with modules blocked.
-ENTRY = {'attitude_node': 'rigidrot_ros.node.attitude_node:main',
+ENTRY = {'attitude_node': 'rigidrot_ros.ros.attitude_node:main',
          'rigidrot_echo': 'rigidrot_ros.tools.echo:main',
          'rigidrot_bench': 'rigidrot_ros.bench.run:main'}
 

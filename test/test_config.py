@@ -3,7 +3,7 @@
 import pytest
 
 from rigidrot_ros.core import solve
-from rigidrot_ros.settings import find_config, load_defaults, scene_from_params
+from rigidrot_ros.run.settings import find_config, load_defaults, scene_from_params
 
 PRESETS = {
     'default.yaml': 'axial-torque',
@@ -24,7 +24,7 @@ def test_preset_selects_its_model(name, model):
 
 
 def test_default_file_declares_every_node_parameter():
-    from rigidrot_ros.params import BY_NAME
+    from rigidrot_ros.run.params import BY_NAME
     assert set(load_defaults()) == set(BY_NAME)
 
 
@@ -65,9 +65,9 @@ def test_package_xml_declares_every_ros_package_the_code_imports():
 def test_default_yaml_and_parameters_page_are_generated_from_the_table():
     """config/default.yaml and doc/parameters.md are exactly what the table generates."""
     from pathlib import Path
-    from rigidrot_ros import params
+    from rigidrot_ros.run import params
     root = Path(__file__).resolve().parents[1]
-    fix = 'regenerate: python -m rigidrot_ros.params --yaml > config/default.yaml'
+    fix = 'regenerate: python -m rigidrot_ros.run.params --yaml > config/default.yaml'
     assert (root / 'config' / 'default.yaml').read_text(encoding='utf-8') == \
         params.yaml_text(), fix
     page = (root / 'doc' / 'parameters.md').read_text(encoding='utf-8')
@@ -79,8 +79,8 @@ def test_default_yaml_and_parameters_page_are_generated_from_the_table():
 def test_table_yaml_help_and_page_agree_on_every_parameter():
     """Each name, default, range and 'applies' appears where it should, read back."""
     import yaml
-    from rigidrot_ros import params
-    from rigidrot_ros.node.cli import usage
+    from rigidrot_ros.run import params
+    from rigidrot_ros.ros.cli import usage
     assert load_defaults() == params.defaults()                # the YAML as ROS reads it
     raw = yaml.safe_load(params.yaml_text())['/**']['ros__parameters']
     assert raw['imu']['rate'] == 0.0 and raw['tol'] == 1e-12   # nested, typed as floats
@@ -97,7 +97,7 @@ def test_table_yaml_help_and_page_agree_on_every_parameter():
 
 def test_each_validator_names_its_parameter_and_its_rule():
     import math
-    from rigidrot_ros import params
+    from rigidrot_ros.run import params
     cases = [('publish_rate', 2e4, '[0.001, 10000] Hz'), ('publish_rate', True, 'number'),
              ('tol', 0, '[2e-14, 1] rad'), ('time_scale', math.nan, 'time_scale'),
              ('imu.rate', 5e-4, '0 (= publish_rate)'), ('qos_depth', 0, '[1, 10000]'),
@@ -120,7 +120,7 @@ def test_each_validator_names_its_parameter_and_its_rule():
 
 
 def test_the_generator_entry_point_prints_each_text(capsys):
-    from rigidrot_ros import params
+    from rigidrot_ros.run import params
     assert params.main(['--yaml']) == 0
     assert capsys.readouterr().out == params.yaml_text()
     assert params.main(['--markdown']) == 0

@@ -68,6 +68,6 @@ def test_sphinx_build_has_no_warnings(tmp_path):
     assert 'EST_PID' in recording, 'the README estimator loop is not in recording.html'
     api = (tmp_path / 'html' / 'api.html').read_text(encoding='utf-8')
     for name in ('rigidrot_ros.core.solve', 'rigidrot_ros.core.Scene',
-                 'rigidrot_ros.sensors.Gyro', 'rigidrot_ros.settings.scene_from_params',
-                 'rigidrot_ros.io.score'):
+                 'rigidrot_ros.sensors.Gyro', 'rigidrot_ros.run.settings.scene_from_params',
+                 'rigidrot_ros.scoring.score'):
         assert f'id="{name}' in api, f'the API page does not document {name}'

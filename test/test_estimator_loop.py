@@ -23,9 +23,9 @@ from rosbags.highlevel import AnyReader
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
+from rigidrot_ros.bag import read_bag
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.io.bag import read_bag
-from rigidrot_ros.io.score import anees_bounds, extract_streams
+from rigidrot_ros.scoring.score import anees_bounds, extract_streams
 from ros_helpers import next_domain_id, ros_env, script, start, stop
 
 pytestmark = pytest.mark.ros

@@ -13,7 +13,7 @@ from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import get_typestore, Stores
 
-from rigidrot_ros.io.generate import generate_bag, GenerationError, iter_run
+from rigidrot_ros.run.generate import generate_bag, GenerationError, iter_run
 from ros_helpers import next_domain_id, ros_env, script, start, stop, wait_for
 
 SENSORS = ['-p', 'imu.enable:=true', '-p', 'imu.rate:=200.0', '-p', 'imu.seed:=11',
@@ -72,7 +72,7 @@ def _payloads(bag):
 
 
 def _values(args):
-    from rigidrot_ros.io.generate import parse_override
+    from rigidrot_ros.run.generate import parse_override
     return dict(parse_override(a) for a in args[1::2])
 
 
@@ -240,7 +240,7 @@ def _bag_bytes(path):
 
 def test_write_many_writes_the_bytes_of_write_one_by_one(tmp_path):
     """BagWriter.write_many (the generator's writer) against write: the same .mcap file."""
-    from rigidrot_ros.io.bag import BagWriter
+    from rigidrot_ros.bag import BagWriter
     rng = np.random.default_rng(5)
     topics = ['/a', '/b', '/c']
     n = 700
@@ -278,8 +278,8 @@ def test_write_many_writes_the_bytes_of_write_one_by_one(tmp_path):
 
 def test_vectorised_stamps_are_the_node_grid():
     """io.generate._stamps (numpy) against node.grid.stamp_ns (Python ints), index by index."""
-    from rigidrot_ros.io.generate import _stamps
-    from rigidrot_ros.node import grid
+    from rigidrot_ros.run.generate import _stamps
+    from rigidrot_ros.run import grid
     rng = np.random.default_rng(3)
     for rate in [1000.0, 100.0, 10.0, 3.0, 7.3, 333.3, 999.9999] + list(rng.uniform(1, 2000, 5)):
         for origin in (0, 1_795_552_911_119_937_992):
@@ -291,7 +291,7 @@ def test_vectorised_stamps_are_the_node_grid():
 
 def test_the_helper_process_gives_the_same_bag(tmp_path, monkeypatch):
     """Attitudes evaluated ahead in a second process: the same .mcap, byte for byte."""
-    from rigidrot_ros.io import generate as gen
+    from rigidrot_ros.run import generate as gen
     values = _values(SENSORS + ['-p', 'imu.rate:=1000.0'] + ACCEL_MAG)
     used = []
     block = gen._Run.block

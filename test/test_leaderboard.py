@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 from rigidrot_ros.bench import leaderboard as lb
 from rigidrot_ros.campaign.metrics import split_error, time_to_converge
 from rigidrot_ros.estimators import thirdparty
-from rigidrot_ros.io.generate import iter_run, run_arrays
+from rigidrot_ros.run.generate import iter_run, run_arrays
 
 pytest.importorskip('ahrs')
 pytest.importorskip('imufusion')

@@ -8,11 +8,10 @@ import pytest
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.node.lookahead import AHEAD_MAX, AHEAD_MIN, AMORTIZE, BATCH_BUDGET_S
-from rigidrot_ros.node.lookahead import BatchWorker, WORKER_AHEAD_S
-from rigidrot_ros.node.lookahead import LATE_SHARE, Lookahead, PERIOD_SHARE, SensorAhead
-from rigidrot_ros.node.lookahead import SlackGate
-from rigidrot_ros.node.lookahead import STRIKES, WARMUP_S, WORKER_BATCH, WORKER_BUDGET_S
+from rigidrot_ros.runtime.lookahead import (AHEAD_MAX, AHEAD_MIN, AMORTIZE, BATCH_BUDGET_S,
+                                            BatchWorker, LATE_SHARE, Lookahead, PERIOD_SHARE,
+                                            SensorAhead, SlackGate, STRIKES, WARMUP_S,
+                                            WORKER_AHEAD_S, WORKER_BATCH, WORKER_BUDGET_S)
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
 PERIOD = 0.01
@@ -636,7 +635,7 @@ def test_a_gate_turned_off_never_closes():
 
 
 def test_the_deadline_leaves_a_guard_and_short_periods_are_never_gated():
-    from rigidrot_ros.node.lookahead import GATE_GUARD_S, GATE_MIN_PERIOD_S
+    from rigidrot_ros.runtime.lookahead import GATE_GUARD_S, GATE_MIN_PERIOD_S
     gate = SlackGate(on=True)
     ms = 10**6
     assert gate.deadline_ns(50 * ms, 10 * ms) == 50 * ms - round(GATE_GUARD_S * 1e9)

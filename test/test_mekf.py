@@ -11,8 +11,8 @@ import pytest
 from rigidrot_ros.core import Scene, solve
 from rigidrot_ros.estimators.mekf import make, MEKF, MekfParams
 from rigidrot_ros.estimators.mekf_node import StampOrder
-from rigidrot_ros.io.generate import iter_run
-from rigidrot_ros.io.score import anees_bounds, nees, rotation_error
+from rigidrot_ros.run.generate import iter_run
+from rigidrot_ros.scoring.score import anees_bounds, nees, rotation_error
 
 SIGMA_V, SIGMA_U = 1.7e-4, 2.0e-5
 

@@ -13,7 +13,7 @@ from rclpy.serialization import serialize_message
 from rosbags.typesys import get_typestore, Stores
 
 from rigidrot_ros.core import quaternion as quat
-from rigidrot_ros.io import messages as msgs
+from rigidrot_ros.msgs import messages as msgs
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 Q = np.array([0.1, -0.2, 0.3, 0.9]) / np.linalg.norm([0.1, -0.2, 0.3, 0.9])

@@ -14,7 +14,7 @@ from std_srvs.srv import Trigger
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.node.attitude_node import SceneError
+from rigidrot_ros.ros.attitude_node import SceneError
 from ros_helpers import attitude_node, NODE_SCENE, spin_until, stamp_ns
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]

@@ -17,11 +17,10 @@ from rclpy.parameter import Parameter
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import Imu, MagneticField
 
-from rigidrot_ros import params, settings
-from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.node import grid
-from rigidrot_ros.node.attitude_node import SceneError
-from rigidrot_ros.node.streams import ImuStream, MagStream, make_streams, scene_time
+from rigidrot_ros.msgs import messages as msgs
+from rigidrot_ros.ros.attitude_node import SceneError
+from rigidrot_ros.run import grid, params, settings
+from rigidrot_ros.run.streams import ImuStream, MagStream, make_streams, scene_time
 from rigidrot_ros.sensors import Gyro, GyroNoise
 from ros_helpers import attitude_node, node_and_listener, NODE_SCENE, spin_until, stamp_ns
 

@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from rigidrot_ros.bag import read_bag
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.io.bag import read_bag
-from rigidrot_ros.io.score import extract_streams
-from rigidrot_ros.settings import find_config
+from rigidrot_ros.run.settings import find_config
+from rigidrot_ros.scoring.score import extract_streams
 from ros_helpers import next_domain_id, ros_env, script, start, stop
 
 pytestmark = pytest.mark.ros

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from rigidrot_ros.node import grid
+from rigidrot_ros.run import grid
 
 
 def test_index_is_the_last_stamp_at_or_before_now_for_awkward_rates():
@@ -71,8 +71,8 @@ def test_due_truth_ticks_a_late_call_a_clock_jump_and_a_clock_that_went_back():
 def test_a_run_is_set_up_and_sampled_without_a_node():
     """prepare_run -> sensor streams -> messages and the run description, no rclpy node."""
     import pytest
-    from rigidrot_ros import params, settings
-    from rigidrot_ros.node import outputs, streams
+    from rigidrot_ros.run import params, settings
+    from rigidrot_ros.run import outputs, streams
     values = params.defaults()
     values.update({'imu.enable': True, 'star_tracker.enable': True, 'imu.rate': 200.0})
     setup = settings.prepare_run(values)

@@ -91,9 +91,9 @@ def test_the_cycle_finder_finds_a_circle_through_a_function_level_import(tmp_pat
          'rigidrot_ros.c': {'rigidrot_ros.a'}}
     assert _cycles(g) == [['rigidrot_ros.a', 'rigidrot_ros.b']]
     pkg = tmp_path / 'x.py'
-    pkg.write_text('def f():\n    from rigidrot_ros.node import grid\n')
-    mods = {'rigidrot_ros.x': pkg, 'rigidrot_ros.node.grid': ROOT / PKG / 'node' / 'grid.py'}
-    assert _graph(mods)['rigidrot_ros.x'] == {'rigidrot_ros.node.grid'}
+    pkg.write_text('def f():\n    from rigidrot_ros.run import grid\n')
+    mods = {'rigidrot_ros.x': pkg, 'rigidrot_ros.run.grid': ROOT / PKG / 'run' / 'grid.py'}
+    assert _graph(mods)['rigidrot_ros.x'] == {'rigidrot_ros.run.grid'}
 
 
 #: Circles that other branches of issue 17 remove (a merged fix drops its entry here):
@@ -110,7 +110,7 @@ def test_no_import_circle_but_the_known_ones():
 
 def test_node_params_and_settings_are_in_no_circle():
     """The parts this branch owns are in no circle, known or not."""
-    ours = ('rigidrot_ros.node', 'rigidrot_ros.params', 'rigidrot_ros.settings')
+    ours = ('rigidrot_ros.run', 'rigidrot_ros.runtime', 'rigidrot_ros.ros')
     cycles = _cycles(_graph(_modules()))
     assert [c for c in cycles if any(m.startswith(ours) for m in c)] == []
 
@@ -120,13 +120,78 @@ def test_the_table_settings_and_the_node_parts_import_without_rclpy():
     grid, the sensor streams, the run description and the diagnostics; and the node's
     parts that are not ROS wiring: the look-ahead, the scheduler, the sensor on its schedule."""
     code = ('import sys\n'
-            'import rigidrot_ros.params, rigidrot_ros.settings\n'
-            'import rigidrot_ros.node.grid, rigidrot_ros.node.streams\n'
-            'import rigidrot_ros.node.outputs, rigidrot_ros.node.diagnostics\n'
-            'import rigidrot_ros.node.lookahead, rigidrot_ros.node.scheduler\n'
-            'import rigidrot_ros.node.sensor_ahead\n'
+            'import rigidrot_ros.run.params, rigidrot_ros.run.settings\n'
+            'import rigidrot_ros.run.grid, rigidrot_ros.run.streams\n'
+            'import rigidrot_ros.run.outputs, rigidrot_ros.runtime.diagnostics\n'
+            'import rigidrot_ros.runtime.lookahead, rigidrot_ros.run.scheduler\n'
+            'import rigidrot_ros.run.sensor_ahead\n'
             "bad = sorted(m for m in sys.modules if m.split('.')[0] == 'rclpy')\n"
             'assert not bad, bad\n')
     res = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          cwd=ROOT, timeout=120)
     assert res.returncode == 0, res.stderr[-2000:]
+
+
+#: The packages from the ground up: a package may import its own floor and those below it.
+#: core and runtime depend on nothing of ours; sensors and msgs on the core; bag on msgs;
+#: run (parameters, schedule, streams, generation) on all of those; scoring on the bag and
+#: the run; ros is the one rclpy layer; campaigns, estimators, tools and benchmarks on top.
+FLOORS = {
+    'core': 1, 'runtime': 1,
+    'sensors': 2, 'msgs': 2,
+    'bag': 3,
+    'run': 4,
+    'scoring': 5,
+    'ros': 6,
+    'campaign': 7,
+    'estimators': 8, 'view': 8, 'tools': 8,
+    'bench': 9,
+}
+
+
+def _package_edges():
+    """Return {(package, package)} of the imports between packages (top-level modules alone)."""
+    edges = set()
+    for mod, deps in _graph(_modules()).items():
+        a = mod.split('.')[1] if mod.count('.') else ''
+        for d in deps:
+            b = d.split('.')[1] if d.count('.') else ''
+            if a and b and a != b:
+                edges.add((a, b))
+    return edges
+
+
+def test_every_package_has_a_floor():
+    packages = {p.name for p in (ROOT / PKG).iterdir()
+                if p.is_dir() and (p / '__init__.py').exists()}
+    assert packages - set(FLOORS) == set(), 'give a new package its floor in FLOORS'
+
+
+def test_no_package_imports_one_above_it():
+    up = sorted((a, b) for a, b in _package_edges() if FLOORS[b] > FLOORS[a])
+    assert up == [], f'imports that run up the floors: {up}'
+
+
+def test_no_circle_between_packages():
+    graph = {p: set() for p in FLOORS}
+    for a, b in _package_edges():
+        graph[a].add(b)
+    assert _cycles(graph) == []
+
+
+def test_rclpy_is_imported_only_in_the_ros_layer_and_the_mains():
+    """rclpy (any import, module or function level) only in ``ros``, the thin mains of
+    ``tools``/``estimators``/``view`` and the benchmark parts that drive a node."""
+    allowed = ('ros', 'tools', 'bench', 'view', 'estimators', 'campaign')
+    #: serialize_message for the variable-size messages (~/run, markers) of generation.
+    known = ['rigidrot_ros.run.generate']
+    found = []
+    for mod, path in _modules().items():
+        tree = ast.parse(path.read_text(encoding='utf-8'))
+        for node in ast.walk(tree):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ''] if isinstance(node, ast.ImportFrom) else [])
+            if any(n.split('.')[0] == 'rclpy' for n in names):
+                if mod.split('.')[1] not in allowed:
+                    found.append(mod)
+    assert sorted(set(found)) == known

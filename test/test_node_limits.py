@@ -8,7 +8,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
-from rigidrot_ros.node.attitude_node import AttitudeNode
+from rigidrot_ros.ros.attitude_node import AttitudeNode
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]
 
@@ -103,7 +103,7 @@ def test_extreme_values_are_refused_or_published_sound(params, word):
 
 def test_a_failing_solver_is_a_refusal_not_a_crash(monkeypatch):
     """Whatever solve() raises (here ZeroDivisionError) reaches the caller as a reason."""
-    import rigidrot_ros.settings as mod
+    import rigidrot_ros.run.settings as mod
     node = AttitudeNode()
 
     def broken(*a, **k):
@@ -119,7 +119,7 @@ def test_a_failing_solver_is_a_refusal_not_a_crash(monkeypatch):
 
 def test_a_scene_too_slow_to_evaluate_is_refused(monkeypatch):
     """A first sample over the limit is refused with its cost, and the scene is unchanged."""
-    import rigidrot_ros.settings as mod
+    import rigidrot_ros.run.settings as mod
     node = AttitudeNode()
     monkeypatch.setattr(mod, 'TRIAL_LIMIT_S', 0.0)       # every sample is "too slow"
     try:

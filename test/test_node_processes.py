@@ -168,7 +168,7 @@ def test_bad_override_at_start_up_exits_2_with_one_line(overrides, words):
 QUIET_SIGINT = textwrap.dedent('''
     import os, signal, sys, time
     import rclpy
-    from rigidrot_ros.node.spin import init_ros
+    from rigidrot_ros.ros.spin import init_ros
     assert init_ros('probe', []) is None
     os.kill(os.getpid(), signal.SIGINT)             # rclpy shuts down, nothing is raised
     deadline = time.monotonic() + 10

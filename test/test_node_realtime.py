@@ -9,7 +9,7 @@ import textwrap
 
 import pytest
 
-from rigidrot_ros.node import collector, realtime
+from rigidrot_ros.runtime import collector, realtime
 from ros_helpers import next_domain_id, ros_env, script
 
 
@@ -41,7 +41,7 @@ def test_off_leaves_the_policy_and_a_refusal_is_one_line(monkeypatch):
 
 _CHILD = textwrap.dedent('''
     import json, os, threading
-    from rigidrot_ros.node import realtime
+    from rigidrot_ros.runtime import realtime
     ok, text = realtime.request(7)
     seen = {}
     t = threading.Thread(target=lambda: seen.update(thread=realtime.describe()))

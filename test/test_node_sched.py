@@ -19,9 +19,9 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from rigidrot_ros import params
-from rigidrot_ros.node import diagnostics, grid, scheduler
-from rigidrot_ros.node.scheduler import timer_period_ns, Timing, Track
+from rigidrot_ros.run import grid, params, scheduler
+from rigidrot_ros.run.scheduler import timer_period_ns, Timing, Track
+from rigidrot_ros.runtime import diagnostics
 from ros_helpers import attitude_node, spin_until, stamp_ns
 
 # -- the schedule without ROS ---------------------------------------------------------------

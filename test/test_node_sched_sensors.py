@@ -1,7 +1,7 @@
 """Accelerometer and magnetometer through the node's look-ahead, with the timing models.
 
 Oracle: the streams' own per-sample path (:meth:`ImuStream.messages`,
-:meth:`MagStream.messages`, messages built one by one by :mod:`rigidrot_ros.io.messages`
+:meth:`MagStream.messages`, messages built one by one by :mod:`rigidrot_ros.msgs.messages`
 and serialized by rclpy), on a fresh run set-up from the same parameters. The node's
 messages (read in blocks, serialized by the vectorised CDR writer, published as bytes)
 must equal them field for field, every sample once and in order; the magnetometer's
@@ -14,12 +14,11 @@ import numpy as np
 import pytest
 from sensor_msgs.msg import Imu, MagneticField
 
-from rigidrot_ros import params, settings
-from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.node import grid, outputs
-from rigidrot_ros.node.lookahead import AHEAD_MIN
-from rigidrot_ros.node.scheduler import timing_of, Track
-from rigidrot_ros.node.streams import make_streams
+from rigidrot_ros.msgs import messages as msgs
+from rigidrot_ros.run import grid, outputs, params, settings
+from rigidrot_ros.run.scheduler import timing_of, Track
+from rigidrot_ros.run.streams import make_streams
+from rigidrot_ros.runtime.lookahead import AHEAD_MIN
 from ros_helpers import node_and_listener, NODE_SCENE, spin_until, stamp_ns
 
 IMU_RATE, MAG_RATE = 200.0, 50.0

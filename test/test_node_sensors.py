@@ -20,7 +20,7 @@ from sensor_msgs.msg import Imu
 from visualization_msgs.msg import Marker, MarkerArray
 
 from rigidrot_ros.core import quaternion as quat
-from rigidrot_ros.node.attitude_node import SceneError
+from rigidrot_ros.ros.attitude_node import SceneError
 from rigidrot_ros.sensors import ARCSEC, rotvec_from_quaternion
 from ros_helpers import (
     attitude_node, next_domain_id, NODE_SCENE, ros_env, script, spin_until, stamp_ns, start, stop,
@@ -279,8 +279,8 @@ def test_unknown_override_is_named_not_dropped_in_silence():
 
 def test_a_clock_jump_restarts_the_sensor_grid_and_is_counted():
     """5 s of backlog at 100 Hz: the stream jumps to the newest sample, 499 counted."""
-    from rigidrot_ros.node.diagnostics import Counters
-    from rigidrot_ros.node.streams import ImuStream
+    from rigidrot_ros.runtime.diagnostics import Counters
+    from rigidrot_ros.run.streams import ImuStream
     node = _node(**{'imu.enable': True, 'imu.rate': 100.0})
     stream = node._streams[0]
     assert isinstance(stream, ImuStream) and stream.last == 0
@@ -374,7 +374,7 @@ def test_a_gyro_interval_too_long_to_integrate_is_refused():
 
 def test_an_infinite_gyro_bound_is_refused_and_the_bound_is_per_run(monkeypatch):
     """omega0 = [1e300, ...] gives an infinite increment bound: refused with the imu on."""
-    import rigidrot_ros.settings as mod
+    import rigidrot_ros.run.settings as mod
     monkeypatch.setattr(mod, 'SAMPLE_BUDGET_S', 10.0)     # let the quadrature end (bound = inf)
     node = _node(**{'imu.enable': True, 'time_scale': 1.0})
     huge = {**AXIAL, 'omega0': [1e300, -0.2, 0.5]}     # the truth itself is sound

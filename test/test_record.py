@@ -14,7 +14,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 import yaml
 
-from rigidrot_ros.io.bag import BagWriter, read_bag
+from rigidrot_ros.bag import BagWriter, read_bag
 from ros_helpers import next_domain_id, ros_env, script, start, stop, wait_for
 
 pytestmark = pytest.mark.ros
@@ -205,7 +205,7 @@ def test_compare_scores_a_perturbed_estimator(tmp_path, typed):
     volatile message sent before the match is lost to every recorder), and every answer
     from the first is in the bag; the node's log says when its subscription matched.
     """
-    from rigidrot_ros.io.score import extract_streams
+    from rigidrot_ros.scoring.score import extract_streams
     env = ros_env(next_domain_id())
     est = start([sys.executable, '-c', ESTIMATOR, '60'], env)
     root = tmp_path / 'runs'

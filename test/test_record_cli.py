@@ -20,7 +20,7 @@ from rosbags.highlevel import AnyReader
 from test_score import _make, _truth, _write_bag
 import yaml
 
-from rigidrot_ros.io.bag import read_bag
+from rigidrot_ros.bag import read_bag
 from ros_helpers import (
     check_as_typed, cli_command, next_domain_id, ros_env, script, start, stop, wait_for,
 )

@@ -16,10 +16,10 @@ from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import String
 
-from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.io.bag import BagWriter, read_bag
-from rigidrot_ros.io.bag_process import ProcessBagWriter
-from rigidrot_ros.io.recorder import Recorder
+from rigidrot_ros.bag import BagWriter, read_bag
+from rigidrot_ros.bag.process import ProcessBagWriter
+from rigidrot_ros.msgs import messages as msgs
+from rigidrot_ros.ros.recorder import Recorder
 from ros_helpers import (next_domain_id, node_and_listener, read_node_bag, reset_twice,
                          ros_env, script, start, stop, wait_for)
 
@@ -164,7 +164,7 @@ def test_the_child_ignores_ctrl_c_in_its_own_group_and_stops_with_the_pipe(tmp_p
 
 ORPHAN = textwrap.dedent('''
     import os, sys
-    from rigidrot_ros.io.bag_process import ProcessBagWriter
+    from rigidrot_ros.bag.process import ProcessBagWriter
     w = ProcessBagWriter(None, '', path=sys.argv[1])
     w.add_topic('/note', 'std_msgs/msg/String')
     w.write_many(['/note'] * 3, [b'\\x00\\x01\\x00\\x00\\x02\\x00\\x00\\x00a\\x00'] * 3,

@@ -5,9 +5,9 @@ import time
 
 import pytest
 
-from rigidrot_ros.io import bag as bagmod
-from rigidrot_ros.io.bag import BagWriter
-from rigidrot_ros.io.recorder import Recorder
+from rigidrot_ros.bag import BagWriter, read_bag
+from rigidrot_ros.bag import writer as bagmod
+from rigidrot_ros.ros.recorder import Recorder
 
 from ros_helpers import node_and_listener, read_node_bag, reset_twice  # noqa: I100, I201
 from test_bag_offload import _Disk, _Thread  # noqa: I100, I201 - test modules beside it
@@ -114,7 +114,7 @@ def test_a_disk_error_of_an_offloaded_chunk_stops_the_recording_with_one_event(t
         worker.stop()
         node.destroy_node()
     # what was written before the error is in the file (no summary: read as torn)
-    got = bagmod.read_bag(writer.path)
+    got = read_bag(writer.path)
     assert [m[2] for m in got.messages] == [t for t, _ in calls[:20] for _ in range(2)]
 
 
@@ -153,4 +153,4 @@ def test_the_node_at_1_khz_writes_its_chunks_in_its_worker(tmp_path, monkeypatch
     assert logs == sorted(logs)
     assert all(b > a for a, b in zip(imu, imu[1:]))         # every sample, in order
     assert runs == 3                                        # start-up and two resets
-    assert len(bagmod.read_bag(writer.path).runs) == 3
+    assert len(read_bag(writer.path).runs) == 3

@@ -29,9 +29,9 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 import yaml
 
+from rigidrot_ros.bag import BagError, BagWriter, read_bag
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.io.bag import BagError, BagWriter, read_bag
-from rigidrot_ros.io.score import (
+from rigidrot_ros.scoring.score import (
     anees_bounds, extract_streams, score_against_runs, score_against_stream, ScoreError,
 )
 from rigidrot_ros.tools import compare
@@ -559,7 +559,7 @@ def test_truth_log_reference_is_a_truth_topic_and_gaps_are_skipped(tmp_path):
 
 def test_reindex_a_torn_split_bag(tmp_path):
     """A split bag whose last file was cut off (the writer killed) is finished whole."""
-    from rigidrot_ros.io.bag import reindex
+    from rigidrot_ros.bag import reindex
     w = BagWriter(str(tmp_path), 'torn', flush_period=1e9, split_seconds=1e-9)
     w.add_topic('/attitude_node/run', 'std_msgs/msg/String')
     w.add_topic('/a', 'std_msgs/msg/String')
@@ -588,8 +588,8 @@ def test_reindex_a_torn_split_bag(tmp_path):
 def test_a_channel_without_schema_is_skipped_with_a_note(tmp_path):
     """Schema id 0 is legal MCAP: read, compare and reindex skip that channel and say so."""
     from mcap.writer import Writer
-    from rigidrot_ros.io.bag import reindex
-    from rigidrot_ros.io.msgdefs import schema_text
+    from rigidrot_ros.bag import reindex
+    from rigidrot_ros.msgs.msgdefs import schema_text
     n = 50
     _, stamps, q, _ = _truth(n)
     path = tmp_path / 'mixed.mcap'
@@ -630,7 +630,7 @@ def test_a_channel_without_schema_is_skipped_with_a_note(tmp_path):
 
 def test_reindex_never_merges_a_foreign_mcap(tmp_path):
     """An unlisted .mcap in a bag directory is another bag's, not part of this one."""
-    from rigidrot_ros.io.bag import reindex
+    from rigidrot_ros.bag import reindex
     bag = _simple_bag(tmp_path, 'own', START, 30)
     other = _simple_bag(tmp_path, 'other', START, 20)
     shutil.copy(next(other.glob('*.mcap')), bag / 'other.mcap')
@@ -657,7 +657,7 @@ def test_reindex_never_merges_a_foreign_mcap(tmp_path):
 
 def _timed_score(tmp_path, name, timing):
     """Score a generated run of ideal sensors with the given timing parameters."""
-    from rigidrot_ros.io.generate import generate_bag
+    from rigidrot_ros.run.generate import generate_bag
     values = {'imu.enable': True, 'imu.rate': 100.0, 'imu.gyro_noise_density': 0.0,
               'imu.gyro_random_walk': 0.0, 'star_tracker.enable': True,
               'star_tracker.cross_boresight_arcsec': 0.0,

@@ -6,7 +6,7 @@ import pytest
 from rclpy.serialization import serialize_message
 from rosbags.typesys import get_typestore, Stores
 
-from rigidrot_ros.io import messages
+from rigidrot_ros.msgs import messages
 
 
 def test_imu_without_accelerometer_is_as_before():

@@ -256,7 +256,7 @@ def batch_memory(sol, t):
 
 def ratio_scenes():
     """Return the preset scenes (config/*.yaml) and the spacecraft scene, by name."""
-    from rigidrot_ros import settings
+    from rigidrot_ros.run import settings
     folder = os.path.dirname(settings.find_config('default.yaml'))
     out = {}
     for name in sorted(os.listdir(folder)):

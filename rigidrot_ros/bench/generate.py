@@ -5,7 +5,7 @@
 with 100 Hz truth, a 1 kHz gyro with both increments and a 10 Hz star tracker) for S scene
 seconds (default 3600, 20 with ``--quick``) in a child process, and reports its wall
 time, the speed-up over real time and the child's peak RSS; the same loop's stages in
-this process; the serialization cost per message of :mod:`rigidrot_ros.io.cdr` against
+this process; the serialization cost per message of :mod:`rigidrot_ros.msgs.cdr` against
 ``rclpy.serialization.serialize_message`` (message building included for the latter, as
 the node pays it); and the gyro's and accelerometer's cost per sample, read one interval
 at a time and in a block. :func:`render_md` turns the results into ``OUT/generate.md``
@@ -68,8 +68,8 @@ def _stages(duration, log):
     attitudes at the ends, the error model), the star tracker, serialization
     (:mod:`io.cdr`), merge order and the MCAP writer (``BagWriter.write_many``).
     """
-    from rigidrot_ros.io import generate as gen
-    from rigidrot_ros.io.bag import BagWriter
+    from rigidrot_ros.run import generate as gen
+    from rigidrot_ros.bag import BagWriter
     values = dict(gen.parse_override(s) for s in SCENE)
     spent = dict.fromkeys(('set-up', 'truth', 'gyro', 'star tracker', 'serialize',
                            'order', 'write'), 0.0)
@@ -127,8 +127,8 @@ def _stages(duration, log):
 def _serialize_costs(n, log):
     from rclpy.serialization import serialize_message
 
-    from rigidrot_ros.io import cdr
-    from rigidrot_ros.io import messages as msgs
+    from rigidrot_ros.msgs import cdr
+    from rigidrot_ros.msgs import messages as msgs
     rng = np.random.default_rng(0)
     stamps = np.arange(n, dtype=np.int64) * 10_000_000 + 1_700_000_000_000_000_000
     q, w, var = rng.standard_normal((n, 4)), rng.standard_normal((n, 3)), rng.random(n)
@@ -170,7 +170,7 @@ def _sensor_costs(quick, log):
     (``n_single`` intervals), then ``read_many`` over ``n_block`` intervals, each on a
     fresh sensor, the truth evaluated over the span first (so the figure is the sensor's).
     """
-    from rigidrot_ros import params, settings
+    from rigidrot_ros.run import params, settings
     from rigidrot_ros.sensors import Accelerometer, Gyro
     sol = settings.build_solution(params.defaults())
     n_single, n_block = (100, 300) if quick else (300, 1000)

@@ -6,7 +6,7 @@ gravity (:data:`MOTIONS`, expressed in the node's parameters over
 ``config/air_bearing.yaml``). Per cell, runs are drawn as a Monte Carlo campaign draws them
 (:func:`rigidrot_ros.campaign.spec.draw_run`: attitude uniform on SO(3), dispersed rates
 and inertia, sensor seeds per run) and generated in memory
-(:func:`rigidrot_ros.io.generate.run_arrays`). Every filter of
+(:func:`rigidrot_ros.run.generate.run_arrays`). Every filter of
 :mod:`rigidrot_ros.estimators.thirdparty` is tuned on training runs (its grid, lowest
 total RMSE) and scored on held-out runs of other seeds with its tuned parameters and with
 its defaults: inclination and heading RMSE (BROAD's split, :mod:`rigidrot_ros.campaign.
@@ -147,7 +147,7 @@ def grade_values(grade):
 
 def cell_values(grade, motion):
     """Return the node parameter values of a cell (before its dispersions)."""
-    from rigidrot_ros import settings
+    from rigidrot_ros.run import settings
     values = settings.load_defaults(settings.find_config('air_bearing.yaml'))
     values.update(SENSOR_OVERRIDES)
     values.update(grade_values(grade))
@@ -171,7 +171,7 @@ def sensor_runs(spec, count, duration):
     """Generate ``count`` runs of ``spec`` in memory: a list of SensorRun (and values)."""
     from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, run_values
     from rigidrot_ros.estimators.thirdparty import SensorRun
-    from rigidrot_ros.io.generate import GenerationError, run_arrays
+    from rigidrot_ros.run.generate import GenerationError, run_arrays
     out = []
     for i in range(count):
         draws, _ = draw_run(spec, i)

@@ -14,7 +14,7 @@ From the recorded bag (read with rosbags):
 - **late gyro samples**: ``/imu`` samples of the span whose log time is more than one gyro
   period after their header stamp. The node's recorder logs a message at the clock time
   its callback read before building and publishing it (``record_published(now_ns, ...)``
-  in :mod:`rigidrot_ros.io.recorder`), so this delay is a lower bound of the publication
+  in :mod:`rigidrot_ros.ros.recorder`), so this delay is a lower bound of the publication
   delay: it counts the callback's wake-up, not the building that follows;
 - gyro samples absent from the bag (skipped by the node) in the span.
 
@@ -25,10 +25,10 @@ warm-up, and ``lookahead`` over the whole run (on throughout, or when and why it
 off); where the time went: ``call_max_us`` (median and worst window of the longest
 scheduler call, from its due time to its end) with the worst window's phases
 (``call_max_phases``: wake-up, collect, publish, record, batch, diag, gc; see
-:mod:`rigidrot_ros.node.diagnostics`), and the garbage collector's passes
+:mod:`rigidrot_ros.runtime.diagnostics`), and the garbage collector's passes
 (``gc_collections``, summed per generation) and longest pass (``gc_max_us``); the node's
 scheduling policy (``scheduling``: ``SCHED_FIFO <priority>`` where the system let it have
-one, else ``SCHED_OTHER``; see :mod:`rigidrot_ros.node.realtime`). A key the installed node
+one, else ``SCHED_OTHER``; see :mod:`rigidrot_ros.runtime.realtime`). A key the installed node
 does not report reads "n/a".
 
 Targets (issue 20): at 1 kHz 0 missed ticks and 0 late gyro samples after warm-up with

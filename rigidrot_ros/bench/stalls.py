@@ -3,7 +3,7 @@
 A late sample has two possible causes: the node (its calls, its worker, its collector) or
 the machine, which stops every process for a while (the hypervisor of a virtual machine,
 the kernel). The probe tells them apart. It runs in a process of its own, on
-``SCHED_FIFO`` at :data:`PRIORITY` (above the node's 10, :mod:`rigidrot_ros.node.realtime`)
+``SCHED_FIFO`` at :data:`PRIORITY` (above the node's 10, :mod:`rigidrot_ros.runtime.realtime`)
 where the system allows it, sleeps to an absolute grid of :data:`PERIOD_S` and notes each
 wake-up more than :data:`THRESHOLD_S` after its due time: nothing of the node can hold it
 back, so such a wait is the machine's. Measured on the 2-core VM with nothing else running:

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from rigidrot_ros.io.score import anees_bounds
+from rigidrot_ros.scoring.score import anees_bounds
 
 __all__ = ['aggregate', 'CSV_FIELDS', 'csv_rows']
 

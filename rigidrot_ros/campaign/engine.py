@@ -119,11 +119,19 @@ def _save_run(out_dir, result):
                                                 'series': result['series']}))
 
 
+def _job(spec):
+    """Return the worker's function: one estimator's run, or several on the same run."""
+    if 'estimators' in spec:
+        from rigidrot_ros.campaign.multi import run_one_multi
+        return run_one_multi
+    return run_one
+
+
 def _pool(spec, todo, bag_root, workers):
     ctx = multiprocessing.get_context('spawn')
     ex = cf.ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, mp_context=ctx)
     try:
-        futs = [ex.submit(run_one, spec, i, bag_root) for i in todo]
+        futs = [ex.submit(_job(spec), spec, i, bag_root) for i in todo]
         for f in cf.as_completed(futs):
             yield f.result()
     except BaseException:
@@ -147,7 +155,7 @@ def _dask(spec, todo, bag_root, workers, scheduler):
                                dashboard_address=':0', host='127.0.0.1')
         client = Client(cluster)
     try:
-        futs = [client.submit(run_one, spec, i, bag_root, pure=False, key=f'run-{i}')
+        futs = [client.submit(_job(spec), spec, i, bag_root, pure=False, key=f'run-{i}')
                 for i in todo]
         for f in as_completed(futs):
             yield f.result()
@@ -201,7 +209,7 @@ def finish(spec, out_dir):
             results.append(json.load(fh))
     if 'estimators' in spec:                # several on the same runs
         from rigidrot_ros.campaign.multi import finish_multi
-        return finish_multi(spec, out_dir, results)
+        return finish_multi(spec, out_dir, results, write_atomic, _dumps)
     report = aggregate(results, spec)
     write_atomic(os.path.join(out_dir, 'report.json'), _dumps(report))
     header, rows = csv_rows(results)

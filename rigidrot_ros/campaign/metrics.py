@@ -2,7 +2,7 @@
 
 Quaternions (x, y, z, w), ``q_NB``; N has its z axis up (against gravity).
 
-- **Total error**: the angle of ``q_true^-1 ⊗ q_est`` (:func:`rigidrot_ros.io.score.
+- **Total error**: the angle of ``q_true^-1 ⊗ q_est`` (:func:`rigidrot_ros.scoring.score.
   rotation_error`, the scorer's body-frame error ``e``).
 - **Inclination and heading** (the split of BROAD, Laidig et al., *Data* 6(7):72, 2021):
   the error rotation in N, ``q_d = q_est ⊗ q_true^-1``, is written ``q_d = q_s ⊗ q_t``
@@ -11,7 +11,7 @@ Quaternions (x, y, z, w), ``q_NB``; N has its z axis up (against gravity).
   the true and the estimated vertical seen in B). ``cos(theta/2) = cos(alpha/2) cos(psi/2)``
   ties them to the total angle theta.
 - **NEES** ``e^T P^-1 e`` with ``P`` the body rotation-vector covariance (the scorer's
-  :func:`rigidrot_ros.io.score.nees`).
+  :func:`rigidrot_ros.scoring.score.nees`).
 - **Time to converge**: the first time after which the error, RMS over the runs at each
   step, stays at or below :data:`CONVERGED` times its own RMS over the scored window.
 """
@@ -53,7 +53,7 @@ def run_errors(q_true, q_est, P=None):
 
     ``nees`` is None without a covariance; NaN where the estimate is missing.
     """
-    from rigidrot_ros.io.score import nees, rotation_error
+    from rigidrot_ros.scoring.score import nees, rotation_error
     q_true, q_est = np.asarray(q_true, float), np.asarray(q_est, float)
     ok = np.all(np.isfinite(q_est), axis=1)
     e = np.full((len(q_true), 3), np.nan)
@@ -81,7 +81,7 @@ def time_to_converge(t, rms, level, factor=CONVERGED):
 
 def mc_nees_band(m):
     """95 % band of the NEES averaged over ``m`` runs at one step: chi2(3m)/m."""
-    from rigidrot_ros.io.score import anees_bounds
+    from rigidrot_ros.scoring.score import anees_bounds
     return anees_bounds(m)
 
 
@@ -130,7 +130,7 @@ def summarise(t, errors, window_start, cpu_s=None):
     out['incl_curve_deg'] = (d * _rms_over_runs(inc)).tolist()
     out['head_curve_deg'] = (d * _rms_over_runs(hed)).tolist()
     if errors and errors[0]['nees'] is not None:
-        from rigidrot_ros.io.score import anees_bounds
+        from rigidrot_ros.scoring.score import anees_bounds
         nees = np.array([e['nees'] for e in errors])[:, win]
         good = np.isfinite(nees)
         out['anees'] = float(nees[good].mean()) if good.any() else math.nan

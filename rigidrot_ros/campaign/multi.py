@@ -12,7 +12,7 @@ A spec lists them under ``estimators:`` (each entry an ``estimator:`` mapping wi
         params: {sigma_v: 1.7e-5, sigma_u: 2.0e-5, bias_sigma: 2.0e-3}
 
 Each run is drawn and generated once: in-process estimators are all fed from one pass of
-:func:`rigidrot_ros.io.generate.iter_run`; with a ROS program among them the run's bag is
+:func:`rigidrot_ros.run.generate.iter_run`; with a ROS program among them the run's bag is
 generated once, replayed to each program in turn, and the in-process ones read its
 messages. Each estimator's output is scored by the same scorer as a one-estimator
 campaign (:func:`rigidrot_ros.campaign.run.score_bag`), so its section of the report is
@@ -38,46 +38,15 @@ import traceback
 
 import numpy as np
 
-from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, load_factory, run_values, \
-    SpecError
+from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, load_factory, run_values
 
-__all__ = ['check_estimators', 'run_one_multi', 'finish_multi', 'paired', 't_ppf',
-           'comparison_md', 'summary_lines', 'aggregate_multi']
+__all__ = ['run_one_multi', 'finish_multi', 'paired', 't_ppf', 'comparison_md',
+           'summary_lines', 'aggregate_multi']
 
 _SEC = 1_000_000_000
 #: Per-run metrics compared pairwise: row key -> (name, unit).
 PAIRED = {'rms_rad': ('RMS error', 'rad'), 'anees': ('ANEES', ''),
           'p95_rad': ('p95 error', 'rad')}
-
-
-def check_estimators(items, check_one):
-    """Validate an ``estimators:`` list with ``check_one`` (the one-estimator check).
-
-    Each entry is an estimator mapping plus an optional ``label`` (default: its index);
-    labels are unique. Returns the normalised entries, each with its ``label``.
-    """
-    if not isinstance(items, list) or not items:
-        raise SpecError(f'estimators must be a non-empty list of estimator mappings, got '
-                        f'{items!r}')
-    out, seen = [], set()
-    for i, item in enumerate(items):
-        if not isinstance(item, dict):
-            raise SpecError(f'estimators[{i}] must be a mapping, got {item!r}')
-        item = dict(item)
-        label = item.pop('label', str(i))
-        if not isinstance(label, (str, int)) or isinstance(label, bool) or not str(label):
-            raise SpecError(f'estimators[{i}].label must be a non-empty string, got {label!r}')
-        label = str(label)
-        if label in seen:
-            raise SpecError(f'estimators[{i}].label {label!r} is used twice')
-        seen.add(label)
-        try:
-            est = check_one(item)
-        except SpecError as exc:
-            raise SpecError(f'estimators[{i}] ({label}): {exc}') from None
-        est['label'] = label
-        out.append(est)
-    return out
 
 
 # -- worker side ------------------------------------------------------------------------------
@@ -86,7 +55,7 @@ class _Sink:
 
     def __init__(self, est, work):
         from rigidrot_ros.campaign.run import RunFailed
-        from rigidrot_ros.io.bag import BagWriter
+        from rigidrot_ros.bag import BagWriter
         self.est, self.topic, self.failure, self.n_out = est, est['topic'], None, 0
         try:
             self.filt = load_factory(est['factory'])(dict(est['params']))
@@ -100,7 +69,7 @@ class _Sink:
     def put(self, msgs):
         from rclpy.serialization import serialize_message
 
-        from rigidrot_ros.io.recorder import type_name_of
+        from rigidrot_ros.ros.recorder import type_name_of
         for m in msgs:
             if not self.writer.has_topic(self.topic):
                 self.writer.add_topic(self.topic, type_name_of(m))
@@ -109,7 +78,7 @@ class _Sink:
             self.n_out += 1
 
     def run_message(self, msg, data, ns):
-        from rigidrot_ros.io.generate import RUN_TOPIC
+        from rigidrot_ros.run.generate import RUN_TOPIC
         self.writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String')
         self.writer.add_run(json.loads(msg.data))
         self.writer.write(RUN_TOPIC, data, ns)
@@ -142,15 +111,15 @@ class _Sink:
 
 def _messages(spec, values, bag):
     """Yield ``(topic, log_ns, msg, serialized or None)`` of the run, in log-time order."""
-    from rigidrot_ros.io.generate import iter_run
+    from rigidrot_ros.run.generate import iter_run
     if bag is None:
         for name, ns, msg in iter_run(values, spec['duration']):
             yield name, ns, msg, None
         return
     from rclpy.serialization import deserialize_message
 
-    from rigidrot_ros.io.bag import read_bag
-    from rigidrot_ros.io.recorder import msg_class
+    from rigidrot_ros.bag import read_bag
+    from rigidrot_ros.ros.recorder import msg_class
     classes = {}
     for topic, type_name, log_ns, _, data in read_bag(bag).messages:
         if type_name not in classes:
@@ -161,7 +130,7 @@ def _messages(spec, values, bag):
 def _feed(spec, values, work):
     """Run every estimator on the run: ``{label: (score, series) or RunFailed}``."""
     from rigidrot_ros.campaign import run as one
-    from rigidrot_ros.io.generate import generate_bag, RUN_TOPIC
+    from rigidrot_ros.run.generate import generate_bag, RUN_TOPIC
     ests = spec['estimators']
     results = {}
     bag = None
@@ -218,7 +187,7 @@ def run_one_multi(spec, index, bag_root=None):
     score row under ``estimators``), ``series`` (per estimator) and ``timing``.
     """
     from rigidrot_ros.campaign import run as one
-    from rigidrot_ros.io.generate import GenerationError
+    from rigidrot_ros.run.generate import GenerationError
     t0 = time.perf_counter()
     draws, redraws = draw_run(spec, index)
     row = {'run': int(index), 'status': 'ok', 'reason': '', 'redraws': redraws}
@@ -464,11 +433,13 @@ def _slug(label):
     return re.sub(r'[^A-Za-z0-9_.-]+', '_', label).strip('_.') or 'estimator'
 
 
-def finish_multi(spec, out_dir, results):
-    """Write report.json, runs.csv, comparison.md and the charts of a comparison."""
-    from rigidrot_ros.campaign.engine import _dumps, write_atomic
+def finish_multi(spec, out_dir, results, write_atomic, dumps):
+    """Write report.json, runs.csv, comparison.md and the charts of a comparison.
+
+    ``write_atomic(path, text)`` and ``dumps(obj)`` are the engine's (its file writes).
+    """
     report = aggregate_multi(results, spec)
-    write_atomic(os.path.join(out_dir, 'report.json'), _dumps(report))
+    write_atomic(os.path.join(out_dir, 'report.json'), dumps(report))
     header, rows = csv_rows_multi(results, spec)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator='\n')

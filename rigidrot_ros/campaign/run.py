@@ -8,8 +8,8 @@ client), so the same spec and seed give the same result bytes on any engine.
 
 Scoring is the project's scorer, on a bag: the estimator's messages (in process) or the
 recorder's bag (ROS) with the run's description (``~/run``), read back by
-:func:`rigidrot_ros.io.bag.read_bag` and scored by
-:func:`rigidrot_ros.io.score.score_against_runs`.
+:func:`rigidrot_ros.bag.read_bag` and scored by
+:func:`rigidrot_ros.scoring.score.score_against_runs`.
 """
 
 import contextlib
@@ -24,7 +24,7 @@ import time
 import traceback
 
 from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, load_factory, run_values
-from rigidrot_ros.io.generate import GenerationError
+from rigidrot_ros.run.generate import GenerationError
 
 __all__ = ['run_one', 'RunFailed', 'score_bag']
 
@@ -46,8 +46,8 @@ def score_bag(path, topic, runs=None):
     ``runs`` (the run descriptions of the input bag) give the truth when the bag holds
     none (a recorder that joined after the replay published ``~/run``).
     """
-    from rigidrot_ros.io.bag import BagError, read_bag
-    from rigidrot_ros.io.score import extract_streams, score_against_runs, ScoreError
+    from rigidrot_ros.bag import BagError, read_bag
+    from rigidrot_ros.scoring.score import extract_streams, score_against_runs, ScoreError
     try:
         bag = read_bag(path)
         if not bag.runs and runs:
@@ -75,9 +75,9 @@ def _inproc(spec, values, work):
     """Feed the run's messages to the factory's object; bag its answers; score them."""
     from rclpy.serialization import serialize_message
 
-    from rigidrot_ros.io.bag import BagWriter
-    from rigidrot_ros.io.generate import iter_run, RUN_TOPIC
-    from rigidrot_ros.io.recorder import type_name_of
+    from rigidrot_ros.bag import BagWriter
+    from rigidrot_ros.run.generate import iter_run, RUN_TOPIC
+    from rigidrot_ros.ros.recorder import type_name_of
     est = spec['estimator']
     topic = est['topic']
     deadline = time.monotonic() + spec['timeout']
@@ -175,11 +175,11 @@ def _tail(path, lines=40):
 
 def _ros(spec, values, work, bag=None):
     """Replay the run's bag (generated unless given) into the command; record, score it."""
-    from rigidrot_ros.io.generate import generate_bag
+    from rigidrot_ros.run.generate import generate_bag
     est = spec['estimator']
     if bag is None:
         bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
-    from rigidrot_ros.io.bag import read_bag
+    from rigidrot_ros.bag import read_bag
     contents = read_bag(bag)
     names = sorted(t for t in contents.topics
                    if t.rsplit('/', 1)[-1] in ('imu', 'star_tracker', 'run'))
@@ -267,9 +267,6 @@ def run_one(spec, index, bag_root=None):
     A failure of the estimator (crash, timeout, no output) is a result too: ``row`` has
     ``status: failed`` and the ``reason``, and ``log`` the details.
     """
-    if 'estimators' in spec:                # several on the same runs
-        from rigidrot_ros.campaign.multi import run_one_multi
-        return run_one_multi(spec, index, bag_root)
     t0 = time.perf_counter()
     draws, redraws = draw_run(spec, index)
     row = {'run': int(index), 'status': 'ok', 'reason': '', 'redraws': redraws}

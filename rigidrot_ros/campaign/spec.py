@@ -151,7 +151,7 @@ def _dispersion(name, d):
 
 def check_spec(doc, base_dir='.'):
     """Validate a spec mapping; return it normalised (a plain dict). SpecError otherwise."""
-    from rigidrot_ros.io.generate import GenerationError, load_values, prepare_run
+    from rigidrot_ros.run.generate import GenerationError, load_values, prepare_run
     _keys('spec', doc, TOP_KEYS)
     for k in ('seed', 'runs', 'duration'):
         if k not in doc:
@@ -190,8 +190,8 @@ def check_spec(doc, base_dir='.'):
     _keys('dispersions', disp, DISPERSIONS)
     spec['dispersions'] = {k: _dispersion(k, disp[k]) for k in DISPERSIONS if k in disp}
     if 'estimators' in doc:                 # several on the same runs (campaign/multi.py)
-        from rigidrot_ros.campaign.multi import check_estimators
-        spec['estimators'] = check_estimators(doc['estimators'], _estimator)
+        from rigidrot_ros.campaign.listing import check_estimators
+        spec['estimators'] = check_estimators(doc['estimators'], _estimator, SpecError)
     else:
         spec['estimator'] = _estimator(doc['estimator'])
     return spec
@@ -328,9 +328,9 @@ def check_draws(spec):
     """Validate every run's parameters as the node would; SpecError names the first bad run.
 
     The node's checks (model constraints such as a torque along the symmetry axis, the
-    start-up trial) are those of :func:`rigidrot_ros.io.generate.prepare_run`.
+    start-up trial) are those of :func:`rigidrot_ros.run.generate.prepare_run`.
     """
-    from rigidrot_ros.io.generate import GenerationError, prepare_run
+    from rigidrot_ros.run.generate import GenerationError, prepare_run
     if not spec['dispersions'].keys() - {'attitude0'} and spec['sensor_seeds'] == 'fixed':
         return
     for i in range(spec['runs']):

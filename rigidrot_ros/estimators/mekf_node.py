@@ -80,7 +80,7 @@ class StampOrder:
 
 def main(argv=None):
     """Entry point of ``rigidrot_mekf``; returns the exit status."""
-    from rigidrot_ros.node.spin import split_ros_args
+    from rigidrot_ros.ros.spin import split_ros_args
     argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     opts = _parser().parse_args(argv)
     try:
@@ -103,7 +103,7 @@ def _run(params, ros_args):
     from sensor_msgs.msg import Imu
 
     from rigidrot_ros.estimators.mekf import MEKF
-    from rigidrot_ros.node.spin import init_ros, spin_until_shutdown
+    from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown
 
     reason = init_ros('rigidrot_mekf', ros_args)
     if reason is not None:

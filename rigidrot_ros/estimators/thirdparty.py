@@ -91,13 +91,13 @@ class SensorRun:
 
     @classmethod
     def from_arrays(cls, arrays, values):
-        """Build from :func:`rigidrot_ros.io.generate.run_arrays` and the run's values.
+        """Build from :func:`rigidrot_ros.run.generate.run_arrays` and the run's values.
 
         The imu must run on the truth's grid (``imu.rate`` 0 or ``publish_rate``), so each
         imu sample has its exact attitude; the magnetometer is held between its samples,
         and flagged where it has a sample at the imu sample's time.
         """
-        from rigidrot_ros import params
+        from rigidrot_ros.run import params
         p = params.defaults()
         p.update(values)
         imu, truth, mag = arrays['/imu'], arrays['/attitude'], arrays['/mag']

@@ -15,8 +15,8 @@ import math
 import os
 import sys
 
-from rigidrot_ros.io.bag import BagError, read_bag
-from rigidrot_ros.io.score import (
+from rigidrot_ros.bag import BagError, read_bag
+from rigidrot_ros.scoring.score import (
     check_bag, extract_streams, score_against_runs, score_against_stream, ScoreError,
 )
 from rigidrot_ros.tools.cli import OneLineParser

@@ -263,7 +263,7 @@ def _check(opts):
 
 def main(argv=None):
     """Entry point of ``rigidrot_demo_estimator``; returns the exit status."""
-    from rigidrot_ros.node.spin import split_ros_args
+    from rigidrot_ros.ros.spin import split_ros_args
     argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     opts = _parser().parse_args(argv)
     problem = _check(opts)
@@ -289,7 +289,7 @@ def _run(opts, ros_args):
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu
 
-    from rigidrot_ros.node.spin import init_ros, spin_until_shutdown
+    from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown
 
     reason = init_ros('rigidrot_demo_estimator', ros_args)
     if reason is not None:

@@ -11,7 +11,7 @@ import os
 import sys
 import time
 
-from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
+from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.tools.cli import OneLineParser
 
 

@@ -60,7 +60,7 @@ class _Progress:
 def main(argv=None):
     """Entry point of ``rigidrot_generate``; returns the exit status."""
     opts = _parser().parse_args(sys.argv[1:] if argv is None else list(argv))
-    from rigidrot_ros.io.generate import (
+    from rigidrot_ros.run.generate import (
         generate_bag, GenerationError, load_values, parse_override,
     )
     try:

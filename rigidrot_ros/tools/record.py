@@ -40,7 +40,7 @@ def _parser():
 
 def main(argv=None):
     """Entry point of ``rigidrot_record``; returns the exit status."""
-    from rigidrot_ros.node.spin import split_ros_args
+    from rigidrot_ros.ros.spin import split_ros_args
     argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     opts = _parser().parse_args(argv)
     if not opts.topics and not opts.all:
@@ -53,9 +53,9 @@ def main(argv=None):
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from rigidrot_ros.io.bag import BagWriter
-    from rigidrot_ros.io.recorder import check_type, Recorder
-    from rigidrot_ros.node.spin import init_ros, spin_until_shutdown
+    from rigidrot_ros.bag import BagWriter
+    from rigidrot_ros.ros.recorder import check_type, Recorder
+    from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown
 
     for t in opts.topics:
         name, _, type_name = t.partition(':')

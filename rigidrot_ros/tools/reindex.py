@@ -9,7 +9,7 @@ rosbag2 tools read the bag. A finished file is left as it is.
 
 import sys
 
-from rigidrot_ros.io.bag import BagError, reindex
+from rigidrot_ros.bag import BagError, reindex
 from rigidrot_ros.tools.cli import OneLineParser
 
 __all__ = ['main']

@@ -13,9 +13,9 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rosgraph_msgs.msg import Clock
 
-from rigidrot_ros.io.bag import BagError, read_bag
-from rigidrot_ros.io.recorder import msg_class, qos_from_yaml
-from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
+from rigidrot_ros.bag import BagError, read_bag
+from rigidrot_ros.ros.recorder import msg_class, qos_from_yaml
+from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown, split_ros_args
 from rigidrot_ros.tools.cli import OneLineParser
 
 

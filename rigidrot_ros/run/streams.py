@@ -3,7 +3,7 @@
 A :class:`SensorStream` owns one sensor of a run: its rate, the last sample index it
 published, the topics it publishes (relative names and message classes) and how sample k
 becomes messages (:meth:`SensorStream.messages`). Sample k is stamped
-``t_start + k / rate`` (:func:`rigidrot_ros.node.grid.stamp_ns`) and taken at scene time
+``t_start + k / rate`` (:func:`rigidrot_ros.run.grid.stamp_ns`) and taken at scene time
 ``(stamp - t_start) * time_scale``; every message of a sample shares its stamp. The node
 calls :meth:`SensorStream.take` from one timer per stream and publishes what it returns; the
 offline generator calls :meth:`SensorStream.messages` for k = first, first + 1, ...
@@ -18,9 +18,8 @@ import time
 from geometry_msgs.msg import PoseWithCovarianceStamped, Vector3Stamped
 from sensor_msgs.msg import Imu, MagneticField
 
-from rigidrot_ros import settings
-from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.node import grid
+from rigidrot_ros.msgs import messages as msgs
+from rigidrot_ros.run import grid, settings
 
 __all__ = ['SensorStream', 'ImuStream', 'StarTrackerStream', 'MagStream', 'make_streams',
            'STREAMS',
@@ -79,7 +78,7 @@ class SensorStream(abc.ABC):
 
         At most ``settings.SAMPLE_BUDGET_S`` of work: the rest stays due for the next
         call. A sample that fails is passed to ``on_error(t, exc)`` and skipped;
-        ``counters`` (:class:`rigidrot_ros.node.diagnostics.Counters`) counts samples,
+        ``counters`` (:class:`rigidrot_ros.runtime.diagnostics.Counters`) counts samples,
         their build times and the samples a clock jump skipped.
         """
         first, newest, skipped = grid.due(t_start_ns, self.rate, self.last, now_ns)
@@ -184,7 +183,7 @@ STREAMS = {cls.name: cls for cls in (ImuStream, StarTrackerStream, MagStream)}
 
 
 def make_streams(setup):
-    """Return the sensor streams of a :class:`rigidrot_ros.settings.RunSetup` (on ones)."""
+    """Return the sensor streams of a :class:`rigidrot_ros.run.settings.RunSetup` (on ones)."""
     cfg = setup.sensors
     out = []
     if setup.gyro is not None:

@@ -23,15 +23,15 @@ Topics (relative names, so namespaces and remapping apply):
 Service ``~/reset`` (std_srvs/Trigger): restart at t = 0 from the current parameters.
 
 This module is the wiring; the parts are elsewhere: the parameters in
-:mod:`rigidrot_ros.params`, the run set-up in :func:`rigidrot_ros.settings.prepare_run`,
-the tick grids in :mod:`~rigidrot_ros.node.grid` (stamps: see there), the sensor streams
-in :mod:`~rigidrot_ros.node.streams` and each one's schedule, look-ahead and messages in
-:mod:`~rigidrot_ros.node.sensor_ahead`, the schedule's grid, timing and choice of the next
-batch in :mod:`~rigidrot_ros.node.scheduler`, the truth ahead of time in
-:mod:`~rigidrot_ros.node.lookahead`, the messages in :mod:`~rigidrot_ros.node.outputs`,
-the diagnostics in :mod:`~rigidrot_ros.node.diagnostics`, ``~/run`` and the recorder in
-:mod:`~rigidrot_ros.node.recording`, ``--help`` and ``main`` in
-:mod:`~rigidrot_ros.node.cli`. Because the coming ticks' times are known, their samples are
+:mod:`rigidrot_ros.run.params`, the run set-up in :func:`rigidrot_ros.run.settings.prepare_run`,
+the tick grids in :mod:`~rigidrot_ros.run.grid` (stamps: see there), the sensor streams
+in :mod:`~rigidrot_ros.run.streams` and each one's schedule, look-ahead and messages in
+:mod:`~rigidrot_ros.run.sensor_ahead`, the schedule's grid, timing and choice of the next
+batch in :mod:`~rigidrot_ros.run.scheduler`, the truth ahead of time in
+:mod:`~rigidrot_ros.runtime.lookahead`, the messages in :mod:`~rigidrot_ros.run.outputs`,
+the diagnostics in :mod:`~rigidrot_ros.runtime.diagnostics`, ``~/run`` and the recorder in
+:mod:`~rigidrot_ros.ros.recording`, ``--help`` and ``main`` in
+:mod:`~rigidrot_ros.ros.cli`. Because the coming ticks' times are known, their samples are
 evaluated, and the attitude and rate messages built and serialized, ahead in batches; a
 tick reads the clock and publishes the bytes.
 """
@@ -55,19 +55,18 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from rigidrot_ros import settings
 from rigidrot_ros.core import PrecisionError
-from rigidrot_ros.io import cdr
-from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.node import cli, collector, diagnostics, grid, outputs, realtime, recording
-from rigidrot_ros.node import scheduler
-from rigidrot_ros.node.cli import SceneError
-from rigidrot_ros.node.lookahead import BatchWorker, Lookahead
-from rigidrot_ros.node.ros_params import descriptor, UnknownParameterError
-from rigidrot_ros.node.ros_params import warn_unknown_overrides
-from rigidrot_ros.node.sensor_ahead import Sensor
-from rigidrot_ros.node.streams import make_streams, scene_time, STREAMS
-from rigidrot_ros.params import BY_NAME, PARAMS
+from rigidrot_ros.msgs import cdr
+from rigidrot_ros.msgs import messages as msgs
+from rigidrot_ros.ros import cli, recording
+from rigidrot_ros.ros.cli import SceneError
+from rigidrot_ros.ros.ros_params import descriptor, UnknownParameterError, warn_unknown_overrides
+from rigidrot_ros.run import grid, outputs, scheduler, settings
+from rigidrot_ros.run.params import BY_NAME, PARAMS
+from rigidrot_ros.run.sensor_ahead import Sensor
+from rigidrot_ros.run.streams import make_streams, scene_time, STREAMS
+from rigidrot_ros.runtime import collector, diagnostics, realtime
+from rigidrot_ros.runtime.lookahead import BatchWorker, Lookahead
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
 
@@ -393,7 +392,7 @@ class AttitudeNode(Node):
     def _build_ahead(self, start, data, g0, hz):
         """Serialize (CDR) the attitude and rate messages of a batch of ticks to come.
 
-        One :mod:`rigidrot_ros.io.cdr` call per topic: the tick then publishes the bytes
+        One :mod:`rigidrot_ros.msgs.cdr` call per topic: the tick then publishes the bytes
         (``publish_raw``), and the recorder writes the same bytes. ``g0``, ``hz``: the grid.
         """
         q, w, _ = data

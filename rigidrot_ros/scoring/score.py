@@ -35,10 +35,10 @@ import math
 import mpmath
 import numpy as np
 
+from rigidrot_ros.bag import BagError
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.io.bag import BagError
-from rigidrot_ros.io.decode import decode_bag, ORIENTATION, RATE
+from rigidrot_ros.scoring.decode import decode_bag, ORIENTATION, RATE
 
 __all__ = ['ScoreError', 'extract_streams', 'score_against_runs', 'score_against_stream',
            'rotation_error', 'nees', 'anees_bounds', 'check_bag']

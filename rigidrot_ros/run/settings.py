@@ -1,6 +1,6 @@
 """Run settings without ROS: parameter values -> a validated, tried run (:func:`prepare_run`).
 
-Each parameter's own rule comes from the table :mod:`rigidrot_ros.params`; this module adds
+Each parameter's own rule comes from the table :mod:`rigidrot_ros.run.params`; this module adds
 the rules across parameters (the scene must be solvable, a sensor rate of 0 means
 ``publish_rate``, the imu needs ``time_scale > 0``) and the trial of a run's first samples.
 The node (at start-up, on a parameter change, on ``~/reset``) and the offline generator
@@ -18,9 +18,8 @@ from typing import Optional, Tuple
 import numpy as np
 import yaml
 
-from rigidrot_ros.core import NoExactSolution, PrecisionError, solve
-from rigidrot_ros.core import Scene
-from rigidrot_ros.params import BY_NAME, check_values
+from rigidrot_ros.core import NoExactSolution, PrecisionError, Scene, solve
+from rigidrot_ros.run.params import BY_NAME, check_values
 from rigidrot_ros.sensors import (
     Accelerometer, AttitudeNoise, Gyro, ImuNoise, load_kalibr_imu, Magnetometer, StarTracker,
 )
@@ -56,7 +55,7 @@ def _share_dirs():
         if prefix:
             dirs.append(os.path.join(prefix, 'share', PACKAGE))
     # an editable (pip -e) install runs from the source checkout
-    dirs.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    dirs.append(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
     return dirs
 
 
@@ -406,7 +405,7 @@ def check_run(values):
 def prepare_run(values, try_samples=True):
     """Validate parameter ``values`` and set a run up: a :class:`RunSetup`.
 
-    Each value is checked by its entry of :data:`rigidrot_ros.params.PARAMS`, the scene is
+    Each value is checked by its entry of :data:`rigidrot_ros.run.params.PARAMS`, the scene is
     solved, the sensor settings validated, and (``try_samples``) the first samples tried
     (:func:`trial`). The node calls this at start-up, for a parameter change and on
     ``~/reset``; the offline generator calls it for its run.

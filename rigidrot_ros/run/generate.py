@@ -17,7 +17,7 @@ The node's sampling, reproduced on the scene's own grids (no clock, no timers):
   the bag holds it as a ``rigidrot_run`` metadata record too, as the node's recorder writes.
 
 Sensor timing models (``<sensor>.latency``, ``.stamp_jitter``, ``.drop_probability``,
-``.clock_offset``) are applied by the node's own :class:`rigidrot_ros.node.scheduler.Track`
+``.clock_offset``) are applied by the node's own :class:`rigidrot_ros.run.scheduler.Track`
 (its seeded draws, once per sample in index order, dropped samples included): the sample
 is taken at its true time, its messages carry the stamp ``true + offset + jitter``, a
 dropped sample is read (noise runs on) but not written. What the generator writes as the
@@ -28,9 +28,9 @@ stamp. The bag is in log-time order; messages of one instant in the node's order
 time, then truth, imu, star tracker, mag). A sample belongs to the run if its true time
 lies in ``[start_ns, start_ns + duration_s / time_scale)`` (``duration_s`` in scene
 seconds); its log time may lie up to its latency past that. Parameters are validated by
-the node's own code (:mod:`rigidrot_ros.settings` and the node's scene checks). Messages
-are built by :mod:`rigidrot_ros.io.messages`; :func:`generate_bag` serializes them with
-the vectorised CDR writer :mod:`rigidrot_ros.io.cdr` a block at a time and streams them to
+the node's own code (:mod:`rigidrot_ros.run.settings` and the node's scene checks). Messages
+are built by :mod:`rigidrot_ros.msgs.messages`; :func:`generate_bag` serializes them with
+the vectorised CDR writer :mod:`rigidrot_ros.msgs.cdr` a block at a time and streams them to
 the bag, so memory stays bounded whatever the duration.
 """
 
@@ -48,10 +48,11 @@ import threading
 import numpy as np
 import yaml
 
-from rigidrot_ros.io import cdr
-from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.node import scheduler
-from rigidrot_ros.node.streams import scene_time as _scene_time
+from rigidrot_ros.bag import qos_yaml
+from rigidrot_ros.msgs import cdr
+from rigidrot_ros.msgs import messages as msgs
+from rigidrot_ros.run import scheduler
+from rigidrot_ros.run.streams import scene_time as _scene_time
 
 __all__ = ['iter_run', 'generate_bag', 'load_values', 'prepare_run', 'parse_override',
            'GenerationError', 'NODE_NAME', 'RUN_TOPIC', 'run_arrays']
@@ -98,7 +99,7 @@ def load_values(params_file=None, overrides=()):
     GenerationError
         A missing or malformed params file.
     """
-    from rigidrot_ros.settings import load_defaults
+    from rigidrot_ros.run.settings import load_defaults
     values = {}
     if params_file is not None:
         try:
@@ -114,14 +115,14 @@ def prepare_run(values):
     """Validate ``values`` (overrides by name) as the node does: a ``RunSetup``.
 
     The overrides are merged over the parameter table's defaults and set up by
-    :func:`rigidrot_ros.settings.prepare_run`, the node's own function (each value by its
+    :func:`rigidrot_ros.run.settings.prepare_run`, the node's own function (each value by its
     table entry, the scene solved, the sensors checked, the first samples tried), so a
     scene the node refuses is refused here with the same reason, and the solution has
     evaluated what the node's has before its first tick. A name the node does not
     declare is refused (the node warns and ignores it; offline, a typo would silently
     change the run). Raises :class:`GenerationError` (one line).
     """
-    from rigidrot_ros import params, settings
+    from rigidrot_ros.run import params, settings
     unknown = sorted(n for n in values if n not in params.BY_NAME)
     if unknown:
         close = difflib.get_close_matches(unknown[0], sorted(params.BY_NAME), n=1)
@@ -243,7 +244,7 @@ class _Run:
 
     def description(self):
         """Return the run description the node publishes on ``~/run`` (a dict)."""
-        from rigidrot_ros.node.outputs import run_description
+        from rigidrot_ros.run.outputs import run_description
         topics = {'/parameter_events': 'rcl_interfaces/msg/ParameterEvent'}
         topics.update(self.topics)
         topics['/diagnostics'] = 'diagnostic_msgs/msg/DiagnosticArray'
@@ -447,7 +448,7 @@ _VECTORS = ('/angular_velocity', '/delta_angle', '/delta_rotation', '/delta_velo
 
 
 def _messages(run, order, topic, stamps, data, *_):
-    """Build the ROS messages of one stream, built by :mod:`rigidrot_ros.io.messages`."""
+    """Build the ROS messages of one stream, built by :mod:`rigidrot_ros.msgs.messages`."""
     frame, body = run.frame, run.body
     st = [msgs.stamp(int(ns)) for ns in stamps]
     if topic == RUN_TOPIC:
@@ -479,7 +480,7 @@ def _messages(run, order, topic, stamps, data, *_):
 
 
 def _serialized(run, order, topic, stamps, data, *_):
-    """Serialize one stream (:mod:`rigidrot_ros.io.cdr`), a list of ``bytes``."""
+    """Serialize one stream (:mod:`rigidrot_ros.msgs.cdr`), a list of ``bytes``."""
     frame, body = run.frame, run.body
     if topic == '/attitude':
         return cdr.attitude(stamps, data['q'], frame).tolist()
@@ -586,16 +587,13 @@ def _blocks(run, values, helper):
 
 
 def _qos_yamls(p):
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from rigidrot_ros.io.recorder import qos_to_yaml
-    qos = QoSProfile(depth=int(p['qos_depth']), reliability=ReliabilityPolicy.RELIABLE)
-    run = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    return qos_to_yaml([qos]), qos_to_yaml([run])
+    """Return the offered QoS YAMLs as rosbag2 writes them: the streams and ``~/run``."""
+    return (qos_yaml(depth=int(p['qos_depth'])),
+            qos_yaml(depth=1, durability='transient_local'))
 
 
 def _helper_main():
-    """Serve ``solution.at`` as the helper process (``python -m rigidrot_ros.io.generate``).
+    """Serve ``solution.at`` as the helper process (``python -m rigidrot_ros.run.generate``).
 
     Reads pickles from stdin: first the parameter values, then tuples of time arrays
     (scene s), None to stop; answers each with a list of ``(q, omega, bound)`` (None for
@@ -649,7 +647,7 @@ class _Helper:
             if threading.current_thread() is threading.main_thread() else None
         try:
             self._proc = subprocess.Popen(
-                [sys.executable, '-m', 'rigidrot_ros.io.generate'], stdin=subprocess.PIPE,
+                [sys.executable, '-m', 'rigidrot_ros.run.generate'], stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
         finally:
             if before is not None:
@@ -718,7 +716,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None, helper=
     where the second core is idle (on the shared 2-core machine, load average 3.5, the
     benchmark hour took 86.5 s with it and 64.4 s without).
     """
-    from rigidrot_ros.io.bag import BagWriter
+    from rigidrot_ros.bag import BagWriter
     run = _Run(values, duration_s, start_ns)
     qos, run_qos = _qos_yamls(run.p)
     try:

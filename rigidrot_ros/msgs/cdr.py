@@ -16,7 +16,7 @@ API
   ``(n, KINDS[kind].doubles)`` float64 in field order; returns a
   :class:`Batch` (one contiguous buffer, ``len()``, indexing and iteration give
   ``bytes`` per message, ``tolist()``).
-- Builders with the semantics of :mod:`rigidrot_ros.io.messages` (same values, field for
+- Builders with the semantics of :mod:`rigidrot_ros.msgs.messages` (same values, field for
   field): :func:`attitude`, :func:`vector`, :func:`imu` (with or without an
   accelerometer), :func:`star_tracker`, :func:`transform`, :func:`odometry`,
   :func:`magnetic_field`.
@@ -150,7 +150,7 @@ def serialize_batch(kind, stamps_ns, values, frame_id, child_frame_id=None):
         A key of :data:`KINDS`.
     stamps_ns : array_like of int, (n,)
         ``header.stamp`` of each message, integer nanoseconds (sec = ns // 1e9, nanosec =
-        ns % 1e9, as :func:`rigidrot_ros.io.messages.stamp`).
+        ns % 1e9, as :func:`rigidrot_ros.msgs.messages.stamp`).
     values : array_like of float, (n, KINDS[kind].doubles)
         Every float64 field of the message in declaration order.
     frame_id, child_frame_id : str
@@ -181,7 +181,7 @@ def serialize_batch(kind, stamps_ns, values, frame_id, child_frame_id=None):
     return Batch(out)
 
 
-# -- builders: the values of rigidrot_ros.io.messages, a batch at a time --------------------
+# -- builders: the values of rigidrot_ros.msgs.messages, a batch at a time --------------------
 def _rows(a, width, name):
     a = np.asarray(a, dtype=float)
     if a.ndim != 2 or a.shape[1] != width:

@@ -157,7 +157,7 @@ def _check_cov(c):
 
 
 def decode_bag(bag, topics=None):
-    """Decode a :class:`~rigidrot_ros.io.bag.BagContents` into scorable streams.
+    """Decode a :class:`~rigidrot_ros.bag.BagContents` into scorable streams.
 
     Parameters
     ----------

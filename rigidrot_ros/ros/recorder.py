@@ -1,8 +1,8 @@
 """Record ROS topics into a rosbag2 MCAP bag: the component behind the node and rigidrot_record.
 
-The pure file format lives in :mod:`rigidrot_ros.io.bag`; this module is the ROS side.
+The pure file format lives in :mod:`rigidrot_ros.bag`; this module is the ROS side.
 A :class:`Recorder` lives in a node and writes two kinds of message into one
-:class:`~rigidrot_ros.io.bag.BagWriter`:
+:class:`~rigidrot_ros.bag.BagWriter`:
 
 - messages the node publishes itself, handed over after publishing
   (:meth:`Recorder.record_published`), serialized once, with the node's clock as log time;
@@ -50,8 +50,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.serialization import serialize_message
 import yaml
 
-from rigidrot_ros.io.bag import qos_yaml, STRING_TYPE
-from rigidrot_ros.io.msgdefs import schema_text
+from rigidrot_ros.bag import qos_yaml, STRING_TYPE
+from rigidrot_ros.msgs.msgdefs import schema_text
 
 __all__ = ['Recorder', 'type_name_of', 'qos_to_yaml', 'qos_from_yaml', 'keep_last_qos',
            'msg_class', 'check_type']
@@ -149,7 +149,7 @@ class Recorder:
     ----------
     node : rclpy.node.Node
         The node whose graph view, clock, timers and subscriptions are used.
-    writer : rigidrot_ros.io.bag.BagWriter
+    writer : rigidrot_ros.bag.BagWriter
         The open bag.
     topics : iterable of str
         Topic names to record as they appear (resolved against the node's namespace),
@@ -321,7 +321,7 @@ class Recorder:
         them, else None (serialized here, or in the writer thread: the message must not
         change after this call). The log time is ``now_ns``; each topic's channel is
         registered on first use with the QoS of the node's publisher of that topic. A
-        writer with ``BATCHED`` set (:class:`rigidrot_ros.io.bag_process.ProcessBagWriter`)
+        writer with ``BATCHED`` set (:class:`rigidrot_ros.bag.process.ProcessBagWriter`)
         gets the call's messages in one ``write_many`` once their channels exist.
         """
         if not self.active:

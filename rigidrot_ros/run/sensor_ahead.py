@@ -1,9 +1,9 @@
 """One sensor stream of a run on the node's schedule: grid, timing, look-ahead (no rclpy).
 
-:class:`Sensor` serves every sensor the node publishes (:mod:`~rigidrot_ros.node.streams`):
-its grid and timing model (:class:`~rigidrot_ros.node.scheduler.Track`), its samples read
-ahead in blocks (:class:`~rigidrot_ros.node.lookahead.SensorAhead`), their messages
-serialized a batch at a time (:mod:`rigidrot_ros.io.cdr`), the samples due at a scheduler
+:class:`Sensor` serves every sensor the node publishes (:mod:`~rigidrot_ros.run.streams`):
+its grid and timing model (:class:`~rigidrot_ros.run.scheduler.Track`), its samples read
+ahead in blocks (:class:`~rigidrot_ros.runtime.lookahead.SensorAhead`), their messages
+serialized a batch at a time (:mod:`rigidrot_ros.msgs.cdr`), the samples due at a scheduler
 call, and its latency and drop counts for the diagnostics. The node only creates one per
 stream at a run's ``t_start`` and hands it its publishers.
 """
@@ -12,11 +12,12 @@ import time
 
 import numpy as np
 
-from rigidrot_ros.io import cdr
-from rigidrot_ros.node import diagnostics, scheduler
-from rigidrot_ros.node.lookahead import SensorAhead
-from rigidrot_ros.node.streams import ImuStream, MagStream, scene_time, StarTrackerStream
-from rigidrot_ros.settings import SAMPLE_BUDGET_S
+from rigidrot_ros.msgs import cdr
+from rigidrot_ros.run import scheduler
+from rigidrot_ros.run.settings import SAMPLE_BUDGET_S
+from rigidrot_ros.run.streams import ImuStream, MagStream, scene_time, StarTrackerStream
+from rigidrot_ros.runtime import diagnostics
+from rigidrot_ros.runtime.lookahead import SensorAhead
 
 __all__ = ['Sensor']
 
@@ -32,7 +33,7 @@ class Sensor:
     the accelerometer over the same intervals by :meth:`Accelerometer.read_many`
     (:meth:`_read_accel`); the star tracker and the magnetometer sample by sample. Each
     batch is serialized by
-    :mod:`rigidrot_ros.io.cdr`, one call per topic, and every one of these streams
+    :mod:`rigidrot_ros.msgs.cdr`, one call per topic, and every one of these streams
     carries its timing model (stamps jittered and offset, samples dropped, latency). A
     stream of another kind is read and built per sample by its own ``messages`` (and
     stamped by it: its stamp is not jittered nor offset).

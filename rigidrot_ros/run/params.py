@@ -6,12 +6,12 @@ come the node's ``ParameterDescriptor`` s, the validation of every value (the no
 set-parameters callback, its start-up, the offline generator), ``config/default.yaml``,
 ``attitude_node --help`` and ``doc/parameters.md``; a test checks the files are up to date:
 
-    python -m rigidrot_ros.params --yaml > config/default.yaml
-    python -m rigidrot_ros.params --markdown > doc/parameters.md
+    python -m rigidrot_ros.run.params --yaml > config/default.yaml
+    python -m rigidrot_ros.run.params --markdown > doc/parameters.md
 
 A new parameter is one more :class:`Param` in :data:`PARAMS` (then regenerate both files);
 rules across parameters (the inertia triangle inequality, a sensor rate of 0 meaning
-``publish_rate``) stay in :mod:`rigidrot_ros.settings`.
+``publish_rate``) stay in :mod:`rigidrot_ros.run.settings`.
 """
 
 from dataclasses import dataclass
@@ -204,7 +204,7 @@ def _rate(name, default, what):
 
 
 def _timing(name, what):
-    """Return the timing-model entries of sensor ``name`` (see node/scheduler.py)."""
+    """Return the timing-model entries of sensor ``name`` (see run/scheduler.py)."""
     return (
         _double(f'{name}.latency', 0.0, f'transport latency of the {what}: each sample is '
                 'published this long after its true sample time (its stamp unchanged), s',
@@ -222,7 +222,7 @@ def _timing(name, what):
 # -- sensors of issue 19: IMU error terms, accelerometer, magnetometer (branch wire) ---------
 # Each term is zero or off by default, so the default streams are today's, bit for bit. The
 # vectors' finiteness and bounds are checked by the sensor models (rigidrot_ros.sensors),
-# which name the parameter; rigidrot_ros.settings builds them.
+# which name the parameter; rigidrot_ros.run.settings builds them.
 def _positive(p, v):
     lo, hi = p.range
     if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v) or \
@@ -397,7 +397,7 @@ def check_values(values):
     """Check every value of ``values`` (all of :data:`PARAMS`) with its own validator.
 
     Returns the checked values by name; ValueError names the first bad parameter, or a
-    missing one. Rules across parameters are :func:`rigidrot_ros.settings.prepare_run`'s.
+    missing one. Rules across parameters are :func:`rigidrot_ros.run.settings.prepare_run`'s.
     """
     out = {}
     for p in PARAMS:
@@ -429,8 +429,8 @@ def _yaml_scalar(v):
 
 def yaml_text():
     """Return ``config/default.yaml``: every parameter's default, described, nested by dot."""
-    lines = ['# Defaults of attitude_node, generated from rigidrot_ros/params.py by',
-             '#   python -m rigidrot_ros.params --yaml > config/default.yaml',
+    lines = ['# Defaults of attitude_node, generated from rigidrot_ros/run/params.py by',
+             '#   python -m rigidrot_ros.run.params --yaml > config/default.yaml',
              '# (edit the table, not this file). The default scene: an axially symmetric body',
              '# (I3 < I) spun up by a constant torque along its symmetry axis while it nutates',
              '# (Theorem 2 of Romano 2008). Units: kg m^2, N m, rad/s, rad, Hz.',
@@ -457,8 +457,8 @@ def markdown_text():
     """Return ``doc/parameters.md``: the table as a MyST page (one ``#`` title)."""
     lines = [
         '# Parameters of attitude_node', '',
-        'Generated from `rigidrot_ros/params.py` by '
-        '`python -m rigidrot_ros.params --markdown` (edit the table, not this page); '
+        'Generated from `rigidrot_ros/run/params.py` by '
+        '`python -m rigidrot_ros.run.params --markdown` (edit the table, not this page); '
         '`config/default.yaml` holds the same defaults. Set them with '
         '`-p NAME:=VALUE` or `--params-file FILE`. *Applies*: `now` takes effect at once, '
         '`reset` at the next `~/reset` (the running scene is validated against it at once), '
@@ -485,11 +485,11 @@ def help_text(width=92):
 
 
 def main(argv=None):
-    """``python -m rigidrot_ros.params --yaml | --markdown | --help-text``: print one text."""
+    """``python -m rigidrot_ros.run.params --yaml | --markdown | --help-text``: print one text."""
     args = sys.argv[1:] if argv is None else list(argv)
     texts = {'--yaml': yaml_text, '--markdown': markdown_text, '--help-text': help_text}
     if len(args) != 1 or args[0] not in texts:
-        print('usage: python -m rigidrot_ros.params --yaml | --markdown | --help-text',
+        print('usage: python -m rigidrot_ros.run.params --yaml | --markdown | --help-text',
               file=sys.stderr)
         return 2
     sys.stdout.write(texts[args[0]]().rstrip('\n') + '\n')

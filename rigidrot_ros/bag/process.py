@@ -1,10 +1,10 @@
-"""A :class:`~rigidrot_ros.io.bag.BagWriter` in a child process: the caller only hands bytes over.
+"""A :class:`~rigidrot_ros.bag.BagWriter` in a child process: the caller only hands bytes over.
 
 :class:`ProcessBagWriter` has the writing interface of ``BagWriter`` (``add_topic``,
 ``write``, ``write_many``, ``add_run``, ``add_metadata``, ``maybe_flush``, ``flush``,
 ``close``, ``has_topic``, ``counts``, ``closed``, ``path``). Each call is pickled into one
 length-prefixed frame and copied into a ring buffer shared with a child process
-(``python -m rigidrot_ros.io.bag_process``, a ``memfd`` mapped by both), which makes the
+(``python -m rigidrot_ros.bag.process``, a ``memfd`` mapped by both), which makes the
 very same ``BagWriter`` calls in the same order: MCAP records, chunking, zstd compression
 and file writes happen there, outside the caller's interpreter.
 
@@ -49,7 +49,7 @@ import subprocess
 import sys
 import time
 
-from rigidrot_ros.io.bag import _exact_dir, _unique_dir, BagWriter
+from rigidrot_ros.bag.writer import _exact_dir, _unique_dir, BagWriter
 
 __all__ = ['ProcessBagWriter', 'RING_BYTES']
 
@@ -69,7 +69,7 @@ class ProcessBagWriter:
     Parameters
     ----------
     root, name, flush_period, path, split_seconds
-        As :class:`rigidrot_ros.io.bag.BagWriter`; the bag directory is made here (so
+        As :class:`rigidrot_ros.bag.BagWriter`; the bag directory is made here (so
         :attr:`path` is known at once and a bad path fails in the caller).
     timeout : float
         Seconds :meth:`close` waits for the child to finish the bag before killing it.
@@ -99,7 +99,7 @@ class ProcessBagWriter:
             os.ftruncate(fd, _DATA + self._size)
             self._map = mmap.mmap(fd, _DATA + self._size)
             self._proc = subprocess.Popen(
-                [sys.executable, '-m', 'rigidrot_ros.io.bag_process', self.path,
+                [sys.executable, '-m', 'rigidrot_ros.bag.process', self.path,
                  repr(float(flush_period)), repr(float(split_seconds)), str(fd),
                  str(self._size)],
                 stdin=subprocess.PIPE, process_group=0, pass_fds=(fd,))
@@ -344,7 +344,7 @@ def serve(path, flush_period, split_seconds, stream):
 
 
 def main(argv=None):
-    """``python -m rigidrot_ros.io.bag_process PATH FLUSH_S SPLIT_S RING_FD RING_BYTES``.
+    """``python -m rigidrot_ros.bag.process PATH FLUSH_S SPLIT_S RING_FD RING_BYTES``.
 
     Frames come through the shared ring ``RING_FD``; stdin only tells when the caller
     has closed (end-of-file).

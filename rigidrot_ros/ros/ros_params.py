@@ -1,4 +1,4 @@
-"""The parameter table in rclpy's terms: descriptors, unknown names (see rigidrot_ros.params)."""
+"""The parameter table in rclpy's terms: descriptors, unknown names (see ``run.params``)."""
 
 import difflib
 
@@ -6,7 +6,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rcl_interfaces.msg import ParameterType
 from rclpy.exceptions import ParameterNotDeclaredException
 
-from rigidrot_ros.params import BY_NAME
+from rigidrot_ros.run.params import BY_NAME
 
 __all__ = ['descriptor', 'UnknownParameterError', 'warn_unknown_overrides', 'BUILTIN']
 
@@ -20,7 +20,7 @@ BUILTIN = ('use_sim_time', 'start_type_description_service')
 
 
 def descriptor(p):
-    """Return the ``ParameterDescriptor`` of a table entry (:class:`rigidrot_ros.params.Param`).
+    """Return the ``ParameterDescriptor`` of a table entry (a ``run.params.Param``).
 
     Description (with when a change applies), type, read_only, and the range of a double or
     an integer; dynamic typing, so that a wrong type reaches the validator and is named.

@@ -1,6 +1,6 @@
 """The ``attitude_node`` command: ``--help`` text and ``main`` (start, spin, exit status).
 
-The node itself is :class:`rigidrot_ros.node.attitude_node.AttitudeNode`; its module's
+The node itself is :class:`rigidrot_ros.ros.attitude_node.AttitudeNode`; its module's
 ``main`` (the console script's entry point) forwards here with the node class.
 """
 
@@ -9,9 +9,9 @@ import sys
 import rclpy
 from rclpy.executors import ExternalShutdownException
 
-from rigidrot_ros.node import realtime
-from rigidrot_ros.node.spin import init_ros, spin_until_shutdown, split_ros_args
-from rigidrot_ros.params import help_text
+from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown, split_ros_args
+from rigidrot_ros.run.params import help_text
+from rigidrot_ros.runtime import realtime
 
 __all__ = ['SceneError', 'usage', 'main']
 

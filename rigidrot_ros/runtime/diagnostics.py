@@ -23,9 +23,9 @@ started);
 ``increment_error_bound_rad`` (the largest bound of this run's gyro increments);
 ``sensor_samples_skipped``, ``ticks_published``, ``ticks_late``, ``ticks_missed``,
 ``publish_rate_hz`` and ``delivered_rate_hz``. The node adds ``scheduling`` (its
-policy, :mod:`~rigidrot_ros.node.realtime`) and ``worker_gate`` (the look-ahead worker
+policy, :mod:`~rigidrot_ros.runtime.realtime`) and ``worker_gate`` (the look-ahead worker
 held to the scheduler's slack over the window,
-:class:`~rigidrot_ros.node.lookahead.SlackGate`: ``<n> holds, <ms> ms``; ``open`` where
+:class:`~rigidrot_ros.runtime.lookahead.SlackGate`: ``<n> holds, <ms> ms``; ``open`` where
 it is not held, e.g. below a 1 ms period; ``off`` with ``RIGIDROT_WORKER_GATE=0`` or no
 worker).
 

@@ -5,7 +5,7 @@ most a second) instead of a timer per stream. Each call publishes every sample t
 by then, of every stream, in stamp order; so a sample goes out as soon after its due time
 as the executor calls the timer, and one that a slow call delayed goes out with the next
 call (a catch-up, counted as late, not lost). A :class:`Track` is one stream's place on
-its grid (:mod:`rigidrot_ros.node.grid`): the last index published and the samples due.
+its grid (:mod:`rigidrot_ros.run.grid`): the last index published and the samples due.
 
 Timing models (:class:`Timing`, per sensor, each off by default; parameters
 ``<sensor>.latency``, ``.stamp_jitter``, ``.drop_probability``, ``.clock_offset``):
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rigidrot_ros.node import grid
+from rigidrot_ros.run import grid
 
 __all__ = ['Timing', 'timing_of', 'Track', 'timer_period_ns', 'next_batch', 'TIMING_KEYS',
            'MAX_PERIOD_S', 'KEEP_AHEAD_S', 'KEEP_AHEAD', 'DEFERRED']
@@ -178,7 +178,7 @@ def next_batch(streams, behind=False):
     Parameters
     ----------
     streams : list of (ahead, last, rate)
-        Each stream's look-ahead (:class:`~rigidrot_ros.node.lookahead.Ahead`), the index
+        Each stream's look-ahead (:class:`~rigidrot_ros.runtime.lookahead.Ahead`), the index
         of its last published sample, and its rate (Hz); ties go to the first.
     behind : bool
         This call came late (a catch-up); then the batch waits for a later call unless its

@@ -11,8 +11,8 @@ import numpy as np
 from std_msgs.msg import String
 
 from rigidrot_ros import __version__
-from rigidrot_ros.io import messages as msgs
-from rigidrot_ros.node.scheduler import timing_of
+from rigidrot_ros.msgs import messages as msgs
+from rigidrot_ros.run.scheduler import timing_of
 
 __all__ = ['truth_pair', 'truth_extras', 'run_description', 'run_message', 'TRUTH_EXTRAS',
            'RUN_FORMAT']
@@ -68,7 +68,7 @@ def run_description(setup, start_ns, run_index, node_name, topics):
     Parameters
     ----------
     setup : RunSetup
-        The run (:func:`rigidrot_ros.settings.prepare_run`).
+        The run (:func:`rigidrot_ros.run.settings.prepare_run`).
     start_ns : int
         ``t_start``: the clock time (ns) of scene time 0.
     run_index : int
@@ -79,7 +79,7 @@ def run_description(setup, start_ns, run_index, node_name, topics):
         Resolved topic name -> type name (``pkg/msg/Type``) of every publisher.
 
     ``sensor_timing`` holds each running sensor's timing model
-    (:class:`rigidrot_ros.node.scheduler.Timing`: latency, stamp jitter, drop probability,
+    (:class:`rigidrot_ros.run.scheduler.Timing`: latency, stamp jitter, drop probability,
     clock offset; all 0 when off), so a scorer knows which stamps are not true sample times.
     """
     sol = setup.solution

@@ -2,11 +2,11 @@
 
 :class:`RunLog` announces each run (start-up, every ``~/reset``) with its first
 publication, and hands what the node published to the recorder
-(:class:`rigidrot_ros.io.recorder.Recorder`, which writes the same bytes); the recorder is
+(:class:`rigidrot_ros.ros.recorder.Recorder`, which writes the same bytes); the recorder is
 opened by :func:`open_recorder` from the parameters; it writes inline, or with
 ``RIGIDROT_RECORD_THREAD=1`` in a thread of its own (``Recorder(threaded=True)``), or with
 ``RIGIDROT_RECORD_PROCESS=1`` through a child process that does all the file work
-(:class:`rigidrot_ros.io.bag_process.ProcessBagWriter`: the node only hands CDR bytes over).
+(:class:`rigidrot_ros.bag.process.ProcessBagWriter`: the node only hands CDR bytes over).
 Inline (the default), the chunks' compression and writes run in the node's look-ahead
 worker (``BagWriter(offload=...)``; ``RIGIDROT_RECORD_OFFLOAD=0``: on the publishing thread).
 """
@@ -15,11 +15,11 @@ import functools
 import os
 import sys
 
-from rigidrot_ros.io.bag import BagWriter
-from rigidrot_ros.io.bag_process import ProcessBagWriter
-from rigidrot_ros.io.recorder import Recorder, type_name_of
-from rigidrot_ros.node import outputs
-from rigidrot_ros.node.cli import SceneError
+from rigidrot_ros.bag import BagWriter
+from rigidrot_ros.bag.process import ProcessBagWriter
+from rigidrot_ros.ros.cli import SceneError
+from rigidrot_ros.ros.recorder import Recorder, type_name_of
+from rigidrot_ros.run import outputs
 
 __all__ = ['RunLog', 'open_recorder', 'RECORD_FLUSH_S']
 
@@ -62,7 +62,7 @@ def _offloaded():
 def open_recorder(node, values, worker=None):
     """Return a :class:`Recorder` of ``node`` into a new bag (``record_path``, ``record_topics``).
 
-    ``worker``: the node's :class:`rigidrot_ros.node.lookahead.BatchWorker`, if it has one;
+    ``worker``: the node's :class:`rigidrot_ros.runtime.lookahead.BatchWorker`, if it has one;
     the inline writer then closes its chunks there (``BagWriter(offload=worker.call)``,
     outside the worker's evaluation lock; its gate opened where the node waits for a chunk
     write), unless the bag is written

@@ -4,7 +4,7 @@ The node knows the times of every stream's coming samples (the truth's ticks, ea
 sensor's grid), so it evaluates them a batch at a time: the truth with the vectorised
 path of :meth:`Solution.at`, the gyro with :meth:`Gyro.read_many` (bit for bit the
 per-sample reads), the star tracker sample by sample; and each batch's messages are
-serialized with the vectorised CDR writer :mod:`rigidrot_ros.io.cdr`, one call per batch
+serialized with the vectorised CDR writer :mod:`rigidrot_ros.msgs.cdr`, one call per batch
 and topic. A tick then takes its bytes from the buffer and publishes them; the node runs at
 most one batch per scheduler call, after that call has published, so a batch never delays
 the messages already due.

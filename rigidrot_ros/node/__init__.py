@@ -1,1 +1,0 @@
-"""ROS 2 glue: the attitude node and message conversion (the core knows nothing of it)."""

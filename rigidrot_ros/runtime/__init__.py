@@ -1,0 +1,7 @@
+"""Runtime mechanisms of a live run, with no ROS and no model of their own.
+
+``lookahead`` (the batch worker that evaluates ahead of the publishing thread, and its
+slack gate), ``collector`` (the garbage collector held out of the hot path),
+``realtime`` (real-time scheduling policy where permitted) and ``diagnostics`` (timing
+windows reported on ``/diagnostics``).
+"""
