@@ -175,6 +175,11 @@ def test_tiny_cell_metrics_recomputed():
         else:
             assert summ['anees'] is None
         assert summ['runs'] == 3 and res['default']['runs'] == 2
+        defaults = []                   # the defaults, on the first 2 held-out runs
+        for s in test[:2]:
+            est = fl[name].run(s, res['default_params'])
+            defaults.append(_vertical_geometry(s.q_true[s.t >= 1.0], est.q[s.t >= 1.0])[1])
+        assert res['default']['rmse_deg']['total'] == pytest.approx(rms(defaults), rel=1e-9)
         assert summ['us_per_sample'] > 0
     md = lb.render_md({'leaderboard': {'cells': [cell], 'wall_s': 1.0, 'cpu_s': 1.0,
                                        'processes': 1, 'load_average': [0.1, 0.2],

@@ -199,7 +199,7 @@ def _mekf_defaults(grade, motion):
 
 
 def _evaluate(filt, runs, override, window):
-    """Errors of ``filt`` on ``runs``: (list of run_errors, cpu list, failures)."""
+    """Return ``(run_errors, CPU s (NaN: failed), failures)`` of ``filt`` on ``runs``."""
     from rigidrot_ros.campaign.metrics import run_errors
     errs, cpu, failed = [], [], []
     for i, s in enumerate(runs):
@@ -209,6 +209,7 @@ def _evaluate(filt, runs, override, window):
             cpu.append(est.cpu_s)
         except Exception as exc:  # noqa: B902 - a filter that fails a run is scored NaN
             failed.append(f'run {i}: {type(exc).__name__}: {" ".join(str(exc).split())}'[:200])
+            cpu.append(math.nan)
             n = len(s.t)
             errs.append({'total': np.full(n, np.nan), 'incl': np.full(n, np.nan),
                          'head': np.full(n, np.nan),
@@ -268,17 +269,19 @@ def run_cell(grade, motion, size='full', names=None, seed=None):
         res = {'label': filt.label, 'library': filt.library, 'sensors': filt.sensors,
                'has_cov': filt.has_cov, 'default_params': filt.params(),
                'tuned_params': filt.params(best), 'tuning': tuning}
-        for which, override, runs in (('tuned', best, test),
-                                      ('default', None, test[:out['runs_default']])):
-            errs, cpu, failed = _evaluate(filt, runs, override, window)
-            summ = summarise(t, errs, window, cpu or None)
-            res[which] = _decimate(summ)
-            res[which]['failed'] = failed
-            if which == 'tuned':
-                win = t >= window
-                res['per_run_rmse_deg'] = [
-                    math.degrees(float(np.sqrt(np.nanmean(e['total'][win] ** 2))))
-                    if np.isfinite(e['total'][win]).any() else math.nan for e in errs]
+        errs, cpu, failed = _evaluate(filt, test, best, window)
+        res['tuned'] = _decimate(summarise(t, errs, window, cpu or None))
+        res['tuned']['failed'] = failed
+        win = t >= window
+        res['per_run_rmse_deg'] = [
+            math.degrees(float(np.sqrt(np.nanmean(e['total'][win] ** 2))))
+            if np.isfinite(e['total'][win]).any() else math.nan for e in errs]
+        m = out['runs_default']
+        if filt.params(best) != filt.params():      # else the same runs, the same errors
+            errs, cpu, failed = _evaluate(filt, test[:m], None, window)
+            m = len(errs)
+        res['default'] = _decimate(summarise(t, errs[:m], window, cpu[:m] or None))
+        res['default']['failed'] = [f for f in failed if int(f.split()[1][:-1]) < m]
         out['filters'][name] = res
     out['wall_s'] = time.perf_counter() - t0
     out['cpu_s'] = time.process_time() - c0
@@ -385,7 +388,7 @@ def headlines(lb):
         line = (f'**{GRADES[c["grade"]]["part"]} ({c["grade"]}), {MOTIONS[c["motion"]]["label"]}'
                 f'**: {fl[name]["label"]} leads at {common.fmt(rm)}° total RMSE')
         if second:
-            line += (f', {common.fmt(rm2 / rm)}× below {fl[second]["label"]} '
+            line += (f', {100 * (rm2 - rm) / rm2:.0f} % below {fl[second]["label"]} '
                      f'({common.fmt(rm2)}°; lower in {k} of {n} held-out runs)')
         line += (f'; best inclination {fl[inc[0]]["label"]} {common.fmt(inc[1])}°, best '
                  f'heading {fl[hed[0]]["label"]} {common.fmt(hed[1])}°')
@@ -472,8 +475,8 @@ def render_md(results):
         f'first {c0["runs_default"]} of them) and {c0["runs_train"]} training runs of '
         f'other seeds, {common.fmt(c0["duration_s"])} s each at 100 Hz, errors scored from '
         f't = {common.fmt(c0["window_s"])} s',
-        f'the whole leaderboard took {common.fmt(lb["wall_s"])} s on {lb["processes"]} '
-        f'processes ({common.fmt(lb["cpu_s"])} CPU s; load average '
+        f'the whole leaderboard took {lb["wall_s"]:.0f} s on {lb["processes"]} '
+        f'processes ({lb["cpu_s"]:.0f} CPU s; load average '
         f'{common.fmt(lb["load_average"][0], 2)} at the start, '
         f'{common.fmt(lb["load_average"][1], 2)} at the end)',
         'leader: lowest total RMSE among the filters on gyro + accelerometer + magnetometer '

@@ -146,8 +146,8 @@ def summarise(t, errors, window_start, cpu_s=None):
                                      np.mean(full, axis=0), np.nan).tolist()
     else:
         out['anees'] = None
-    if cpu_s is not None:
-        out['us_per_sample'] = 1e6 * float(np.median(cpu_s)) / len(t)
+    if cpu_s is not None and np.isfinite(cpu_s).any():
+        out['us_per_sample'] = 1e6 * float(np.nanmedian(cpu_s)) / len(t)
     return out
 
 

@@ -13,7 +13,10 @@ from their sources and checked on static and turning data in ``test/test_leaderb
   ``psi`` the field's heading in N), E's y for Mahony (``Rz(psi - 90 deg)``); the EKF is
   given the field as its reference, so E = N.
 - ``fusion``: x-io Fusion (``imufusion``), convention ENU: E's y is the field's horizontal
-  part (``Rz(psi - 90 deg)``); gyro in deg/s, accelerometer in g.
+  part (``Rz(psi - 90 deg)``); gyro in deg/s, accelerometer in g. Its ``update`` takes a
+  field at every sample: it gets the latest magnetometer sample (held between samples;
+  ``update_no_magnetometer`` would zero its heading during its start-up, and a zero
+  field would cut its magnetic gain by the rate ratio).
 - ``vqf``: VQF (``vqf``, Laidig & Seel 2023), its 9-D quaternion; E's y is the field's
   horizontal part (``Rz(psi - 90 deg)``).
 - ``mekf``: the shipped MEKF (:mod:`rigidrot_ros.estimators.mekf`), gyro + star tracker.
@@ -52,8 +55,9 @@ class SensorRun:
     mag : (N, 3) array
         The latest magnetometer sample at each imu sample (zero-order hold), T.
     mag_new : (N,) bool array
-        Whether a magnetometer sample was taken at the imu sample's time: the filters fuse
-        each magnetometer sample once, at its own time (both grids start at 0).
+        Whether a magnetometer sample was taken at the imu sample's time: the ahrs filters
+        and VQF fuse each magnetometer sample once, at its own time (both grids start
+        at 0); Fusion takes the held sample at every update (its API).
     start : int
         The first imu sample with a magnetometer sample at its time, where every filter
         starts (the e-compass of the ahrs filters needs both at one instant).
@@ -280,9 +284,6 @@ def _fusion(s, p):
     gyr = np.ascontiguousarray(np.degrees(s.gyr))
     acc = np.ascontiguousarray(s.acc / GRAVITY)
     mag = np.ascontiguousarray(s.mag * 1e6)
-    # a zero field is no sample to Fusion (update_no_magnetometer would zero the heading
-    # during its start-up)
-    mag[~s.mag_new] = 0.0
     n = len(s.t)
     out = np.full((n, 4), np.nan)
     c = time.process_time()
