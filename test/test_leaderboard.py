@@ -186,4 +186,11 @@ def test_tiny_cell_metrics_recomputed():
                                        'grades': lb.GRADES, 'motions': lb.MOTIONS,
                                        'bias_tau_s': lb.BIAS_TAU_S},
                        'footer': {}})
-    assert 'no covariance' in md and '**(leads)**' in md
+    # three held-out runs cannot make a leader significant (sign test p >= 0.25)
+    assert 'no covariance' in md and 'no clear leader' in md and '**(leads)**' not in md
+
+
+def test_sign_test_is_the_binomial_test():
+    from scipy import stats
+    for k, n in ((37, 50), (30, 50), (25, 50), (0, 7), (7, 7), (3, 4)):
+        assert lb.sign_test(k, n) == pytest.approx(stats.binomtest(k, n).pvalue, rel=1e-12)

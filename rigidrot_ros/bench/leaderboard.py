@@ -127,13 +127,17 @@ SENSOR_OVERRIDES = {'imu.rate': 0.0, 'publish_rate': 100.0, 'mag.rate': 20.0,
                     'accel.bias_correlation_time': BIAS_TAU_S}
 #: Run sizes: full and --quick.
 SIZES = {
-    'full': {'duration': 8.0, 'window': 3.0, 'train': 4, 'test': 50, 'default': 20,
+    'full': {'duration': 6.0, 'window': 2.0, 'train': 4, 'test': 50, 'default': 10,
              'seed': 2026, 'cells': CELLS},
     'quick': {'duration': 4.0, 'window': 1.0, 'train': 2, 'test': 4, 'default': 2,
               'seed': 2026, 'cells': [('consumer', 'slow'), ('tactical', 'lever')]},
 }
-#: Curves are stored every this many samples (charts only).
-CURVE_STEP = 5
+#: Curves (the charts' only data) are stored every this many samples, of the tuned filters.
+CURVE_STEP = 10
+#: A cell has a leader when its RMSE is this much below the runner-up's and it is lower on
+#: significantly more held-out runs (two-sided sign test, p below SIGN_P); else a tie.
+TIE = 0.02
+SIGN_P = 0.05
 
 
 def grade_values(grade):
@@ -280,7 +284,7 @@ def run_cell(grade, motion, size='full', names=None, seed=None):
         if filt.params(best) != filt.params():      # else the same runs, the same errors
             errs, cpu, failed = _evaluate(filt, test[:m], None, window)
             m = len(errs)
-        res['default'] = _decimate(summarise(t, errs[:m], window, cpu[:m] or None))
+        res['default'] = _decimate(summarise(t, errs[:m], window, cpu[:m] or None), False)
         res['default']['failed'] = [f for f in failed if int(f.split()[1][:-1]) < m]
         out['filters'][name] = res
     out['wall_s'] = time.perf_counter() - t0
@@ -288,10 +292,16 @@ def run_cell(grade, motion, size='full', names=None, seed=None):
     return out
 
 
-def _decimate(summ):
-    for key in ('rms_curve_deg', 'incl_curve_deg', 'head_curve_deg', 'nees_curve'):
+def _decimate(summ, curves=True):
+    """Keep the charts' curves (total RMS, NEES) every CURVE_STEP samples, or none."""
+    for key in ('incl_curve_deg', 'head_curve_deg'):
+        summ.pop(key, None)
+    for key in ('rms_curve_deg', 'nees_curve'):
         if key in summ:
-            summ[key] = [float(f'{v:.4g}') for v in summ[key][::CURVE_STEP]]
+            if curves:
+                summ[key] = [float(f'{v:.4g}') for v in summ[key][::CURVE_STEP]]
+            else:
+                del summ[key]
     return summ
 
 
@@ -374,6 +384,24 @@ def _wins(cell, a, b):
     return int(np.sum(ra[ok] < rb[ok])), int(ok.sum())
 
 
+def sign_test(k, n):
+    """Two-sided sign test: P(a count at least as far from n/2 as k) under Bin(n, 1/2)."""
+    if not n:
+        return 1.0
+    far = max(k, n - k)
+    tail = sum(math.comb(n, i) for i in range(far, n + 1)) / 2.0 ** n
+    return min(1.0, 2.0 * tail)
+
+
+def _tied(cell, lead):
+    """Whether the leader's margin over the runner-up is too small or not significant."""
+    name, rm, second, rm2 = lead
+    if not second:
+        return False
+    k, n = _wins(cell, name, second)
+    return (rm2 - rm) / rm2 < TIE or sign_test(k, n) >= SIGN_P
+
+
 def headlines(lb):
     """One line per cell: the leading AHRS filter and its margin (text, for the page)."""
     lines = []
@@ -385,11 +413,18 @@ def headlines(lb):
         fl = c['filters']
         k, n = _wins(c, name, second) if second else (0, 0)
         inc, hed = _leader(c, 'incl'), _leader(c, 'head')
-        line = (f'**{GRADES[c["grade"]]["part"]} ({c["grade"]}), {MOTIONS[c["motion"]]["label"]}'
-                f'**: {fl[name]["label"]} leads at {common.fmt(rm)}° total RMSE')
-        if second:
-            line += (f', {100 * (rm2 - rm) / rm2:.0f} % below {fl[second]["label"]} '
-                     f'({common.fmt(rm2)}°; lower in {k} of {n} held-out runs)')
+        grade, motion = GRADES[c['grade']]['part'], MOTIONS[c['motion']]['label']
+        line = f'**{grade} ({c["grade"]}), {motion}**: '
+        p = f'sign test p = {common.fmt(sign_test(k, n), 2)}'
+        if _tied(c, lead):
+            line += (f'no clear leader: {fl[name]["label"]} {common.fmt(rm)}° and '
+                     f'{fl[second]["label"]} {common.fmt(rm2)}° total RMSE (the first lower '
+                     f'in {k} of {n} held-out runs, {p})')
+        else:
+            line += f'{fl[name]["label"]} leads at {common.fmt(rm)}° total RMSE'
+            if second:
+                line += (f', {100 * (rm2 - rm) / rm2:.0f} % below {fl[second]["label"]} '
+                         f'({common.fmt(rm2)}°; lower in {k} of {n} held-out runs, {p})')
         line += (f'; best inclination {fl[inc[0]]["label"]} {common.fmt(inc[1])}°, best '
                  f'heading {fl[hed[0]]["label"]} {common.fmt(hed[1])}°')
         if 'mekf' in fl and math.isfinite(fl['mekf']['tuned']['rmse_deg']['total']):
@@ -449,19 +484,65 @@ def _cell_table(c):
     lead = _leader(c)
     for name, f in c['filters'].items():
         s, d = f['tuned'], f['default']
-        tag = ' **(leads)**' if lead and lead[0] == name else ''
+        tag = ' **(leads)**' if lead and lead[0] == name and not _tied(c, lead) else ''
         rows.append([
             f['label'] + tag, f['sensors'],
             _params_text(f['tuned_params'], f['default_params']) + _edge(f),
             common.fmt(s['rmse_deg']['incl']), common.fmt(s['rmse_deg']['head']),
             common.fmt(s['rmse_deg']['total']), common.fmt(s['p95_deg']),
             common.fmt(s['t_converge_s']), _nees_text(s),
-            common.fmt(s.get('us_per_sample')), common.fmt(d['rmse_deg']['total']),
+            common.fmt(s.get('us_per_sample')),
+            f'{common.fmt(d["rmse_deg"]["total"])} → {common.fmt(tuned_on_default_runs(c, name))}',
             _nees_text(d) if f['has_cov'] else '—'])
     return common.md_table(
         ['filter', 'sensors', 'tuned (changed from defaults)', 'incl. RMSE °',
          'heading RMSE °', 'total RMSE °', 'p95 °', 'converged by s', 'NEES: ANEES; MC band',
-         'µs / sample', 'defaults: total RMSE °', 'defaults: NEES'], rows)
+         'µs / sample', f'defaults → tuned: total RMSE ° (first {c["runs_default"]} runs)',
+         'defaults: NEES'], rows)
+
+
+def tuned_on_default_runs(cell, name):
+    """Return the tuned filter's total RMSE (deg) on the runs its defaults were scored on.
+
+    Every run has the same samples in the window, so the RMSE over runs is the RMS of the
+    runs' own RMSE.
+    """
+    v = np.array(cell['filters'][name]['per_run_rmse_deg'][:cell['runs_default']], float)
+    return float(np.sqrt(np.mean(v ** 2))) if len(v) and np.all(np.isfinite(v)) else math.nan
+
+
+def _tuning_table(lb):
+    """Per filter: cells where tuning kept the defaults, the change on the same runs, values."""
+    rows = []
+    for name in lb['cells'][0]['filters']:
+        kept, change, values = 0, [], {}
+        for c in lb['cells']:
+            f = c['filters'][name]
+            d, t = f['default']['rmse_deg']['total'], tuned_on_default_runs(c, name)
+            if f['tuned_params'] == f['default_params']:
+                kept += 1
+            else:
+                for k, v in f['tuned_params'].items():
+                    if v != f['default_params'].get(k) and isinstance(v, (int, float)):
+                        values.setdefault(k, []).append(v)
+            if math.isfinite(d) and math.isfinite(t) and d > 0:
+                change.append(100.0 * (t - d) / d)
+        label = lb['cells'][0]['filters'][name]['label']
+        defaults = [c['filters'][name]['default_params'] for c in lb['cells']]
+        default = _params_text(defaults[0], {}) if all(d == defaults[0] for d in defaults) \
+            else 'per cell (matched to its IMU grade)'
+        tuned = '; '.join(f'{k} {common.span(v)}' for k, v in values.items()) or '—'
+        ch = (f'median {_pct(np.median(change))}, from {_pct(min(change))} to '
+              f'{_pct(max(change))}') if change else '—'
+        rows.append([label, default, f'{kept} of {len(lb["cells"])}', tuned, ch])
+    return common.md_table(['filter', 'defaults', 'cells where tuning kept them',
+                            'tuned values elsewhere', 'total RMSE from defaults to tuned, same '
+                            'runs (negative: tuning helped)'], rows)
+
+
+def _pct(x):
+    r = int(round(float(x)))
+    return f'{r:+d} %' if r else '0 %'
 
 
 def render_md(results):
@@ -480,10 +561,15 @@ def render_md(results):
         f'{common.fmt(lb["load_average"][0], 2)} at the start, '
         f'{common.fmt(lb["load_average"][1], 2)} at the end)',
         'leader: lowest total RMSE among the filters on gyro + accelerometer + magnetometer '
-        '(the MEKF fuses a star tracker instead and is listed apart)',
+        '(the MEKF fuses a star tracker instead and is listed apart), at least '
+        f'{100 * TIE:.0f} % below the runner-up and lower on significantly more held-out runs '
+        f'(two-sided sign test, p < {SIGN_P:g}); else no clear leader',
     ]
     body = common.md_bullets(parts)
     body += '**Headline**\n\n' + common.md_bullets(headlines(lb))
+    body += ('**What tuning changed** (on the training runs; scored on the first '
+             f'{c0["runs_default"]} held-out runs of each cell, both ways)\n\n'
+             + _tuning_table(lb) + '\n')
     body += ("**IMU grades** (the datasheets' figures; bias instability as the stationary "
              f'σ of a Gauss–Markov bias, τ = {common.fmt(lb["bias_tau_s"])} s)\n\n')
     body += common.md_table(
