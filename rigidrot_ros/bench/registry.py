@@ -46,6 +46,7 @@ PARTS = (
     'generate',
     'node_khz',
     'view_live',
+    'leaderboard',
 )
 
 

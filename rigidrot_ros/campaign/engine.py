@@ -202,11 +202,19 @@ def _pool_run(spec, index, bag_root):
     """Run one campaign run in a pool worker (see :func:`_orphan_guard`)."""
     _IN_RUN.append(index)
     try:
-        return run_one(spec, index, bag_root)
+        return _job(spec)(spec, index, bag_root)
     except _ParentGone:
         os._exit(1)
     finally:
         _IN_RUN.clear()
+
+
+def _job(spec):
+    """Return the worker's function: one estimator's run, or several on the same run."""
+    if 'estimators' in spec:
+        from rigidrot_ros.campaign.multi import run_one_multi
+        return run_one_multi
+    return run_one
 
 
 def _pool(spec, todo, bag_root, workers):
@@ -322,7 +330,7 @@ def _dask(spec, todo, bag_root, workers, client=None):
             nonlocal submitted
             while queue and submitted < WINDOW_PER_WORKER * threads:
                 i = queue.popleft()
-                flow.add(client.submit(run_one, spec, i, bag_root, pure=False,
+                flow.add(client.submit(_job(spec), spec, i, bag_root, pure=False,
                                        key=f'run-{i}'))
                 submitted += 1
 
@@ -410,6 +418,9 @@ def finish(spec, out_dir):
     for i in range(spec['runs']):
         with open(_run_path(out_dir, i), encoding='utf-8') as fh:
             results.append(json.load(fh))
+    if 'estimators' in spec:                # several on the same runs
+        from rigidrot_ros.campaign.multi import finish_multi
+        return finish_multi(spec, out_dir, results, write_atomic, _dumps)
     report = aggregate(results, spec)
     write_atomic(os.path.join(out_dir, 'report.json'), _dumps(report))
     header, rows = csv_rows(results)

@@ -176,11 +176,12 @@ def _tail(path, lines=40):
         return ''
 
 
-def _ros(spec, values, work):
-    """Generate the bag, replay it (with /clock) into the command, record and score it."""
+def _ros(spec, values, work, bag=None):
+    """Replay the run's bag (generated unless given) into the command; record, score it."""
     from rigidrot_ros.run.generate import generate_bag
     est = spec['estimator']
-    bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
+    if bag is None:
+        bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
     from rigidrot_ros.bag import read_bag
     contents = read_bag(bag)
     names = sorted(t for t in contents.topics

@@ -62,7 +62,7 @@ MAX_DOMAIN_ID = 232
 #: draws are checked by their own runs (a draw the node refuses is a failed run).
 EAGER_DRAWS = 1000
 TOP_KEYS = ('name', 'seed', 'runs', 'duration', 'timeout', 'base', 'dispersions',
-            'sensor_seeds', 'estimator')
+            'sensor_seeds', 'estimator', 'estimators')
 BASE_KEYS = ('params_file', 'overrides')
 DISPERSIONS = ('attitude0', 'omega0', 'imu.gyro_bias', 'inertia', 'torque')
 INPROC_KEYS = ('factory', 'params', 'topic')
@@ -172,9 +172,12 @@ def check_spec(doc, base_dir='.'):
     """Validate a spec mapping; return it normalised (a plain dict). SpecError otherwise."""
     from rigidrot_ros.run.generate import GenerationError, load_values, prepare_run
     _keys('spec', doc, TOP_KEYS)
-    for k in ('seed', 'runs', 'duration', 'estimator'):
+    for k in ('seed', 'runs', 'duration'):
         if k not in doc:
             raise SpecError(f'spec: missing key {k}')
+    if ('estimator' in doc) == ('estimators' in doc):
+        raise SpecError('spec: missing key estimator' if 'estimator' not in doc else
+                        'spec: give estimator (one) or estimators (a list), not both')
     spec = {
         'name': str(doc.get('name', '')),
         'seed': _num('seed', doc['seed'], 0, 2 ** 63 - 1, integer=True),
@@ -210,7 +213,11 @@ def check_spec(doc, base_dir='.'):
     disp = doc.get('dispersions') or {}
     _keys('dispersions', disp, DISPERSIONS)
     spec['dispersions'] = {k: _dispersion(k, disp[k]) for k in DISPERSIONS if k in disp}
-    spec['estimator'] = _estimator(doc['estimator'])
+    if 'estimators' in doc:                 # several on the same runs (campaign/multi.py)
+        from rigidrot_ros.campaign.listing import check_estimators
+        spec['estimators'] = check_estimators(doc['estimators'], _estimator, SpecError)
+    else:
+        spec['estimator'] = _estimator(doc['estimator'])
     return spec
 
 

@@ -50,7 +50,7 @@ from rigidrot_ros.run.scheduler import timing_of, Track
 from rigidrot_ros.run.truth_outputs import read_truth
 
 __all__ = ['iter_run', 'generate_bag', 'load_values', 'prepare_run', 'parse_override',
-           'GenerationError', 'NODE_NAME', 'RUN_TOPIC']
+           'GenerationError', 'NODE_NAME', 'RUN_TOPIC', 'run_arrays']
 
 #: The node whose recording is reproduced (its fully qualified name).
 NODE_NAME = '/attitude_node'
@@ -365,6 +365,35 @@ def iter_run(values, duration_s, start_ns=0):
     """
     run = _Run(values, duration_s, start_ns)
     return _iter(run)
+
+
+def run_arrays(values, duration_s, start_ns=0):
+    """Return the run's samples as arrays, in memory: what :func:`iter_run` would publish.
+
+    A dict by topic (``'/attitude'``, ``'/imu'``, ``'/star_tracker'``, ``'/mag'``, ...) of
+    dicts: ``stamps_ns`` (header stamps), ``true_ns`` (true sample times), ``t`` (their
+    scene times, s) and the data arrays the messages are built from, one row a sample
+    (``'/attitude'``: ``q`` (x, y, z, w) ``q_NB``; ``'/imu'``: ``w`` rad/s, ``var`` its
+    per-axis variance, with the accelerometer ``f`` m/s^2 and ``avar``; ``'/mag'``: ``m``
+    tesla and ``cov``; ``'/star_tracker'``: ``q`` and ``cov``); and ``'run'``, the run
+    description. The same samples, bit for bit, as the messages (the same blocks), without
+    building a message: for estimators fed in memory.
+    """
+    run = _Run(values, duration_s, start_ns)
+    parts = {}
+    for _, _, streams in run.blocks():
+        for _, topic, stamps, data, _, true in streams:
+            if topic != RUN_TOPIC:
+                parts.setdefault(topic, []).append((stamps, true, data))
+    out = {'run': run.description()}
+    for topic, chunks in parts.items():
+        true = np.concatenate([c[1] for c in chunks])
+        d = {'stamps_ns': np.concatenate([c[0] for c in chunks]), 'true_ns': true,
+             't': np.asarray(run.scene_time(true), dtype=float)}
+        for key in chunks[0][2]:
+            d[key] = np.concatenate([np.asarray(c[2][key]) for c in chunks])
+        out[topic] = d
+    return out
 
 
 def _iter(run):

@@ -106,6 +106,13 @@ def main(argv=None):
         print('rigidrot_campaign: stopped; finished runs are kept: run the same command '
               'again to continue', file=sys.stderr)
         return 130
+    if 'estimators' in spec:                # several on the same runs
+        from rigidrot_ros.campaign.multi import summary_lines
+        for line in summary_lines(report):
+            print(line)
+        print(f'report: {os.path.join(opts.output, "report.json")}, comparison: '
+              f'{os.path.join(opts.output, "comparison.md")}')
+        return 0 if any(e['runs_ok'] for e in report['comparison']['table']) else 1
     a = report.get('anees')
     if a:
         mc = report['mc_nees']

@@ -93,7 +93,7 @@ def _rendered(results_json):
     return out
 
 
-@pytest.mark.parametrize('folder', ['doc/bench', 'doc/bench/ratios'])
+@pytest.mark.parametrize('folder', ['doc/bench', 'doc/bench/ratios', 'doc/bench/leaderboard'])
 def test_committed_tables_are_what_the_results_render(folder):
     """Each doc/bench/<part>.md is its part's render_md of the committed results JSON."""
     from pathlib import Path
