@@ -173,23 +173,16 @@ def cell_spec(grade, motion, split, seed):
 
 def sensor_runs(spec, count, duration):
     """Generate ``count`` runs of ``spec`` in memory: a list of SensorRun (and values)."""
-    from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, run_values
+    from rigidrot_ros.campaign.spec import draw_run, run_values
     from rigidrot_ros.estimators.thirdparty import SensorRun
-    from rigidrot_ros.run.generate import GenerationError, run_arrays
+    from rigidrot_ros.run.generate import run_arrays
     out = []
     for i in range(count):
         draws, _ = draw_run(spec, i)
         values = run_values(spec, draws)
         values['mag.seed'] = int(np.random.SeedSequence([spec['seed'], i, 3])
                                  .generate_state(1, np.uint64)[0] >> 1)
-        for attempt in range(BUDGET_TRIES):
-            try:
-                arrays = run_arrays(values, duration)
-                break
-            except GenerationError as exc:      # the start-up trial's wall-time budget
-                if 'time budget' not in str(exc) or attempt == BUDGET_TRIES - 1:
-                    raise
-        out.append(SensorRun.from_arrays(arrays, values))
+        out.append(SensorRun.from_arrays(run_arrays(values, duration), values))
     return out
 
 

@@ -38,7 +38,7 @@ import traceback
 
 import numpy as np
 
-from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, load_factory, run_values
+from rigidrot_ros.campaign.spec import draw_run, load_factory, run_values
 
 __all__ = ['run_one_multi', 'finish_multi', 'paired', 't_ppf', 'comparison_md',
            'summary_lines', 'aggregate_multi']
@@ -187,7 +187,6 @@ def run_one_multi(spec, index, bag_root=None):
     score row under ``estimators``), ``series`` (per estimator) and ``timing``.
     """
     from rigidrot_ros.campaign import run as one
-    from rigidrot_ros.run.generate import GenerationError
     t0 = time.perf_counter()
     draws, redraws = draw_run(spec, index)
     row = {'run': int(index), 'status': 'ok', 'reason': '', 'redraws': redraws}
@@ -202,15 +201,7 @@ def run_one_multi(spec, index, bag_root=None):
     results = {}
     try:
         values = run_values(spec, draws)
-        for attempt in range(BUDGET_TRIES):      # the generator's wall-time budget (spec.py)
-            try:
-                results = _feed(spec, values, work)
-                break
-            except GenerationError as exc:
-                if 'time budget' not in str(exc) or attempt == BUDGET_TRIES - 1:
-                    raise
-                shutil.rmtree(work, ignore_errors=True)
-                os.makedirs(work)
+        results = _feed(spec, values, work)     # offline: no wall-time budget to retry
     except Exception as exc:  # noqa: B902 - anything else fails this run, not the campaign
         reason = f'{type(exc).__name__}: {" ".join(str(exc).split())}'[:300]
         results = {label: one.RunFailed(reason, traceback.format_exc()) for label in labels}

@@ -2,7 +2,7 @@
 
 Each filter is a :class:`Filter`: its library's defaults, a tuning grid and
 ``run(sensors, params) -> Estimate``. The filters, their libraries and conventions (read
-from their sources and checked on static and turning data in ``test/test_leaderboard.py``):
+from their sources and checked on static and turning data in ``test/bench/test_leaderboard.py``):
 
 - ``madgwick``, ``mahony``, ``ekf``, ``aqua``: ``ahrs`` (Madgwick 2010/2011; Mahony et al.
   2008; ahrs' quaternion EKF; Valenti et al. 2015, *Sensors* 15(8)). ahrs orders

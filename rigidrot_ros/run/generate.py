@@ -381,15 +381,15 @@ def run_arrays(values, duration_s, start_ns=0):
     """
     run = _Run(values, duration_s, start_ns)
     parts = {}
-    for _, _, streams in run.blocks():
-        for _, topic, stamps, data, _, true in streams:
-            if topic != RUN_TOPIC:
-                parts.setdefault(topic, []).append((stamps, true, data))
+    for _, _, block in run.blocks():
+        for p in block:
+            if p.topic != RUN_TOPIC:
+                parts.setdefault(p.topic, []).append((p.stamps, p.true, p.cols))
     out = {'run': run.description()}
     for topic, chunks in parts.items():
         true = np.concatenate([c[1] for c in chunks])
         d = {'stamps_ns': np.concatenate([c[0] for c in chunks]), 'true_ns': true,
-             't': np.asarray(run.scene_time(true), dtype=float)}
+             't': np.asarray(scene_time(true, run.start_ns, run.time_scale), dtype=float)}
         for key in chunks[0][2]:
             d[key] = np.concatenate([np.asarray(c[2][key]) for c in chunks])
         out[topic] = d

@@ -150,12 +150,12 @@ class _Loader(yaml.SafeLoader):
             value = self.construct_object(child, deep=True)
             if isinstance(value, list):
                 items.extend(value)
-            elif isinstance(value, dict):
+            elif isinstance(value, dict) and not self.spec:
                 raise ParameterValueError(f'a mapping inside a list at line '
                                           f'{child.start_mark.line + 1}')
             else:
                 items.append(value)
-        kinds = [type(v) for v in items if v is not None]
+        kinds = [type(v) for v in items if v is not None and not isinstance(v, dict)]
         if not self.spec and kinds and any(k is not kinds[0] for k in kinds):
             odd = next(k for k in kinds if k is not kinds[0])
             raise ParameterValueError(
@@ -195,7 +195,8 @@ def load(text, spec=False):
         integers and doubles (a dispersion's ``low: [0, 0, 0.04]``) and a decimal integer
         past int64 is an integer (so that its range is named); rcl itself has no null
         (``~`` is a string, an empty value is refused), refuses mixed lists and reads
-        such an integer as a double or a string.
+        such an integer as a double or a string; and a list may hold mappings (a spec's
+        ``estimators:``), which a params file cannot.
 
     Raises
     ------
