@@ -23,21 +23,13 @@ import tempfile
 import time
 import traceback
 
-from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, load_factory, run_values
+from rigidrot_ros.campaign.failure import RunFailed
+from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, run_values
 from rigidrot_ros.run.generate import GenerationError
 
 __all__ = ['run_one', 'RunFailed', 'score_bag']
 
 _SEC = 1_000_000_000
-
-
-class RunFailed(Exception):
-    """A run that produced no score; ``reason`` one line, ``log`` the details."""
-
-    def __init__(self, reason, log=''):
-        super().__init__(reason)
-        self.reason = reason
-        self.log = log
 
 
 def score_bag(path, topic, runs=None):
@@ -71,57 +63,10 @@ def score_bag(path, topic, runs=None):
     return row, series
 
 
-def _inproc(spec, values, work):
+def _inproc(spec, values, work, timing):
     """Feed the run's messages to the factory's object; bag its answers; score them."""
-    from rclpy.serialization import serialize_message
-
-    from rigidrot_ros.bag import BagWriter
-    from rigidrot_ros.run.generate import iter_run, RUN_TOPIC
-    from rigidrot_ros.ros.recorder import type_name_of
-    est = spec['estimator']
-    topic = est['topic']
-    deadline = time.monotonic() + spec['timeout']
-    try:
-        filt = load_factory(est['factory'])(dict(est['params']))
-    except Exception as exc:  # noqa: B902 - the estimator's own failure
-        raise RunFailed(f'the factory failed: {type(exc).__name__}: {exc}',
-                        traceback.format_exc()) from None
-    writer = BagWriter(None, 'campaign', flush_period=60.0,
-                       path=os.path.join(work, 'estimate'), split_seconds=0.0)
-    n_out = 0
-    try:
-        def put(msgs):
-            nonlocal n_out
-            for m in msgs:
-                if not writer.has_topic(topic):
-                    writer.add_topic(topic, type_name_of(m))
-                ns = m.header.stamp.sec * _SEC + m.header.stamp.nanosec
-                writer.write(topic, serialize_message(m), ns)
-                n_out += 1
-        for k, (name, ns, msg) in enumerate(iter_run(values, spec['duration'])):
-            if name == RUN_TOPIC:
-                import json
-                writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String')
-                writer.add_run(json.loads(msg.data))
-                writer.write(RUN_TOPIC, serialize_message(msg), ns)
-                continue
-            try:
-                put(filt.receive(name, msg))
-            except Exception as exc:  # noqa: B902 - the estimator crashed
-                raise RunFailed(f'the estimator crashed on {name} at stamp {ns} ns: '
-                                f'{type(exc).__name__}: {exc}', traceback.format_exc()) from None
-            if k % 256 == 0 and time.monotonic() > deadline:
-                raise RunFailed(f'timeout: the run took longer than {spec["timeout"]:g} s')
-        try:
-            put(filt.finish())
-        except Exception as exc:  # noqa: B902
-            raise RunFailed(f'the estimator crashed in finish(): {type(exc).__name__}: {exc}',
-                            traceback.format_exc()) from None
-    finally:
-        writer.close()
-    if not n_out:
-        raise RunFailed(f'the estimator published nothing on {topic}')
-    return score_bag(writer.path, topic)
+    from rigidrot_ros.campaign.inproc import run_inproc
+    return score_bag(run_inproc(spec, values, work, timing), spec['estimator']['topic'])
 
 
 @contextlib.contextmanager
@@ -173,10 +118,18 @@ def _tail(path, lines=40):
         return ''
 
 
-def _ros(spec, values, work):
-    """Generate the bag, replay it (with /clock) into the command, record and score it."""
+def _ros(spec, values, work, timing):
+    """Generate the bag, feed it to the command (paced, or a replay at ``rate``), score."""
     from rigidrot_ros.run.generate import generate_bag
     est = spec['estimator']
+    if est.get('rate') is None:
+        from rigidrot_ros.campaign.session import run_paced
+        path, runs = run_paced(spec, values, work, timing)
+        t0 = time.perf_counter()
+        try:
+            return score_bag(path, est['topics'][0], runs)
+        finally:
+            timing['score_s'] = time.perf_counter() - t0
     bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
     from rigidrot_ros.bag import read_bag
     contents = read_bag(bag)
@@ -224,7 +177,7 @@ def _ros(spec, values, work):
                 said = _tail(os.path.join(work, 'replay.log'), 5).strip().splitlines()
                 raise RunFailed(f'the replay failed with status {procs["replay"].returncode}'
                                 + (f': {said[-1]}' if said else ''))
-            time.sleep(est['settle'])
+            time.sleep(1.0 if est.get('settle') is None else est['settle'])
             if procs['estimator'].poll() is not None:
                 raise RunFailed(f'the estimator exited with status '
                                 f'{procs["estimator"].returncode} during the replay')
@@ -271,6 +224,7 @@ def run_one(spec, index, bag_root=None):
     row = {'run': int(index), 'status': 'ok', 'reason': '', 'redraws': redraws}
     row.update({k: v for k, v in draws.items()})
     out = {'row': row, 'series': None, 'log': ''}
+    timing = {}
     work = os.path.join(bag_root, f'run_{index:06d}') if bag_root else \
         tempfile.mkdtemp(prefix=f'rigidrot_campaign_{index}_')
     if bag_root:
@@ -281,9 +235,9 @@ def run_one(spec, index, bag_root=None):
         for attempt in range(BUDGET_TRIES):      # the generator's wall-time budget (spec.py)
             try:
                 if spec['estimator']['kind'] == 'inproc':
-                    score, series = _inproc(spec, values, work)
+                    score, series = _inproc(spec, values, work, timing)
                 else:
-                    score, series = _ros(spec, values, work)
+                    score, series = _ros(spec, values, work, timing)
                 break
             except GenerationError as exc:
                 if 'time budget' not in str(exc) or attempt == BUDGET_TRIES - 1:
@@ -294,6 +248,11 @@ def run_one(spec, index, bag_root=None):
         out['series'] = series
     except RunFailed as exc:
         row.update(status='failed', reason=exc.reason)
+        if exc.startup:
+            est = spec['estimator']
+            what = (f'factory {est["factory"]}' if est['kind'] == 'inproc' else
+                    f'command {" ".join(est["command"])}')
+            out['fatal'] = f'estimator {what}: cannot start: {exc.reason}'
         out['log'] = exc.log + ''.join(
             f'--- {n}.log\n{_tail(os.path.join(work, n + ".log"))}'
             for n in ('estimator', 'recorder', 'replay')
@@ -305,5 +264,5 @@ def run_one(spec, index, bag_root=None):
     finally:
         if not bag_root:
             shutil.rmtree(work, ignore_errors=True)
-    out['timing'] = {'wall_s': time.perf_counter() - t0}
+    out['timing'] = dict(timing, wall_s=time.perf_counter() - t0)
     return out

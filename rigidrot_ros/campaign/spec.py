@@ -25,8 +25,13 @@ A spec is a YAML mapping (every key is checked; an unknown one is an error)::
     #   topics: [/estimator/odom]    # recorded; the first is scored
     #   inputs: [/imu, /star_tracker]  # replayed once these have subscribers (default:
     #                                # every sensor topic of the run)
-    #   rate: 5.0                    # replay speed, multiple of real time
-    #   settle: 1.0                  # s to wait after the replay before stopping it
+    #   settle: 0.2                  # s without an answer before it is stopped
+    #   window: 64                   # messages in flight at most (default: from its
+    #                                # subscriptions' depth, at most 64)
+    #   reset: /estimator/reset      # optional: one process per worker, reset between
+    #                                # runs by this std_srvs/srv/Trigger service
+    #   rate: 5.0                    # optional: a replay at this multiple of real time
+    #                                # instead (then settle: 1.0 after the replay)
     #   domain_base: 100             # each run claims a free ROS_DOMAIN_ID in
     #   domain_span: 100             # [base, base + span) on this machine
 
@@ -62,7 +67,8 @@ TOP_KEYS = ('name', 'seed', 'runs', 'duration', 'timeout', 'base', 'dispersions'
 BASE_KEYS = ('params_file', 'overrides')
 DISPERSIONS = ('attitude0', 'omega0', 'imu.gyro_bias', 'inertia', 'torque')
 INPROC_KEYS = ('factory', 'params', 'topic')
-ROS_KEYS = ('command', 'topics', 'inputs', 'rate', 'settle', 'domain_base', 'domain_span')
+ROS_KEYS = ('command', 'topics', 'inputs', 'rate', 'settle', 'domain_base', 'domain_span',
+            'window', 'reset')
 
 
 class SpecError(ValueError):
@@ -232,10 +238,20 @@ def _estimator(est):
         if not isinstance(inputs, list) or not all(isinstance(t, str) and t for t in inputs):
             raise SpecError(f'estimator.inputs must be a list of topic names, got {inputs!r}')
         inputs = [t if t.startswith('/') else '/' + t for t in inputs]
+    rate, settle, window, reset = (est.get(k) for k in ('rate', 'settle', 'window', 'reset'))
+    if reset is not None:
+        if not isinstance(reset, str) or not reset.strip('/') or rate is not None:
+            raise SpecError(f'estimator.reset must be the name of a std_srvs/srv/Trigger '
+                            f'service, without rate: (a replay), got {reset!r}')
+        reset = reset if reset.startswith('/') else '/' + reset
     return {'kind': 'ros', 'command': cmd, 'topics': topics, 'inputs': inputs,
-            'rate': float(_num('estimator.rate', est.get('rate', 1.0), 0, 1e3,
-                               strict_lo=True)),
-            'settle': float(_num('estimator.settle', est.get('settle', 1.0), 0, 600)),
+            'rate': None if rate is None else float(_num('estimator.rate', rate, 0, 1e3,
+                                                         strict_lo=True)),
+            'settle': None if settle is None else float(_num('estimator.settle', settle, 0,
+                                                             600)),
+            'window': None if window is None else _num('estimator.window', window, 1,
+                                                       1_000_000, integer=True),
+            'reset': reset,
             'domain_base': _num('estimator.domain_base', est.get('domain_base', 100), 0, 232,
                                 integer=True),
             'domain_span': _num('estimator.domain_span', est.get('domain_span', 100), 1, 233,

@@ -1,0 +1,102 @@
+"""Campaigns with a ROS program fed at its own pace (no ``rate:``), and bad estimators.
+
+Oracles: the same runs in process (the same filter class, no DDS), step by step: every
+estimate is there and its NEES equal to 1e-9; the count of messages sent equals the
+run's sensor messages (read back from the generated bag by the bag reader). A command
+that cannot start stops the campaign with one line (exit 2); one that misbehaves later
+fails its run with the reason, and the campaign goes on.
+"""
+
+import os
+import sys
+
+import pytest
+
+from rigidrot_ros.campaign import session
+from rigidrot_ros.campaign.run import run_one
+from rigidrot_ros.campaign.spec import load_spec
+from rigidrot_ros.tools.campaign import main
+from ros_helpers import next_domain_id
+
+from test_campaign import _write, SPEC  # noqa: I100, I201 - a test module beside it
+
+pytestmark = pytest.mark.ros
+HERE = os.path.dirname(os.path.abspath(__file__))
+PARAMS = SPEC['estimator']['params']
+MEKF = (f'rigidrot_mekf --sigma-v {PARAMS["sigma_v"]} --sigma-u {PARAMS["sigma_u"]} '
+        f'--bias-sigma {PARAMS["bias_sigma"]} --ros-args -p use_sim_time:=true')
+
+
+@pytest.fixture
+def ros_path(monkeypatch):
+    """The venv's scripts on PATH, discovery on this machine only; a domain of its own."""
+    monkeypatch.setenv('PATH', os.path.dirname(sys.executable) + os.pathsep
+                       + os.environ['PATH'])
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    return next_domain_id()
+
+
+@pytest.mark.parametrize('reset', [False, True], ids=['process_per_run', 'long_lived'])
+def test_paced_mekf_equals_in_process_step_by_step(tmp_path, ros_path, reset):
+    est = {'command': MEKF, 'settle': 0.0, 'domain_base': ros_path, 'domain_span': 1}
+    if reset:
+        est['reset'] = '/mekf/reset'
+    ros = load_spec(_write(tmp_path, dict(SPEC, duration=3.0, estimator=est), 'ros.yaml'))
+    inproc = load_spec(_write(tmp_path, dict(SPEC, duration=3.0)))
+    try:
+        for i in range(2):
+            a, b = run_one(ros, i), run_one(inproc, i)
+            assert a['row']['status'] == 'ok', a['row']
+            # every estimate, each with the in-process NEES
+            assert a['series']['t_ns'] == b['series']['t_ns'] and len(b['series']['t_ns']) > 20
+            for x, y in zip(a['series']['nees'], b['series']['nees']):
+                assert abs(x - y) <= 1e-9 * max(1.0, y)
+            # [0, 3) s: a 100 Hz gyro (samples 1..299) and a 10 Hz star tracker (0..29)
+            assert a['timing']['sent'] == 299 + 30 and a['timing']['stalls'] == 0, a['timing']
+            # the long-lived estimator starts once
+            assert ('process_start_s' in a['timing']) == (i == 0 or not reset)
+    finally:
+        session._close_live()
+
+
+def _one(tmp_path, domain, command, name, **est):
+    spec = dict(SPEC, runs=1, duration=3.0, timeout=est.pop('timeout', 60), estimator=dict(
+        {'command': command, 'domain_base': domain, 'domain_span': 1}, **est))
+    return run_one(load_spec(_write(tmp_path, spec, f'{name}.yaml')), 0)
+
+
+@pytest.mark.parametrize('mode, words', [
+    ('crash', 'exited with status 1 during the run: RuntimeError: bad estimator: crashed'),
+    ('wrong_type', 'publishes std_msgs/msg/String on /estimator/odom'),
+    ('silent', 'published nothing on /estimator/odom'),
+    ('hang', 'did not exit within 1 s of SIGINT (killed)'),
+])
+def test_a_misbehaving_command_fails_its_run_with_the_reason(
+        tmp_path, ros_path, monkeypatch, mode, words):
+    monkeypatch.setattr(session, 'STOP_S', 1.0)
+    out = _one(tmp_path, ros_path, f'{sys.executable} {HERE}/bad_estimator_node.py {mode}',
+               mode)
+    assert out['row']['status'] == 'failed' and words in out['row']['reason'], out['row']
+    assert 'fatal' not in out
+
+
+def test_a_command_that_never_subscribes_fails_after_the_timeout(tmp_path, ros_path):
+    out = _one(tmp_path, ros_path, f'{sys.executable} {HERE}/bad_estimator_node.py deaf',
+               'deaf', timeout=3)
+    assert out['row']['reason'].startswith(
+        "the estimator did not subscribe to /imu, /star_tracker before the run's timeout"), \
+        out['row']
+
+
+def test_a_command_that_cannot_start_stops_the_campaign_exit_2(tmp_path, ros_path, capsys):
+    spec = dict(SPEC, runs=4, duration=3.0, estimator={
+        'command': f'{sys.executable} {HERE}/bad_estimator_node.py exit',
+        'domain_base': ros_path, 'domain_span': 1})
+    code = main([_write(tmp_path, spec, 'exit.yaml'), '-o', str(tmp_path / 'out'),
+                 '--processes', '1', '--quiet'])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith(f'rigidrot_campaign: estimator command {sys.executable} ')
+    assert err[0].endswith('cannot start: the estimator exited with status 3 before '
+                           'subscribing to its inputs: bad estimator: refusing to start')
+    assert not list((tmp_path / 'out' / 'runs').glob('*.json'))
