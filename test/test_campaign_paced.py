@@ -100,3 +100,19 @@ def test_a_command_that_cannot_start_stops_the_campaign_exit_2(tmp_path, ros_pat
     assert err[0].endswith('cannot start: the estimator exited with status 3 before '
                            'subscribing to its inputs: bad estimator: refusing to start')
     assert not list((tmp_path / 'out' / 'runs').glob('*.json'))
+
+
+def test_the_played_messages_are_the_generated_bag_s(tmp_path):
+    """iter_serialized: the bag's sensor and run messages, same bytes, same order."""
+    from rigidrot_ros.bag import read_bag
+    from rigidrot_ros.run.generate import generate_bag, iter_serialized, load_values
+    values = load_values(None, {'imu.enable': True, 'star_tracker.enable': True,
+                                'mag.enable': True, 'imu.latency': 0.004,
+                                'star_tracker.latency': 0.02, 'imu.seed': 3}.items())
+    bag = read_bag(generate_bag(values, 2.0, str(tmp_path / 'bag')))
+    keep = ('imu', 'star_tracker', 'run')
+    want = [(t, log, bytes(d)) for t, _, log, _, d in bag.messages
+            if t.rsplit('/', 1)[-1] in keep]
+    got = [(t, log, bytes(d)) for t, log, d in iter_serialized(values, 2.0, keep)]
+    assert got == want and len(want) > 200
+    assert [t for t, _, _ in iter_serialized(values, 2.0)] == [m[0] for m in bag.messages]

@@ -119,6 +119,12 @@ class SkeletonNode(Node):
         pose_cov[:3, :3] = -np.eye(3)            # no position: -1 marks it unused
         pose_cov[3:, 3:] = self.P[:3, :3]        # rotation about x, y, z of B, rad^2
         odom.pose.covariance = pose_cov.ravel().tolist()
+        a = odom.twist.twist.angular
+        a.x, a.y, a.z = (float(v) for v in omega)
+        twist_cov = np.zeros((6, 6))
+        twist_cov[:3, :3] = -np.eye(3)
+        twist_cov[3:, 3:] = C + self.P[3:, 3:]
+        odom.twist.covariance = twist_cov.ravel().tolist()
         self.pub.publish(odom)
 
 

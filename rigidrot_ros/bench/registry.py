@@ -43,6 +43,7 @@ PARTS = (
     'random_access',
     'generate',
     'node_khz',
+    'campaign_ros',
 )
 
 

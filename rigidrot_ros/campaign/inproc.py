@@ -150,8 +150,9 @@ def run_inproc(spec, values, work, timing):
             missing = [m for m in ('receive', 'finish')
                        if not callable(getattr(filt, m, None))]
             if missing:
-                raise RunFailed(f'the factory returned a {type(filt).__name__}, which has no '
-                                f'{" and no ".join(m + "()" for m in missing)}', startup=True)
+                raise RunFailed(f'the factory made no estimator: its {type(filt).__name__} '
+                                f'has no {" and no ".join(m + "()" for m in missing)}',
+                                startup=True)
             writer = BagWriter(None, 'campaign', flush_period=60.0,
                                path=os.path.join(work, 'estimate'), split_seconds=0.0)
             for k, (name, ns, msg) in enumerate(iter_run(values, spec['duration'])):

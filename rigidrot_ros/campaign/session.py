@@ -4,7 +4,8 @@ For ``estimator.command`` without ``rate:`` (worker side). The campaign worker i
 plays the run and takes the estimator's answers, in a ROS context of its own on a domain
 claimed for the run (no replay or recorder process):
 
-1. the run is generated (:func:`rigidrot_ros.run.generate.generate_bag`) and read back;
+1. the run's sensor messages and description are generated, serialized as the bag would
+   hold them (:func:`rigidrot_ros.run.generate.iter_serialized`);
 2. the command starts, with ``ROS_DOMAIN_ID`` set to a free domain (one lock file per id,
    held by the worker and inherited by the command, so a leftover process keeps its
    domain to itself), ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and Fast DDS on UDP;
@@ -44,7 +45,8 @@ import time
 
 from rigidrot_ros.campaign.failure import RunFailed
 
-__all__ = ['run_paced', 'Session', 'SENSORS', 'SCORED_TYPES', 'feed_topics', 'STARTUP_S']
+__all__ = ['run_paced', 'Session', 'SENSORS', 'SCORED_TYPES', 'feed_topics', 'claim_domain',
+           'STARTUP_S']
 
 #: The run's topics an estimator is given, by the last component of their names: the
 #: sensors (``/attitude``, ``/odom``, ``/delta_angle``... are the truth, never given).
@@ -70,7 +72,7 @@ def feed_topics(topics):
     return sorted(t for t in topics if t.rsplit('/', 1)[-1] in SENSORS)
 
 
-def _claim_domain(base, span):
+def claim_domain(base, span):
     """Claim a ROS_DOMAIN_ID in ``[base, base + span)``: ``(domain, locked file)``."""
     root = os.path.join(tempfile.gettempdir(), f'rigidrot_campaign_domains_{os.getuid()}')
     os.makedirs(root, exist_ok=True)
@@ -139,8 +141,8 @@ class Session:
     def start(self, deadline):
         """Claim a domain, start the command, wait until it listens; RunFailed otherwise."""
         t0 = time.perf_counter()
-        self.domain, self.lock = _claim_domain(self.est['domain_base'],
-                                               self.est['domain_span'])
+        self.domain, self.lock = claim_domain(self.est['domain_base'],
+                                              self.est['domain_span'])
         env = self._environment()
         cmd = list(self.est['command'])
         if shutil.which('setpriv'):
@@ -161,12 +163,12 @@ class Session:
         self.timing['ready_s'] = time.perf_counter() - t0
 
     def _environment(self):
-        from rigidrot_ros.ros.paced import fast_acks
+        from rigidrot_ros.ros.paced import fast_dds
         env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain), PYTHONUNBUFFERED='1',
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                    FASTDDS_BUILTIN_TRANSPORTS='UDPv4')
         env.pop('ROS_LOCALHOST_ONLY', None)
-        fast_acks(env)
+        fast_dds(env)
         return env
 
     def _open_ros(self, env):
@@ -286,7 +288,7 @@ class Session:
         t3 = time.perf_counter()
         self.timing.update(play_s=t1 - t0, confirm_s=t2 - t1, settle_s=t3 - t2,
                            sent=sum(player.sent.values()), stalls=player.stalls,
-                           window=player.effective_window())
+                           window=player.used_window)
         if player.unconfirmed:
             self.timing['unconfirmed'] = list(player.unconfirmed)
         if self.reset_client is not None:
@@ -407,16 +409,17 @@ def run_paced(spec, values, work, timing):
     ``confirm_s``, ``settle_s``, ``end_s`` (stop or reset), ``write_s``; and ``sent``,
     ``stalls``, ``window``.
     """
-    from rigidrot_ros.bag import read_bag
-    from rigidrot_ros.run.generate import generate_bag, RUN_TOPIC
+    from rigidrot_ros.bag import run_from_string
+    from rigidrot_ros.ros.paced import write_answers
+    from rigidrot_ros.run.generate import iter_serialized, RUN_TOPIC
     est = spec['estimator']
     deadline = time.monotonic() + spec['timeout']
     t0 = time.perf_counter()
-    contents = read_bag(generate_bag(values, spec['duration'], os.path.join(work, 'input')))
-    inputs = {t: contents.topics[t][0] for t in feed_topics(contents.topics)}
-    messages = [(t, log_ns, data) for t, _, log_ns, _, data in contents.messages
-                if t in inputs]
-    run_data = next(m[4] for m in contents.messages if m[0] == RUN_TOPIC)
+    messages = list(iter_serialized(values, spec['duration'], SENSORS + ('run',)))
+    run_data = next(data for t, _, data in messages if t == RUN_TOPIC)
+    messages = [m for m in messages if m[0] != RUN_TOPIC]
+    run = run_from_string(run_data)
+    inputs = {t: run['topics'][t] for t in feed_topics({m[0] for m in messages})}
     timing['generate_s'] = time.perf_counter() - t0
     if est.get('reset'):
         session = _live_session(est, inputs, deadline)
@@ -436,25 +439,7 @@ def run_paced(spec, values, work, timing):
             session.close()
     timing.update(session.timing)
     t1 = time.perf_counter()
-    path = _write_answers(os.path.join(work, 'estimate'), answers, types, contents.runs,
-                          run_data, RUN_TOPIC)
+    path = write_answers(os.path.join(work, 'estimate'), answers, types, [run],
+                         {RUN_TOPIC: run_data})
     timing['write_s'] = time.perf_counter() - t1
-    return path, contents.runs
-
-
-def _write_answers(path, answers, types, runs, run_data, run_topic):
-    """Write the answers (log time: their stamps) and the run description to a bag."""
-    from rigidrot_ros.bag import BagWriter
-    writer = BagWriter(None, 'campaign', flush_period=60.0, path=path, split_seconds=0.0)
-    try:
-        writer.add_topic(run_topic, 'std_msgs/msg/String')
-        for run in runs:
-            writer.add_run(run)
-        writer.write(run_topic, bytes(run_data), 0)
-        for topic, data, stamp in answers:
-            if not writer.has_topic(topic):
-                writer.add_topic(topic, types[topic])
-            writer.write(topic, bytes(data), 0 if stamp is None else stamp)
-    finally:
-        writer.close()
-    return writer.path
+    return path, [run]

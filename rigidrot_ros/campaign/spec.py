@@ -239,6 +239,9 @@ def _estimator(est):
             raise SpecError(f'estimator.inputs must be a list of topic names, got {inputs!r}')
         inputs = [t if t.startswith('/') else '/' + t for t in inputs]
     rate, settle, window, reset = (est.get(k) for k in ('rate', 'settle', 'window', 'reset'))
+    if window is not None and rate is not None:
+        raise SpecError('estimator.window paces the feed by the answers: it does not go with '
+                        'rate: (a replay at a fixed speed)')
     if reset is not None:
         if not isinstance(reset, str) or not reset.strip('/') or rate is not None:
             raise SpecError(f'estimator.reset must be the name of a std_srvs/srv/Trigger '

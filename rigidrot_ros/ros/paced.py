@@ -26,8 +26,13 @@ as the subscriber has shown it keeps up, and never more than a window ahead of i
   time just before that message, so a node on ``use_sim_time`` sees the data's time.
 
 Fast DDS acknowledges on its writers' heartbeats, every 3 s by default: a wait for the
-last acknowledgements would take that long. :func:`fast_acks` points Fast DDS at a profile
-whose writers beat every 10 ms (set before the process's first ROS context).
+last acknowledgements would take that long. And with ``ROS_AUTOMATIC_DISCOVERY_RANGE=
+LOCALHOST`` (unicast discovery on 127.0.0.1), a participant that is already up learns of a
+new one only at its next announcement, every 3 s by default: a new estimator process
+waited 1.5-2.4 s to be matched here. :func:`fast_dds` points Fast DDS at a profile whose
+reliable writers beat every 10 ms and whose participants announce themselves every 100 ms
+(on loopback: a few datagrams a second); discovery then took 1 ms. Set it before the
+process's first ROS context.
 """
 
 import os
@@ -42,8 +47,8 @@ from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
-__all__ = ['PacedPlayer', 'PlayError', 'fast_acks', 'header_stamp_ns', 'FEED_QOS', 'WINDOW',
-           'STALL']
+__all__ = ['PacedPlayer', 'PlayError', 'fast_dds', 'header_stamp_ns', 'write_answers',
+           'FEED_QOS', 'WINDOW', 'STALL']
 
 #: The largest default window, messages in flight.
 WINDOW = 64
@@ -61,10 +66,21 @@ CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.RELIABLE)
 _SEC = 1_000_000_000
 _PROFILE = '''<?xml version="1.0" encoding="UTF-8"?>
-<!-- rigidrot_ros: reliable writers send a heartbeat every 10 ms (Fast DDS default: 3 s), so
-     that waiting for the last acknowledgements of a played run takes milliseconds -->
+<!-- rigidrot_ros: participants announce themselves every 100 ms (Fast DDS default: 3 s),
+     so a participant that is up matches a new one at once under unicast (LOCALHOST)
+     discovery; reliable writers send a heartbeat every 10 ms (default: 3 s), so waiting
+     for the last acknowledgements of a played run takes milliseconds -->
 <profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
-  <data_writer profile_name="rigidrot_fast_acks" is_default_profile="true">
+  <participant profile_name="rigidrot_participant" is_default_profile="true">
+    <rtps>
+      <builtin>
+        <discovery_config>
+          <leaseAnnouncement><sec>0</sec><nanosec>100000000</nanosec></leaseAnnouncement>
+        </discovery_config>
+      </builtin>
+    </rtps>
+  </participant>
+  <data_writer profile_name="rigidrot_writer" is_default_profile="true">
     <times>
       <heartbeatPeriod><sec>0</sec><nanosec>10000000</nanosec></heartbeatPeriod>
     </times>
@@ -77,19 +93,19 @@ class PlayError(RuntimeError):
     """Playing cannot go on (a deadline passed, the subscriber is gone): one line why."""
 
 
-def fast_acks(environ=None):
-    """Point Fast DDS at a profile whose reliable writers beat every 10 ms; return its path.
+def fast_dds(environ=None):
+    """Point Fast DDS at the quick-discovery, quick-acknowledgement profile; its path.
 
     Sets ``FASTRTPS_DEFAULT_PROFILES_FILE`` in ``environ`` (default ``os.environ``) unless
-    it is set already (a profile of the user's is kept, and its heartbeat with it) or
-    another RMW than Fast DDS is chosen; returns None then. Call it before the process
-    creates its first ROS context: Fast DDS reads the file once.
+    it is set already (a profile of the user's is kept, with its timing) or another RMW
+    than Fast DDS is chosen; returns None then. Call it before the process creates its
+    first ROS context: Fast DDS reads the file once.
     """
     env = os.environ if environ is None else environ
     rmw = env.get('RMW_IMPLEMENTATION', '') or 'rmw_fastrtps_cpp'
     if env.get('FASTRTPS_DEFAULT_PROFILES_FILE') or not rmw.startswith('rmw_fastrtps'):
         return None
-    path = os.path.join(tempfile.gettempdir(), f'rigidrot_fast_acks_{os.getuid()}.xml')
+    path = os.path.join(tempfile.gettempdir(), f'rigidrot_fast_dds_{os.getuid()}.xml')
     try:
         with open(path, encoding='utf-8') as fh:
             same = fh.read() == _PROFILE
@@ -137,6 +153,9 @@ class PacedPlayer:
         in the graph (its type is taken from there: :meth:`poll_outputs`).
     clock : bool
         Publish ``/clock`` at each message's log time, before it.
+    qos : dict, optional
+        Played topic -> QoS profile, in place of :data:`FEED_QOS` (a transient-local run
+        description, say).
     window : int, optional
         Messages in flight at most; default from the subscriptions' depth (module text).
     stall : float
@@ -144,12 +163,13 @@ class PacedPlayer:
     """
 
     def __init__(self, node, executor, inputs, outputs=(), clock=True, window=None,
-                 stall=STALL):
+                 stall=STALL, qos=None):
         self.node, self.executor = node, executor
         self.window, self.stall = window, float(stall)
         self.problems = []           # incompatible QoS seen by a played topic's publisher
+        qos = qos or {}
         self.pubs = {t: node.create_publisher(
-            cls, t, FEED_QOS, event_callbacks=PublisherEventCallbacks(
+            cls, t, qos.get(t, FEED_QOS), event_callbacks=PublisherEventCallbacks(
                 incompatible_qos=self._incompatible(t)))
             for t, cls in inputs.items()}
         self._in_headered = {t: _has_header(cls) for t, cls in inputs.items()}
@@ -165,6 +185,7 @@ class PacedPlayer:
         self.unconfirmed = []
         self.last_clock_ns = None
         self.end_ns = None           # the last message's stamp, once played
+        self.used_window = None      # the window of the last play
 
     # -- the graph ---------------------------------------------------------------------
     def _incompatible(self, topic):
@@ -272,7 +293,7 @@ class PacedPlayer:
             stamps.append(log_ns if stamp is None else stamp)
         reach = np.maximum.accumulate(np.array(stamps, dtype=np.int64))
         self.end_ns = int(reach[-1])
-        window = self.effective_window()
+        window = self.used_window = self.effective_window()
         self.unconfirmed = self.subscriber_qos()[1]
         n, sent, consumed, extra = len(messages), 0, 0, 0
         base, wall0 = messages[0][1], time.monotonic()
@@ -345,15 +366,16 @@ class PacedPlayer:
         return (self.end_ns is not None and self.reached_ns is not None
                 and self.reached_ns >= self.end_ns)
 
-    def settle(self, quiet, deadline=None, check=None):
+    def settle(self, quiet, deadline=None, check=None, early=True):
         """Spin until no answer has come for ``quiet`` seconds (or ``deadline``).
 
-        Returns at once when the answers have caught up with the last message played.
+        With ``early``, returns at once when the answers have caught up with the last
+        message played.
         """
         count, since = len(self.answers), time.monotonic()
         while True:
             now = time.monotonic()
-            if (now - since >= quiet or self.caught_up()
+            if (now - since >= quiet or (early and self.caught_up())
                     or (deadline is not None and now > deadline)):
                 return
             self.spin(min(0.02, quiet))
@@ -361,3 +383,28 @@ class PacedPlayer:
                 count, since = len(self.answers), time.monotonic()
             if check is not None:
                 check()
+
+
+def write_answers(path, answers, types, runs, described=None):
+    """Write answers and run descriptions to a new bag at ``path``; return its path.
+
+    ``answers`` are :attr:`PacedPlayer.answers` (log time: their stamps), ``types`` their
+    topics' type names, ``runs`` the run description dicts (``rigidrot_run`` records, what
+    the scorer takes the truth from) and ``described`` maps a topic to the serialized
+    ``std_msgs/String`` of a run description (written at log time 0).
+    """
+    from rigidrot_ros.bag import BagWriter
+    writer = BagWriter(None, 'answers', flush_period=60.0, path=path, split_seconds=0.0)
+    try:
+        for run in runs:
+            writer.add_run(run)
+        for topic, data in (described or {}).items():
+            writer.add_topic(topic, 'std_msgs/msg/String')
+            writer.write(topic, bytes(data), 0)
+        for topic, data, stamp in answers:
+            if not writer.has_topic(topic):
+                writer.add_topic(topic, types[topic])
+            writer.write(topic, bytes(data), 0 if stamp is None else stamp)
+    finally:
+        writer.close()
+    return writer.path

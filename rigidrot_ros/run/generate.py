@@ -54,8 +54,8 @@ from rigidrot_ros.msgs import messages as msgs
 from rigidrot_ros.run import scheduler
 from rigidrot_ros.run.streams import scene_time as _scene_time
 
-__all__ = ['iter_run', 'generate_bag', 'load_values', 'prepare_run', 'parse_override',
-           'GenerationError', 'NODE_NAME', 'RUN_TOPIC']
+__all__ = ['iter_run', 'iter_serialized', 'generate_bag', 'load_values', 'prepare_run',
+           'parse_override', 'GenerationError', 'NODE_NAME', 'RUN_TOPIC']
 
 #: The node whose recording is reproduced (its fully qualified name).
 NODE_NAME = '/attitude_node'
@@ -534,6 +534,28 @@ def _iter(run):
         built = [_messages(run, *st) for st in streams]
         for i, j in zip(*_order(streams)):
             yield streams[i][1], int(streams[i][4][j]), built[i][j]
+
+
+def iter_serialized(values, duration_s, names=None, start_ns=0):
+    """Yield ``(topic, log_ns, cdr_bytes)`` of the run in log-time order: the bag, unwritten.
+
+    The messages :func:`generate_bag` writes, in its order, serialized the same way, without
+    the file (no compression, no index): for a program that plays the run at once.
+    ``names`` keeps only the topics whose last name component is one of them (``('imu',
+    'star_tracker', 'run')``: the sensors and the run description); the other streams are
+    neither serialized nor merged. Arguments and errors as :func:`iter_run`.
+    """
+    run = _Run(values, duration_s, start_ns)
+    keep = None if names is None else set(names)
+    return _iter_serialized(run, keep)
+
+
+def _iter_serialized(run, keep):
+    for _, _, streams in run.blocks():
+        if keep is not None:
+            streams = [st for st in streams if st[1].rsplit('/', 1)[-1] in keep]
+        topics, datas, logs = _merged(streams, [_serialized(run, *st) for st in streams])
+        yield from zip(topics, logs, datas)
 
 
 def _blocks(run, values, helper):
