@@ -52,7 +52,7 @@ def test_paced_mekf_equals_in_process_step_by_step(tmp_path, ros_path, reset):
             for x, y in zip(a['series']['nees'], b['series']['nees']):
                 assert abs(x - y) <= 1e-9 * max(1.0, y)
             # [0, 3) s: a 100 Hz gyro (samples 1..299) and a 10 Hz star tracker (0..29)
-            assert a['timing']['sent'] == 299 + 30 and a['timing']['stalls'] == 0, a['timing']
+            assert a['timing']['sent'] == 299 + 30, a['timing']
             # the long-lived estimator starts once
             assert ('process_start_s' in a['timing']) == (i == 0 or not reset)
     finally:

@@ -103,6 +103,16 @@ def _last_line(path):
     return ' '.join(lines[-1].split())[:200] if lines else ''
 
 
+def _cpu_s(pid):
+    """Return the CPU seconds (user + system) process ``pid`` has used, or None."""
+    try:
+        with open(f'/proc/{pid}/stat', encoding='ascii') as fh:
+            fields = fh.read().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def _tail(path, count=40):
     try:
         with open(path, encoding='utf-8', errors='replace') as fh:
@@ -118,17 +128,19 @@ class Session:
     ----------
     est : dict
         The spec's ``estimator`` (a command).
-    inputs : dict
-        Played topic -> type name (``pkg/msg/Type``).
     log_dir : str
         Where the estimator's output goes (``estimator.log``).
+
+    Notes
+    -----
+    :meth:`spawn` starts the command, :meth:`connect` opens the worker's side and waits
+    until the command listens: a run is generated in between, while the command starts.
     """
 
-    def __init__(self, est, inputs, log_dir):
+    def __init__(self, est, log_dir):
         self.est = est
-        self.inputs = dict(inputs)
-        self.key = (tuple(est['command']), tuple(sorted(self.inputs.items())),
-                    tuple(est['topics']), est.get('reset'))
+        self.inputs = None
+        self.key = _key(est)
         self.log_path = os.path.join(log_dir, 'estimator.log')
         self.proc = self.lock = self.context = self.node = self.executor = None
         self.player = self.run_pub = self.reset_client = None
@@ -138,9 +150,9 @@ class Session:
         self.timing = {}
 
     # -- life --------------------------------------------------------------------------
-    def start(self, deadline):
-        """Claim a domain, start the command, wait until it listens; RunFailed otherwise."""
-        t0 = time.perf_counter()
+    def spawn(self):
+        """Claim a domain and start the command; RunFailed if it cannot be started."""
+        self._t0 = time.perf_counter()
         self.domain, self.lock = claim_domain(self.est['domain_base'],
                                               self.est['domain_span'])
         env = self._environment()
@@ -155,12 +167,22 @@ class Session:
         except OSError as exc:
             raise RunFailed(f'the estimator command {self.est["command"][0]} did not start: '
                             f'{exc.strerror or exc}', startup=True) from None
-        self._open_ros(env)
-        self.timing['process_start_s'] = time.perf_counter() - t0
+        self._env = env
+
+    def connect(self, inputs, deadline):
+        """Open the worker's node for ``inputs`` (topic -> type); wait until it listens."""
+        self.inputs = dict(inputs)
+        self._open_ros(self._env)
+        self.timing['process_start_s'] = time.perf_counter() - self._t0
         startup = time.monotonic() + STARTUP_S
         self._wait_ready(min(deadline, startup), f'within {STARTUP_S:g} s' if startup < deadline
                          else "before the run's timeout")
-        self.timing['ready_s'] = time.perf_counter() - t0
+        self.timing['ready_s'] = time.perf_counter() - self._t0
+
+    @property
+    def connected(self):
+        """Whether :meth:`connect` has been done."""
+        return self.context is not None
 
     def _environment(self):
         from rigidrot_ros.ros.paced import fast_dds
@@ -180,7 +202,7 @@ class Session:
         from rclpy.signals import SignalHandlerOptions
         from std_msgs.msg import String
 
-        from rigidrot_ros.ros.paced import PacedPlayer
+        from rigidrot_ros.ros.paced import CLOCK_STEP, PacedPlayer
         from rigidrot_ros.ros.recorder import msg_class
         from rigidrot_ros.run.generate import RUN_TOPIC
         keys = ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'FASTDDS_BUILTIN_TRANSPORTS',
@@ -208,7 +230,9 @@ class Session:
         self.executor.add_node(self.node)
         self.player = PacedPlayer(self.node, self.executor,
                                   {t: msg_class(n) for t, n in self.inputs.items()},
-                                  self.est['topics'], clock=True, window=self.est.get('window'))
+                                  self.est['topics'], clock=True, window=self.est.get('window'),
+                                  clock_step=(CLOCK_STEP if self.est.get('clock_step') is None
+                                              else self.est['clock_step']))
         self.run_pub = self.node.create_publisher(
             String, RUN_TOPIC, QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                           durability=DurabilityPolicy.TRANSIENT_LOCAL))
@@ -264,8 +288,8 @@ class Session:
                             f'covariance)')
 
     def alive(self):
-        """Return whether the process runs and the context is open."""
-        return self.proc is not None and self.proc.poll() is None and self.context is not None
+        """Return whether the process runs (and the context is open, once connected)."""
+        return self.proc is not None and self.proc.poll() is None
 
     # -- one run -----------------------------------------------------------------------
     def feed(self, run_data, messages, deadline):
@@ -275,6 +299,7 @@ class Session:
         settle = self.est.get('settle')
         settle = SETTLE_S if settle is None else settle
         player.clear()
+        cpu0, own0 = _cpu_s(self.proc.pid), time.process_time()
         t0 = time.perf_counter()
         try:
             self.run_pub.publish(bytes(run_data))
@@ -286,8 +311,13 @@ class Session:
         except PlayError as exc:
             raise RunFailed(str(exc), _tail(self.log_path)) from None
         t3 = time.perf_counter()
+        cpu1 = _cpu_s(self.proc.pid)
+        if cpu0 is not None and cpu1 is not None:
+            self.timing['estimator_cpu_s'] = cpu1 - cpu0
+        self.timing['feeder_cpu_s'] = time.process_time() - own0
         self.timing.update(play_s=t1 - t0, confirm_s=t2 - t1, settle_s=t3 - t2,
                            sent=sum(player.sent.values()), stalls=player.stalls,
+                           clocks=player.clocks,
                            window=player.used_window)
         if player.unconfirmed:
             self.timing['unconfirmed'] = list(player.unconfirmed)
@@ -379,22 +409,25 @@ def _close_live():
 atexit.register(_close_live)
 
 
-def _live_session(est, inputs, deadline):
-    """Return this worker's running session for ``est`` (started if it is not)."""
+def _key(est):
+    return (tuple(est['command']), tuple(est['topics']), tuple(est.get('inputs') or ()),
+            est.get('reset'), est['domain_base'], est['domain_span'])
+
+
+def _live_session(est):
+    """Return this worker's session for ``est``: running, or spawned now."""
     session = _LIVE.get('session')
-    key = (tuple(est['command']), tuple(sorted(inputs.items())), tuple(est['topics']),
-           est.get('reset'))
-    if session is not None and (session.key != key or not session.alive()):
+    if session is not None and (session.key != _key(est) or not session.alive()):
         _close_live()
         session = None
     if session is not None:
         session.timing = {}
         return session
     _LIVE['dir'] = tempfile.mkdtemp(prefix='rigidrot_estimator_')
-    session = Session(est, inputs, _LIVE['dir'])
+    session = Session(est, _LIVE['dir'])
     _LIVE['session'] = session
     try:
-        session.start(deadline)
+        session.spawn()
     except BaseException:
         _close_live()
         raise
@@ -414,28 +447,32 @@ def run_paced(spec, values, work, timing):
     from rigidrot_ros.run.generate import iter_serialized, RUN_TOPIC
     est = spec['estimator']
     deadline = time.monotonic() + spec['timeout']
-    t0 = time.perf_counter()
-    messages = list(iter_serialized(values, spec['duration'], SENSORS + ('run',)))
-    run_data = next(data for t, _, data in messages if t == RUN_TOPIC)
-    messages = [m for m in messages if m[0] != RUN_TOPIC]
-    run = run_from_string(run_data)
-    inputs = {t: run['topics'][t] for t in feed_topics({m[0] for m in messages})}
-    timing['generate_s'] = time.perf_counter() - t0
-    if est.get('reset'):
-        session = _live_session(est, inputs, deadline)
-        try:
-            answers = session.feed(run_data, messages, deadline)
-        except BaseException:
-            _close_live()
-            raise
+    live = bool(est.get('reset'))
+    session = _live_session(est) if live else Session(est, work)
+    try:
+        if not live:
+            session.spawn()                       # it starts while the run is generated
+        t0 = time.perf_counter()
+        messages = list(iter_serialized(values, spec['duration'], SENSORS + ('run',)))
+        run_data = next(data for t, _, data in messages if t == RUN_TOPIC)
+        messages = [m for m in messages if m[0] != RUN_TOPIC]
+        run = run_from_string(run_data)
+        inputs = {t: run['topics'][t] for t in feed_topics({m[0] for m in messages})}
+        timing['generate_s'] = time.perf_counter() - t0
+        if session.connected and session.inputs != inputs:
+            raise RunFailed(f'the run has other sensors ({", ".join(sorted(inputs))}) than '
+                            f'the one before it on this estimator '
+                            f'({", ".join(sorted(session.inputs))})')
+        if not session.connected:
+            session.connect(inputs, deadline)
+        answers = session.feed(run_data, messages, deadline)
         types = dict(session.player.output_types)
-    else:
-        session = Session(est, inputs, work)
-        try:
-            session.start(deadline)
-            answers = session.feed(run_data, messages, deadline)
-            types = dict(session.player.output_types)
-        finally:
+    except BaseException:
+        if live:
+            _close_live()
+        raise
+    finally:
+        if not live:
             session.close()
     timing.update(session.timing)
     t1 = time.perf_counter()

@@ -30,6 +30,7 @@ A spec is a YAML mapping (every key is checked; an unknown one is an error)::
     #                                # subscriptions' depth, at most 64)
     #   reset: /estimator/reset      # optional: one process per worker, reset between
     #                                # runs by this std_srvs/srv/Trigger service
+    #   clock_step: 0.05             # s of sim time between two /clock (0: every message)
     #   rate: 5.0                    # optional: a replay at this multiple of real time
     #                                # instead (then settle: 1.0 after the replay)
     #   domain_base: 100             # each run claims a free ROS_DOMAIN_ID in
@@ -68,7 +69,7 @@ BASE_KEYS = ('params_file', 'overrides')
 DISPERSIONS = ('attitude0', 'omega0', 'imu.gyro_bias', 'inertia', 'torque')
 INPROC_KEYS = ('factory', 'params', 'topic')
 ROS_KEYS = ('command', 'topics', 'inputs', 'rate', 'settle', 'domain_base', 'domain_span',
-            'window', 'reset')
+            'window', 'reset', 'clock_step')
 
 
 class SpecError(ValueError):
@@ -238,10 +239,12 @@ def _estimator(est):
         if not isinstance(inputs, list) or not all(isinstance(t, str) and t for t in inputs):
             raise SpecError(f'estimator.inputs must be a list of topic names, got {inputs!r}')
         inputs = [t if t.startswith('/') else '/' + t for t in inputs]
-    rate, settle, window, reset = (est.get(k) for k in ('rate', 'settle', 'window', 'reset'))
-    if window is not None and rate is not None:
-        raise SpecError('estimator.window paces the feed by the answers: it does not go with '
-                        'rate: (a replay at a fixed speed)')
+    keys = ('rate', 'settle', 'window', 'reset', 'clock_step')
+    rate, settle, window, reset, step = (est.get(k) for k in keys)
+    for name, value in (('window', window), ('clock_step', step)):
+        if value is not None and rate is not None:
+            raise SpecError(f'estimator.{name} is for the feed paced by the answers: it does '
+                            f'not go with rate: (a replay at a fixed speed)')
     if reset is not None:
         if not isinstance(reset, str) or not reset.strip('/') or rate is not None:
             raise SpecError(f'estimator.reset must be the name of a std_srvs/srv/Trigger '
@@ -255,6 +258,8 @@ def _estimator(est):
             'window': None if window is None else _num('estimator.window', window, 1,
                                                        1_000_000, integer=True),
             'reset': reset,
+            'clock_step': None if step is None else float(_num('estimator.clock_step', step,
+                                                               0, 10)),
             'domain_base': _num('estimator.domain_base', est.get('domain_base', 100), 0, 232,
                                 integer=True),
             'domain_span': _num('estimator.domain_span', est.get('domain_span', 100), 1, 233,

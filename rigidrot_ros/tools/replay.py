@@ -74,6 +74,9 @@ def main(argv=None):
     ap.add_argument('--window', type=int,
                     help='with --paced-by: messages in flight at most (default: the depth '
                          'of the subscriptions to the played topics, at most 64)')
+    ap.add_argument('--clock-step', type=float, default=0.05, metavar='S',
+                    help='with --paced-by --clock: seconds of log time between two /clock '
+                         'at least (default 0.05; 0: one before every message)')
     ap.add_argument('-o', '--output',
                     help='with --paced-by: write the answers and the run descriptions to '
                          'this bag directory (for rigidrot_compare)')
@@ -96,6 +99,9 @@ def main(argv=None):
         return 2
     if opts.paced_by is not None and opts.loop:
         print('rigidrot_replay: --loop does not go with --paced-by', file=sys.stderr)
+        return 2
+    if not 0 <= opts.clock_step <= 10:
+        print('rigidrot_replay: --clock-step must lie in [0, 10] s', file=sys.stderr)
         return 2
     if opts.window is not None and not 1 <= opts.window <= 1_000_000:
         print('rigidrot_replay: --window must lie in [1, 1000000]', file=sys.stderr)
@@ -218,7 +224,7 @@ def _paced(node, opts, bag, classes, msgs):
     qos = {t: qos_from_yaml(bag.topics[t][1]) for t in classes
            if 'transient_local' in bag.topics[t][1]}       # a run description stays latched
     player = PacedPlayer(node, executor, classes, opts.paced_by, clock=opts.clock,
-                         window=opts.window, qos=qos)
+                         window=opts.window, qos=qos, clock_step=opts.clock_step)
     required = [player.pubs[t] for t in opts.wait_for if t in player.pubs]
     if opts.clock and '/clock' in opts.wait_for:
         required.append(player.clock_pub)
