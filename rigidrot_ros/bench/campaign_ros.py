@@ -18,7 +18,9 @@ settle, stop or reset, score) and the largest difference of each step's NEES fro
 runs in process (``rigidrot_ros.estimators.mekf:make``). Then what bounds a run, measured
 apart on the campaign's first run: a Python start, ``import rclpy``, an echo node's start
 until its subscriptions exist and until they are matched (discovery), the paced transport
-of the run to that echo node (answers at once: DDS and rclpy alone), and the MEKF in
+of the run to that echo node (raw subscriptions taken the way ``rigidrot_mekf`` takes them,
+a stamp-only answer at every 10th gyro sample as the MEKF answers: DDS and rclpy without a
+filter), and the MEKF in
 process on the same messages (the filter alone). :func:`render_md` writes
 ``OUT/campaign_ros.md`` (``doc/bench/campaign_ros.md``, included by ``doc/estimator.md``).
 """
@@ -39,30 +41,55 @@ NAME = 'campaign_ros'
 NEEDS = ('rclpy', 'yaml')
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SPEC = os.path.join(ROOT, 'doc', 'campaigns', 'mekf_ros.yaml')
-#: The three ways, by key: (label, estimator keys set, estimator keys removed).
+#: The ways, by key: (label, estimator keys set, estimator keys removed, runs: None for
+#: the campaign's M, else at most that many). The replay at 5x is bound by the wall clock
+#: (6 s a run): 10 runs measure it; the long-lived way is run on 10 runs too, to show what
+#: start-up weighs in a short campaign.
 VARIANTS = (
-    ('replay_5x', 'replay at 5× (rate: 5.0): replay and recorder processes',
-     {'rate': 5.0}, ('reset', 'settle', 'window')),
-    ('paced_process', 'paced: a process per run', {'settle': 0.0}, ('rate', 'reset')),
-    ('paced_long_lived', 'paced: long-lived (reset: /mekf/reset)',
-     {'settle': 0.0, 'reset': '/mekf/reset'}, ('rate',)),
+    ('replay_5x', 'replay at 5× (`rate: 5.0`), replay and recorder processes',
+     {'rate': 5.0}, ('reset', 'settle', 'window', 'clock_step'), 10),
+    ('paced_process', 'paced, a process per run', {'settle': 0.0}, ('rate', 'reset'), None),
+    ('paced_long_lived', 'paced, long-lived (`reset: /mekf/reset`)',
+     {'settle': 0.0, 'reset': '/mekf/reset'}, ('rate',), None),
+    ('paced_long_lived_10', 'paced, long-lived, 10 runs',
+     {'settle': 0.0, 'reset': '/mekf/reset'}, ('rate',), 10),
 )
 TYPES = {'/imu': 'sensor_msgs/msg/Imu',
          '/star_tracker': 'geometry_msgs/msg/PoseWithCovarianceStamped'}
 PHASES = ('generate_s', 'ready_s', 'play_s', 'confirm_s', 'settle_s', 'end_s', 'score_s',
-          'wall_s')
+          'wall_s', 'estimator_cpu_s', 'feeder_cpu_s')
 _ECHO = r'''
-import sys, time
+import struct, time
 import rclpy
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped
 from sensor_msgs.msg import Imu
 rclpy.init()
 node = rclpy.create_node('echo')
 pub = node.create_publisher(QuaternionStamped, 'estimator/odom', 10000)
-def on(msg):
-    pub.publish(QuaternionStamped(header=msg.header))
-node.create_subscription(Imu, 'imu', on, 1000)
-node.create_subscription(PoseWithCovarianceStamped, 'star_tracker', on, 1000)
+subs = []
+count = [0]
+def answer(data, imu):
+    count[0] += imu
+    if imu and count[0] % 10 == 0:     # as the MEKF: at every 10th gyro sample, its stamp
+        sec, nsec = struct.unpack_from('<iI', data, 4)
+        msg = QuaternionStamped()
+        msg.header.stamp = Time(sec=sec, nanosec=nsec)
+        pub.publish(msg)
+def on(data):           # this message, then every one waiting (rigidrot_mekf's way)
+    answer(data, True)
+    more = True
+    while more:
+        more = False
+        for sub, imu in subs:
+            with sub.handle:
+                got = sub.handle.take_message(sub.msg_type, sub.raw)
+            if got is not None:
+                answer(got[0], imu)
+                more = True
+subs.append((node.create_subscription(Imu, 'imu', on, 10000, raw=True), True))
+subs.append((node.create_subscription(PoseWithCovarianceStamped, 'star_tracker',
+                                      lambda data: None, 10000, raw=True), False))
 print(f'ready {time.monotonic()!r}', flush=True)
 try:
     rclpy.spin(node)
@@ -75,7 +102,7 @@ def _spec_doc(runs, domain):
     import yaml
     with open(SPEC, encoding='utf-8') as fh:
         doc = yaml.safe_load(fh)
-    doc['runs'] = runs
+    doc['runs'] = runs or doc['runs']
     if domain is not None:
         doc['estimator']['domain_base'] = domain
     return doc
@@ -120,23 +147,31 @@ def _campaigns(runs, domain, log):
         ref = dict(doc, estimator={
             'factory': 'rigidrot_ros.estimators.mekf:make',
             'params': {'sigma_v': 1.7e-4, 'sigma_u': 2.0e-5, 'bias_sigma': 2.0e-3}})
-        _, _, _, in_series = _campaign(ref, tmp, 'in_process', log)
-        for key, label, put, drop in VARIANTS:
+        wall, ref_report, _, in_series = _campaign(ref, tmp, 'in_process', log)
+        out['in_process'] = {'wall_s': wall, 'runs_per_min': 60.0 * runs / wall,
+                             'anees': ref_report['anees']['value'],
+                             'inside': ref_report['mc_nees']['fraction_inside']}
+        log(f'campaign_ros: the same {runs} runs in process: {wall:.1f} s = '
+            f'{60.0 * runs / wall:.1f} runs/min, ANEES {ref_report["anees"]["value"]:.3f}')
+        for key, label, put, drop, cap in VARIANTS:
+            m = runs if cap is None else min(runs, cap)
             e = {k: v for k, v in est.items() if k not in drop}
             e.update(put)
             load0 = os.getloadavg()[0]
-            wall, report, timings, series = _campaign(dict(doc, estimator=e), tmp, key, log)
+            wall, report, timings, series = _campaign(dict(doc, runs=m, estimator=e), tmp,
+                                                      key, log)
             phases = {p: statistics.median(t[p] for t in timings if p in t)
                       for p in PHASES if any(p in t for t in timings)}
             started = sum('ready_s' in t for t in timings)
-            diff = [_nees_diff(series[i], in_series[i]) for i in range(runs)]
-            v = {'label': label, 'wall_s': wall, 'runs_per_min': 60.0 * runs / wall,
+            diff = [_nees_diff(series[i], in_series[i]) for i in range(m)]
+            v = {'label': label, 'runs': m, 'wall_s': wall, 'runs_per_min': 60.0 * m / wall,
                  'runs_ok': report['runs_ok'], 'phases': phases, 'started': started,
+                 'anees': (report.get('anees') or {}).get('value'),
                  'nees_max_rel_diff': max(diff), 'nees_runs_compared':
                      sum(d == d for d in diff),
                  'load_average': [load0, os.getloadavg()[0]]}
             out['variants'][key] = v
-            log(f'campaign_ros: {label}: {runs} runs in {wall:.1f} s = '
+            log(f'campaign_ros: {label}: {m} runs in {wall:.1f} s = '
                 f'{v["runs_per_min"]:.1f} runs/min ({report["runs_ok"]} ok; per-step NEES '
                 f'vs in process: max rel diff {v["nees_max_rel_diff"]:.2g} over '
                 f'{v["nees_runs_compared"]} runs); median per run: '
@@ -240,7 +275,7 @@ def _transport(domain, log):
 
 def run(quick=False, log=print, campaign_runs=None, campaign_domain=None):
     """Measure and return the figures (JSON-serialisable); ``quick``: 4 runs a campaign."""
-    runs = int(campaign_runs or (4 if quick else 10))
+    runs = int(campaign_runs or (4 if quick else _spec_doc(None, None)['runs']))
     res = {'quick': bool(quick), 'cores': os.cpu_count()}
     res['bounds'] = _start_costs(log)
     res['bounds'].update(_transport(campaign_domain, log))
@@ -251,7 +286,8 @@ def run(quick=False, log=print, campaign_runs=None, campaign_domain=None):
 def add_arguments(ap):
     """Add ``--campaign-runs`` and ``--campaign-domain`` to the parser ``ap``."""
     ap.add_argument('--campaign-runs', type=int, metavar='M',
-                    help='campaign_ros: runs a campaign (default 10, 4 with --quick)')
+                    help="campaign_ros: runs a campaign (default: the spec's, 4 with --quick; "
+                         'the replay at 5x and the short campaign: 10 at most)')
     ap.add_argument('--campaign-domain', type=int, metavar='D',
                     help="campaign_ros: first ROS domain of the campaigns' (default: the "
                          "spec's domain_base)")
@@ -264,38 +300,49 @@ def render_md(results):
         return None
     fmt = common.fmt
     rows = []
-    for key, _, _, _ in VARIANTS:
+    ref = res.get('in_process')
+    if ref:
+        rows.append(('in process (`factory:`), for reference', res['runs'],
+                     f'**{fmt(ref["runs_per_min"])}**', f'{fmt(ref["wall_s"])} s',
+                     '—', '—', '—', '—', '—', '—', '—', f'ANEES {ref["anees"]:.3f}'))
+    for key, *_ in VARIANTS:
         v = res['variants'].get(key)
         if not v:
             continue
         ph = v['phases']
-        rows.append((v['label'], f'**{fmt(v["runs_per_min"])}**',
-                     f'{fmt(v["wall_s"])} s, {v["runs_ok"]}/{res["runs"]} ok',
-                     (f'{fmt(ph["ready_s"])} ({v["started"]} of {res["runs"]} runs)'
-                      if 'ready_s' in ph else '—'), fmt(ph.get('play_s')),
+        m = v.get('runs', res['runs'])
+        rows.append((v['label'], m, f'**{fmt(v["runs_per_min"])}**',
+                     f'{fmt(v["wall_s"])} s, {v["runs_ok"]}/{m} ok',
+                     (f'{fmt(ph["ready_s"])} ({v["started"]}×)' if 'ready_s' in ph else '—'),
+                     fmt(ph.get('generate_s')), fmt(ph.get('play_s')),
                      fmt(ph.get('settle_s', 0) + ph.get('end_s', 0)
                          if 'end_s' in ph else None),
-                     fmt(ph.get('generate_s')), fmt(ph.get('score_s')), fmt(ph.get('wall_s')),
-                     fmt(v['nees_max_rel_diff'], 2)))
+                     fmt(ph.get('score_s')), fmt(ph.get('wall_s')),
+                     (f'{fmt(ph["estimator_cpu_s"])} / {fmt(ph["feeder_cpu_s"])}'
+                      if 'estimator_cpu_s' in ph else '—'),
+                     f'max diff {fmt(v["nees_max_rel_diff"], 2)}'))
     table = common.md_table(
-        ['way', 'runs/min', 'campaign', 'estimator start (s)', 'play (s)',
-         'settle + stop/reset (s)', 'generate (s)', 'score (s)', 'run (s)',
-         'NEES vs in process'], rows)
+        ['way', 'runs', 'runs/min', 'campaign (wall)', 'estimator start (s)',
+         'generate (s)', 'play (s)', 'settle + stop or reset (s)', 'score (s)',
+         'run (s)', 'CPU in play: estimator / worker (s)', 'per-step NEES vs in process'],
+        rows)
     b = res['bounds']
-    bounds = common.md_table(['what bounds a run', 'seconds'], [
-        ('a Python start / with `import rclpy, numpy`',
+    bounds = common.md_table(['what bounds a run, measured apart', 'seconds'], [
+        ('process start: Python / Python with `import rclpy, numpy`',
          f'{fmt(b["python_s"])} / {fmt(b["import_rclpy_s"])}'),
-        ('an echo node, started until it listens', fmt(b['echo_start_s'])),
+        ('process start: an echo node, spawned until its subscriptions exist',
+         fmt(b['echo_start_s'])),
         ('discovery: its subscriptions made until matched', fmt(b['discovery_s'])),
-        (f'transport: the run ({b["messages"]} messages) paced to the echo node',
+        (f'transport: one run ({b["messages"]} messages) paced to the echo node '
+         '(rclpy on both ends, taken as rigidrot_mekf takes them, no filter)',
          f'{fmt(b["echo_play_s"])} ({fmt(b["echo_msgs_per_s"])} messages/s)'),
         ('the filter: the MEKF in process on the same messages',
          fmt(b['mekf_in_process_s']))])
     loads = [x for v in res['variants'].values() for x in v['load_average']]
     title = (f"A ROS estimator's campaign (`rigidrot_bench --only campaign_ros`): "
-             f'{res["spec"]}, {res["runs"]} runs × 30 s on a pool of 2, three ways; medians '
-             f'per run; load average {min(loads):.1f}–{max(loads):.1f} on '
-             f'{res["cores"]} cores')
+             f'{res["spec"]} (30 s runs) on a process pool of 2, the ways side by side in '
+             f'one run; phases are medians over the runs; load average '
+             f'{min(loads):.1f}–{max(loads):.1f} on {res["cores"]} cores')
     if res.get('quick'):
         title += '; quick run'
     return common.part_md(results, NAME, title, table + '\n' + bounds)

@@ -8,6 +8,9 @@ estimate. The two topics arrive on separate subscriptions, so messages are held 
 other topic has reached their stamp (or for 0.5 s at most) and fed to the filter in stamp
 order. Each callback also takes every message already waiting on either subscription (one
 executor round for a burst, not one per message: a campaign's paced feed sends bursts).
+The subscriptions are raw: the fields the filter reads are unpacked from the CDR bytes
+(:func:`cdr_view`; rclpy's message objects cost more than the filter itself here), the
+same doubles as rclpy's; a message of another layout goes through rclpy's deserializer.
 
 At SIGINT/SIGTERM it takes what has been delivered, feeds what is held, publishes the last
 estimates and waits (1 s at most) until its subscribers have acknowledged them, then
@@ -18,13 +21,15 @@ the same on wall or sim time (``use_sim_time``).
 """
 
 import heapq
+import struct
 import sys
 import time
+from types import SimpleNamespace
 
 from rigidrot_ros.estimators.mekf import MekfParams, PARAMS
 from rigidrot_ros.tools.cli import fail, OneLineParser
 
-__all__ = ['main']
+__all__ = ['main', 'cdr_view', 'StampOrder']
 
 
 #: What ``--help`` says about the node's topics and services.
@@ -38,6 +43,41 @@ TOPICS = '''topics (relative names: -r __ns:=/sat1 moves them all):
   service     ~/reset         std_srvs/srv/Trigger: publish what is held, start over
 
 ROS arguments go after --ros-args (e.g. --ros-args -p use_sim_time:=true).'''
+
+
+#: Doubles after the header: sensor_msgs/Imu (orientation, its covariance, angular_velocity,
+#: its covariance, linear_acceleration, its covariance) and
+#: geometry_msgs/PoseWithCovarianceStamped (position, orientation, covariance).
+_DOUBLES = {'imu': 37, 'star_tracker': 43}
+
+
+def cdr_view(kind, data):
+    """Return the fields the MEKF reads from a CDR message, or None for another layout.
+
+    ``kind`` is ``'imu'`` (sensor_msgs/Imu: ``header.stamp``, ``angular_velocity``,
+    ``angular_velocity_covariance``) or ``'star_tracker'``
+    (geometry_msgs/PoseWithCovarianceStamped: ``header.stamp``, ``pose.pose.orientation``,
+    ``pose.covariance``), as attributes of the same names. XCDR1 little endian (what rmw
+    writes): the encapsulation ``00 01 00 00``, the stamp, the frame id (length, bytes),
+    then the doubles aligned to 8 from after the encapsulation.
+    """
+    from builtin_interfaces.msg import Time
+    count = _DOUBLES[kind]
+    if len(data) < 16 or data[0] != 0 or data[1] != 1:
+        return None
+    sec, nsec, n = struct.unpack_from('<iII', data, 4)
+    start = 4 + ((12 + n + 7) & ~7)
+    if len(data) != start + 8 * count:
+        return None
+    v = struct.unpack_from(f'<{count}d', data, start)
+    header = SimpleNamespace(stamp=Time(sec=sec, nanosec=nsec))
+    if kind == 'imu':
+        return SimpleNamespace(header=header,
+                               angular_velocity=SimpleNamespace(x=v[13], y=v[14], z=v[15]),
+                               angular_velocity_covariance=v[16:25])
+    q = SimpleNamespace(x=v[3], y=v[4], z=v[5], w=v[6])
+    return SimpleNamespace(header=header, pose=SimpleNamespace(
+        pose=SimpleNamespace(orientation=q), covariance=v[7:43]))
 
 
 def _parser():
@@ -157,7 +197,12 @@ def _run(params, ros_args):
     start()
     subs = []
 
-    def push(topic, msg):
+    from rclpy.serialization import deserialize_message
+
+    def push(topic, data, kind, msg_type):
+        msg = cdr_view(kind, data)
+        if msg is None:
+            msg = deserialize_message(data, msg_type)
         state['order'].push(topic, msg.header.stamp.sec * 1_000_000_000
                             + msg.header.stamp.nanosec, msg)
 
@@ -166,16 +211,16 @@ def _run(params, ros_args):
         more = True
         while more:
             more = False
-            for topic, sub in subs:
+            for topic, kind, sub in subs:
                 with sub.handle:
                     got = sub.handle.take_message(sub.msg_type, sub.raw)
                 if got is not None:
-                    push(topic, got[0])
+                    push(topic, got[0], kind, sub.msg_type)
                     more = True
 
-    def on(topic):
-        def cb(msg):
-            push(topic, msg)
+    def on(topic, kind, msg_type):
+        def cb(data):
+            push(topic, data, kind, msg_type)
             take_waiting()
         return cb
 
@@ -198,10 +243,11 @@ def _run(params, ros_args):
         return response
 
     in_qos = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE)
-    subs.append((params.imu_topic, node.create_subscription(
-        Imu, 'imu', on(params.imu_topic), in_qos)))
-    subs.append((params.star_tracker_topic, node.create_subscription(
-        PoseWithCovarianceStamped, 'star_tracker', on(params.star_tracker_topic), in_qos)))
+    for topic, kind, msg_type in ((params.imu_topic, 'imu', Imu),
+                                  (params.star_tracker_topic, 'star_tracker',
+                                   PoseWithCovarianceStamped)):
+        subs.append((topic, kind, node.create_subscription(
+            msg_type, kind, on(topic, kind, msg_type), in_qos, raw=True)))
     node.create_service(Trigger, '~/reset', on_reset)
     node.create_timer(0.2, lambda: state['order'].release_old())
     executor = SingleThreadedExecutor()
