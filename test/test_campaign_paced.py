@@ -116,3 +116,60 @@ def test_the_played_messages_are_the_generated_bag_s(tmp_path):
     got = [(t, log, bytes(d)) for t, log, d in iter_serialized(values, 2.0, keep)]
     assert got == want and len(want) > 200
     assert [t for t, _, _ in iter_serialized(values, 2.0)] == [m[0] for m in bag.messages]
+
+
+def test_replay_paced_by_plays_a_bag_and_writes_every_answer(tmp_path, ros_path):
+    """rigidrot_replay --paced-by -o: the MEKF node's answers, as the filter in process."""
+    import signal
+    import subprocess
+
+    from rclpy.serialization import deserialize_message
+    from nav_msgs.msg import Odometry
+
+    from rigidrot_ros.bag import read_bag
+    from rigidrot_ros.estimators.mekf import make
+    from rigidrot_ros.run.generate import generate_bag, iter_run, load_values
+    from ros_helpers import ros_env, script
+    values = load_values(None, {'imu.enable': True, 'star_tracker.enable': True,
+                                'imu.gyro_bias': [1e-3, -5e-4, 1.5e-3], 'imu.seed': 8}.items())
+    bag = generate_bag(values, 2.0, str(tmp_path / 'in'))
+    env = ros_env(ros_path)
+    est = subprocess.Popen(MEKF.split(), env=env, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.STDOUT)
+    try:
+        out = subprocess.run(
+            [script('rigidrot_replay'), bag, '--clock', '--topics', '/imu', '/star_tracker',
+             '/attitude_node/run', '--paced-by', '/estimator/odom', '-o',
+             str(tmp_path / 'answers'), '--wait', '30'],
+            env=env, capture_output=True, text=True, timeout=120)
+    finally:
+        est.send_signal(signal.SIGINT)
+        est.wait(30)
+    assert out.returncode == 0, out.stderr
+    assert '[replay] 220 messages sent and acknowledged' in out.stderr    # 199 + 20 + 1
+    answers = read_bag(str(tmp_path / 'answers'))
+    assert answers.runs and answers.runs[0]['start_ns'] == 0           # scorable
+    got = [deserialize_message(d, Odometry) for t, _, _, _, d in answers.messages
+           if t == '/estimator/odom']
+    filt = make(PARAMS)
+    want = [m for n, _, msg in iter_run(values, 2.0) for m in filt.receive(n, msg)]
+    want += filt.finish()
+    # every estimate the filter had made when the replay ended (its last one comes at
+    # SIGINT, after the replay has written its answers)
+    assert len(want) - 1 <= len(got) <= len(want) and len(got) > 15
+    for a, b in zip(got, want):
+        assert a.header.stamp == b.header.stamp
+        assert a.pose.pose.orientation == b.pose.pose.orientation
+        assert list(a.pose.covariance) == list(b.pose.covariance)
+
+
+@pytest.mark.parametrize('args, words', [
+    (['--window', '8'], '--window and -o go with --paced-by'),
+    (['--paced-by', '/estimator/odom', '--loop'], '--loop does not go with --paced-by'),
+    (['--paced-by', '/estimator/odom', '--clock-step', '-1'], '--clock-step must lie in'),
+])
+def test_replay_paced_by_bad_arguments_one_line_exit_2(tmp_path, capsys, args, words):
+    from rigidrot_ros.tools.replay import main as replay
+    assert replay([str(tmp_path)] + args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err

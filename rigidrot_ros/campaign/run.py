@@ -6,10 +6,13 @@ shared disk (bags go to ``bag_root`` if given, else to a temporary directory tha
 removed). The result holds no wall time (that goes in ``timing``, kept apart by the
 client), so the same spec and seed give the same result bytes on any engine.
 
-Scoring is the project's scorer, on a bag: the estimator's messages (in process) or the
-recorder's bag (ROS) with the run's description (``~/run``), read back by
+Scoring is the project's scorer, on a bag: the estimator's messages (in process,
+:mod:`rigidrot_ros.campaign.inproc`), its answers to the paced feed (a ROS program,
+:mod:`rigidrot_ros.campaign.session`) or the recorder's bag (a ROS program fed by a replay
+at ``rate``), with the run's description (``~/run``), read back by
 :func:`rigidrot_ros.bag.read_bag` and scored by
-:func:`rigidrot_ros.scoring.score.score_against_runs`.
+:func:`rigidrot_ros.scoring.score.score_against_runs`. ``timing`` also holds each path's
+phases (seconds) and counts.
 """
 
 import contextlib

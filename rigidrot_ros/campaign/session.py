@@ -27,6 +27,10 @@ again from that run's start (they go back in time). A run that fails ends the pr
 the next run starts a new one, on a new domain. The process ends with the worker
 (SIGINT at exit; SIGTERM by ``setpriv --pdeathsig`` where available if the worker dies).
 
+The worker's Fast DDS profile (:func:`rigidrot_ros.ros.paced.fast_dds`) is set around its
+first ROS context only, but Fast DDS reads a profile file once per process: later
+participants of the worker process keep it (quicker announcements and heartbeats).
+
 What fails a run, with its reason: the command exits, never subscribes (30 s, at most
 the run's ``timeout``), offers an incompatible QoS, publishes a type the campaign does not
 score, publishes nothing, leaves messages unacknowledged, hangs past ``timeout``, does
