@@ -1,6 +1,6 @@
 """Sphinx configuration of the rigidrot_ros documentation (MyST Markdown pages, autodoc).
 
-Build: ``sphinx-build -W --keep-going -b html doc <out>`` (``test/test_docs.py`` runs it).
+Build: ``sphinx-build -W --keep-going -b html doc <out>`` (``test/project/test_docs.py`` runs it).
 The API page (``api.md``) is filled in here from the package's modules, so a module added
 to one of the public subpackages appears there without editing the page.
 """
@@ -24,8 +24,9 @@ extensions = ['myst_parser', 'sphinx.ext.autodoc', 'sphinx.ext.napoleon', 'sphin
 source_suffix = {'.md': 'markdown'}
 root_doc = 'index'
 # doc/bench holds the benchmark's results (csv, json, svg, png) and the Markdown fragments
-# it generates for benchmarks.md to {include}: data and fragments, not pages of their own.
-exclude_patterns = ['_build', 'bench/**', '**/.ipynb_checkpoints']
+# it generates for benchmarks.md to {include}: data and fragments, not pages of their own
+# ('*' stops at a '/'); doc/bench/history/ holds pages: the timing logs and investigations.
+exclude_patterns = ['_build', 'bench/*.md', 'bench/ratios', '**/.ipynb_checkpoints']
 
 myst_enable_extensions = ['dollarmath', 'colon_fence']
 myst_heading_anchors = 3

@@ -16,10 +16,17 @@ def next_domain_id():
     """Return a ROS_DOMAIN_ID not used by any earlier test of this run.
 
     IDs run from ``RIGIDROT_TEST_DOMAIN_BASE`` (default 1) over ``RIGIDROT_TEST_DOMAIN_SPAN``
-    values (default 100), so test runs side by side on one machine can be kept apart.
+    values (default 100), so test runs side by side on one machine can be kept apart. Under
+    pytest-xdist each worker (``gw0``, ``gw1``, ...) takes its own slice of the span, so two
+    workers never share a domain.
     """
     base = int(os.environ.get('RIGIDROT_TEST_DOMAIN_BASE', '1'))
     span = int(os.environ.get('RIGIDROT_TEST_DOMAIN_SPAN', '100'))
+    worker = os.environ.get('PYTEST_XDIST_WORKER', '')
+    workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1') or 1)
+    if worker.startswith('gw') and workers > 1:
+        span //= workers
+        base += int(worker[2:]) * span
     return base + (os.getpid() * 7 + next(_counter)) % span
 
 

@@ -2,8 +2,8 @@
 
 ``metadata`` (the bag directory: ``metadata.yaml``, its files, the run records),
 ``writer`` (:class:`BagWriter`, durable, chunks closed every ``flush_period``), ``reader``
-(:func:`read_bag`, every complete record of a torn file), ``reindex`` (finish a torn bag in
-place) and ``process`` (a writer in a child process).
+(:func:`read_bag`, every complete record of a torn file) and ``reindex`` (finish a torn bag
+in place).
 """
 
 from rigidrot_ros.bag.metadata import (bag_files, BagError, qos_yaml, run_from_string,

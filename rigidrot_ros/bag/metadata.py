@@ -11,6 +11,7 @@ import json
 import os
 import re
 import struct
+import threading
 
 import yaml
 
@@ -39,12 +40,58 @@ def qos_yaml(depth=10, reliability='reliable', durability='volatile', history='k
     return yaml.safe_dump([profile], sort_keys=False)
 
 
+def uninterrupted(fn, *args, **kwargs):
+    """Return ``fn(*args, **kwargs)``, run to its end whatever signal arrives meanwhile.
+
+    Python runs signal handlers in the main thread only, between two bytecodes, so a
+    KeyboardInterrupt (a second Ctrl-C) can stop a write half way. Called from the main
+    thread, ``fn`` runs in a thread of its own while the main thread waits for it; an
+    exception a signal handler raises in the wait is raised once ``fn`` has finished (its
+    own exception first). From any other thread ``fn`` is simply called.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return fn(*args, **kwargs)
+    result, error = [], []
+    claim, done = threading.Lock(), threading.Event()
+
+    def body():
+        if not claim.acquire(blocking=False):
+            return                      # started twice (a signal inside Thread.start)
+        try:
+            result.append(fn(*args, **kwargs))
+        except BaseException as exc:    # noqa: B902 - handed to the caller's thread
+            error.append(exc)
+        finally:
+            done.set()
+    started, signalled = False, None
+    while not done.is_set():
+        try:
+            if not started:             # a signal may stop start() before or after the
+                threading.Thread(target=body, name='uninterrupted').start()   # thread runs
+                started = True
+            done.wait()
+        except BaseException as exc:    # noqa: B902 - a signal handler's: after the write
+            signalled = signalled or exc
+    if error:
+        raise error[0]
+    if signalled is not None:
+        raise signalled
+    return result[0]
+
+
 def write_metadata_yaml(path, files, topics, counts, first, last, per_file=None):
     """Write a rosbag2 (v9) ``metadata.yaml`` into bag directory ``path`` atomically.
 
     ``topics`` maps topic -> (type, offered_qos_profiles YAML); ``counts`` topic -> count;
-    ``per_file`` optionally maps file name -> (first_ns, last_ns, count).
+    ``per_file`` optionally maps file name -> (first_ns, last_ns, count). The text goes to
+    ``metadata.yaml.tmp`` and is renamed over ``metadata.yaml``, in
+    :func:`uninterrupted`: a reader finds the former file or the whole new one, never a
+    part, and no signal (a second Ctrl-C) stops the write half way.
     """
+    uninterrupted(_write_metadata_yaml, path, files, topics, counts, first, last, per_file)
+
+
+def _write_metadata_yaml(path, files, topics, counts, first, last, per_file):
     start = first or 0
     duration = (last - first) if first is not None else 0
     total = sum(counts.values())
@@ -75,9 +122,10 @@ def write_metadata_yaml(path, files, topics, counts, first, last, per_file=None)
         'custom_data': None,
         'ros_distro': 'jazzy',
     }
+    text = yaml.safe_dump({'rosbag2_bagfile_information': info}, sort_keys=False)
     tmp = os.path.join(path, 'metadata.yaml.tmp')
     with open(tmp, 'w', encoding='utf-8') as fh:
-        yaml.safe_dump({'rosbag2_bagfile_information': info}, fh, sort_keys=False)
+        fh.write(text)
     os.replace(tmp, os.path.join(path, 'metadata.yaml'))
 
 
@@ -117,8 +165,30 @@ def bag_files(path):
     else:
         files = present
     if not files:
+        inner = bags_below(path)
+        if inner:
+            raise BagError(f'{path}: a directory with no .mcap file is not a bag; the bags '
+                           f'sit one level down: {", ".join(inner)} (give one of them)')
         raise BagError(f'{path}: a directory with no .mcap file is not a bag')
     return [os.path.join(path, f) for f in files]
+
+
+def bags_below(path):
+    """Return the bag directories one level below ``path`` (those holding a .mcap), sorted.
+
+    A run directory of the README's estimator loop holds the recorder's bag and the
+    node's, side by side.
+    """
+    def has_mcap(d):
+        try:
+            return os.path.isdir(d) and any(f.endswith('.mcap') for f in os.listdir(d))
+        except OSError:
+            return False
+    try:
+        names = sorted(os.listdir(path))
+    except OSError:
+        return []
+    return [os.path.join(path, n) for n in names if has_mcap(os.path.join(path, n))]
 
 
 def listed_files(meta_path):

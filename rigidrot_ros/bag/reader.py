@@ -127,6 +127,9 @@ def read_bag(path):
         if not read_indexed(fpath, out):
             notes.append((f'{os.path.basename(fpath)}: ' if len(files) > 1 else '')
                          + 'unfinished file, ' + read_stream(fpath, out))
+    if notes:
+        notes.append(f'rigidrot_reindex {path} finishes it in place (summary, index, '
+                     'metadata.yaml), so that other tools read it too')
     if out.schemaless:
         notes.append(schemaless_note(out.schemaless))
     out.note = '; '.join(notes)

@@ -23,7 +23,7 @@ import numpy as np
 import zstandard
 
 from rigidrot_ros.bag.metadata import (MAX_PENDING_CHUNKS, qos_yaml, RUN_RECORD,
-                                       write_metadata_yaml)
+                                       uninterrupted, write_metadata_yaml)
 from rigidrot_ros.msgs.msgdefs import schema_text
 
 
@@ -74,6 +74,18 @@ class _PackedIndex(MessageIndex):
         stream.write4(len(self.records) * 16)
         stream.write(np.array(self.records, dtype='<u8').tobytes())
         stream.finish_record()
+
+
+def _message_heads(cids, seq, log, sizes):
+    """Return each MCAP Message record's head (opcode to publish time) as bytes."""
+    head = np.zeros(len(cids), dtype=np.dtype([('op', 'u1'), ('len', '<u8'), ('cid', '<u2'),
+                                               ('seq', '<u4'), ('log', '<u8'),
+                                               ('pub', '<u8')]))
+    head['op'] = 0x05                               # MCAP Message record
+    head['len'] = 22 + sizes
+    head['cid'], head['seq'], head['log'], head['pub'] = cids, seq, log, log
+    width = head.dtype.itemsize                     # 31 bytes
+    return head.view(f'V{width}').tolist()
 
 
 class BagWriter:
@@ -227,12 +239,16 @@ class BagWriter:
                                  publish_time=int(publish_time_ns or log_time_ns),
                                  sequence=self._counts[topic])
         self._counts[topic] += 1
-        self._first = log_time_ns if self._first is None else min(self._first, log_time_ns)
-        self._last = log_time_ns if self._last is None else max(self._last, log_time_ns)
+        self._note_times(log_time_ns, log_time_ns, 1)
+
+    def _note_times(self, t_lo, t_hi, count):
+        """Note ``count`` messages logged between t_lo and t_hi (ns); flush if it is due."""
+        self._first = t_lo if self._first is None else min(self._first, t_lo)
+        self._last = t_hi if self._last is None else max(self._last, t_hi)
         f = self._per_file[self._files[-1]]
-        f[0] = log_time_ns if f[0] is None else min(f[0], log_time_ns)
-        f[1] = log_time_ns if f[1] is None else max(f[1], log_time_ns)
-        f[2] += 1
+        f[0] = t_lo if f[0] is None else min(f[0], t_lo)
+        f[1] = t_hi if f[1] is None else max(f[1], t_hi)
+        f[2] += count
         self._dirty = True
         self.maybe_flush()
 
@@ -258,23 +274,13 @@ class BagWriter:
             self._roll()
         log = np.asarray(log_times_ns, dtype=np.int64)
         cids = np.array([self._channels[t] for t in topics], dtype=np.int64)
-        seq = np.empty(n, dtype=np.int64)
-        for topic in set(topics):
-            mask = cids == self._channels[topic]
-            seq[mask] = self._counts[topic] + np.arange(int(np.count_nonzero(mask)))
-            self._counts[topic] += int(np.count_nonzero(mask))
+        seq = self._sequence_numbers(topics, cids)
         sizes = np.fromiter(map(len, datas), dtype=np.int64, count=n)
-        head = np.zeros(n, dtype=np.dtype([('op', 'u1'), ('len', '<u8'), ('cid', '<u2'),
-                                           ('seq', '<u4'), ('log', '<u8'), ('pub', '<u8')]))
-        head['op'] = 0x05                               # MCAP Message record
-        head['len'] = 22 + sizes
-        head['cid'], head['seq'], head['log'], head['pub'] = cids, seq, log, log
-        width = head.dtype.itemsize                     # 31 bytes
-        heads = head.view(f'V{width}').tolist()         # each record's head, as bytes
+        heads = _message_heads(cids, seq, log, sizes)
+        width = len(heads[0])                           # 31 bytes
         ends = np.cumsum(width + sizes)                 # record ends from the first
         writer = self._writer
         chunk = writer._Writer__chunk_builder
-        stats = writer._Writer__statistics
         limit = writer._Writer__chunk_size
         lo = 0
         while lo < n:
@@ -284,45 +290,54 @@ class BagWriter:
             over = np.flatnonzero(base + ends[lo:] - start > limit)
             hi = lo + int(over[0]) + 1 if len(over) else n
             offsets = base + np.concatenate([[0], ends[lo:hi - 1] - start])
-            times = log[lo:hi]
             parts = [b''] * (2 * (hi - lo))
             parts[0::2] = heads[lo:hi]
             parts[1::2] = datas[lo:hi]
-            t_lo, t_hi = int(times.min()), int(times.max())
-            if chunk.num_messages == 0:
-                chunk.message_start_time = t_lo
-            else:
-                chunk.message_start_time = min(chunk.message_start_time, t_lo)
-            chunk.message_end_time = max(chunk.message_end_time, t_hi)
-            block = cids[lo:hi]
-            for cid in dict.fromkeys(block.tolist()):       # in order of first appearance
-                rows = np.flatnonzero(block == cid)
-                index = chunk.message_indices.get(cid)
-                if not index:
-                    index = chunk.message_indices[cid] = _PackedIndex(channel_id=cid,
-                                                                      records=[])
-                index.records.extend(zip(times[rows].tolist(), offsets[rows].tolist()))
-            chunk.num_messages += hi - lo
-            chunk.record_writer.write(b''.join(parts))
-            if stats.message_count == 0:
-                stats.message_start_time = t_lo
-            else:
-                stats.message_start_time = min(stats.message_start_time, t_lo)
-            stats.message_end_time = max(stats.message_end_time, t_hi)
-            for cid, count in zip(*np.unique(cids[lo:hi], return_counts=True)):
-                stats.channel_message_counts[int(cid)] += int(count)
-            stats.message_count += hi - lo
+            self._add_to_chunk(b''.join(parts), cids[lo:hi], log[lo:hi], offsets)
             writer._Writer__maybe_finalize_chunk()
             lo = hi
-        t_lo, t_hi = int(log.min()), int(log.max())
-        self._first = t_lo if self._first is None else min(self._first, t_lo)
-        self._last = t_hi if self._last is None else max(self._last, t_hi)
-        f = self._per_file[self._files[-1]]
-        f[0] = t_lo if f[0] is None else min(f[0], t_lo)
-        f[1] = t_hi if f[1] is None else max(f[1], t_hi)
-        f[2] += n
-        self._dirty = True
-        self.maybe_flush()
+        self._note_times(int(log.min()), int(log.max()), n)
+
+    def _sequence_numbers(self, topics, cids):
+        """Return each message's sequence number on its channel, and count them."""
+        seq = np.empty(len(cids), dtype=np.int64)
+        for topic in set(topics):
+            mask = cids == self._channels[topic]
+            seq[mask] = self._counts[topic] + np.arange(int(np.count_nonzero(mask)))
+            self._counts[topic] += int(np.count_nonzero(mask))
+        return seq
+
+    def _add_to_chunk(self, records, block, times, offsets):
+        """Append packed message records to the open chunk: its indexes and the statistics.
+
+        ``block``: their channel ids, ``times``: log times, ``offsets``: where each record
+        starts in the chunk.
+        """
+        chunk = self._writer._Writer__chunk_builder
+        stats = self._writer._Writer__statistics
+        t_lo, t_hi = int(times.min()), int(times.max())
+        if chunk.num_messages == 0:
+            chunk.message_start_time = t_lo
+        else:
+            chunk.message_start_time = min(chunk.message_start_time, t_lo)
+        chunk.message_end_time = max(chunk.message_end_time, t_hi)
+        for cid in dict.fromkeys(block.tolist()):       # in order of first appearance
+            rows = np.flatnonzero(block == cid)
+            index = chunk.message_indices.get(cid)
+            if not index:
+                index = chunk.message_indices[cid] = _PackedIndex(channel_id=cid,
+                                                                  records=[])
+            index.records.extend(zip(times[rows].tolist(), offsets[rows].tolist()))
+        chunk.num_messages += len(block)
+        chunk.record_writer.write(records)
+        if stats.message_count == 0:
+            stats.message_start_time = t_lo
+        else:
+            stats.message_start_time = min(stats.message_start_time, t_lo)
+        stats.message_end_time = max(stats.message_end_time, t_hi)
+        for cid, count in zip(*np.unique(block, return_counts=True)):
+            stats.channel_message_counts[int(cid)] += int(count)
+        stats.message_count += len(block)
 
     def add_run(self, info):
         """Record a run (scene, start stamp, ...) as a ``rigidrot_run`` metadata record."""
@@ -383,9 +398,16 @@ class BagWriter:
         return self._closed
 
     def close(self):
-        """Finish the MCAP (summary and index) and write the final metadata.yaml."""
+        """Finish the MCAP (summary and index) and write the final metadata.yaml.
+
+        Run to its end whatever signal arrives (:func:`metadata.uninterrupted`): a second
+        Ctrl-C during it is raised after the bag is whole.
+        """
         if self._closed:
             return
+        uninterrupted(self._close)
+
+    def _close(self):
         self._closed = True
         error, self._error = self._error, None      # reported here, after the rest
         finished = False

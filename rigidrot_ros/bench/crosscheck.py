@@ -28,6 +28,8 @@ __all__ = ['representation', 'stability_crosscheck', 'stability_scene', 'run']
 
 NAME = 'crosscheck'
 NEEDS = ()
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.core',)
 KEYS = ('stability_crosscheck',)
 
 

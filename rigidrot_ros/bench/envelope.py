@@ -22,6 +22,8 @@ from rigidrot_ros.core.taylor import TaylorKernel
 
 NAME = 'envelope'
 NEEDS = ()
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.core',)
 KEYS = ('envelope',)
 
 

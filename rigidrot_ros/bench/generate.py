@@ -27,6 +27,8 @@ __all__ = ['NAME', 'NEEDS', 'run', 'main', 'render_md', 'add_arguments', 'SCENE'
 
 NAME = 'generate'
 NEEDS = ('rclpy', 'mcap')
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.tools.generate',)
 #: The issue's benchmark scene (overrides of the node's defaults).
 SCENE = ['imu.enable:=true', 'imu.rate:=1000.0', 'star_tracker.enable:=true',
          'star_tracker.rate:=10.0', 'publish_rate:=100.0']
@@ -64,9 +66,10 @@ def _stages(duration, log):
     """Wall time per stage of :func:`io.generate.generate_bag`'s loop, in this process.
 
     The same blocks as the command, timed stage by stage: the truth ticks (``solution.at``
-    in the node's look-ahead batches), the gyro (``Gyro.read_many``: quadrature, the
-    attitudes at the ends, the error model), the star tracker, serialization
-    (:mod:`io.cdr`), merge order and the MCAP writer (``BagWriter.write_many``).
+    in the node's look-ahead batches), the gyro (the imu kind's read: ``Gyro.read_many``,
+    quadrature, the attitudes at the ends, the error model), the star tracker, the kinds'
+    serialization (:mod:`rigidrot_ros.msgs.cdr`), merge order and the MCAP writer
+    (``BagWriter.write_many``).
     """
     from rigidrot_ros.run import generate as gen
     from rigidrot_ros.bag import BagWriter
@@ -78,20 +81,20 @@ def _stages(duration, log):
         run = gen._Run(values, duration, 0)
         writer = BagWriter(None, 'attitude_node', flush_period=0.5,
                            path=os.path.join(tmp, 'bag'), split_seconds=0.0)
-        for topic, type_name in run.topics:
+        for topic, type_name, _, _ in run.topics:
             writer.add_topic(topic, type_name)
-        writer.add_topic(gen.RUN_TOPIC, 'std_msgs/msg/String')
-        gyro, star = run._imu_block, run._star_block
         clock = {'gyro': 0.0, 'star tracker': 0.0}
+        keys = {'imu': 'gyro', 'star_tracker': 'star tracker'}
 
         def timed(fn, key):
-            def call(*args):
+            def call(*args, **kw):
                 c = time.perf_counter()
-                out = fn(*args)
+                out = fn(*args, **kw)
                 clock[key] += time.perf_counter() - c
                 return out
             return call
-        run._imu_block, run._star_block = timed(gyro, 'gyro'), timed(star, 'star tracker')
+        for output, _, _ in run.sensors:        # each sensor kind's reading, timed apart
+            output.sample = timed(output.sample, keys[output.name])
         spent['set-up'] = time.perf_counter() - t0
         step = round(gen.BLOCK_S * 1e9)
         lo = 0
@@ -100,7 +103,7 @@ def _stages(duration, log):
             c0 = time.perf_counter()
             streams = run.block(lo, hi)
             c1 = time.perf_counter()
-            raws = [gen._serialized(run, *st) for st in streams]
+            raws = [gen._serialized(run, p) for p in streams]
             c2 = time.perf_counter()
             topics, datas, stamps = gen._merged(streams, raws)
             c3 = time.perf_counter()

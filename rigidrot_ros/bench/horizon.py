@@ -15,6 +15,8 @@ from rigidrot_ros.core import solve
 
 NAME = 'horizon'
 NEEDS = ('scipy',)
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.core',)
 KEYS = ('horizon',)
 DEFAULT = True
 SHARED_FOOTER = True

@@ -54,6 +54,8 @@ __all__ = ['RATES', 'run_rate', 'bag_figures', 'diag_figures', 'run', 'render_md
 
 NAME = 'node_khz'
 NEEDS = ('rclpy', 'rosbags')
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.ros.cli', 'rigidrot_ros.ros.attitude_node')
 KEYS = ('node_khz',)
 
 #: The rates measured, Hz (truth and gyro alike).

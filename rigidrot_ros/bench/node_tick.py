@@ -38,6 +38,8 @@ from rigidrot_ros.core import solve
 
 NAME = 'node_tick'
 NEEDS = ('rclpy',)
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.ros.cli', 'rigidrot_ros.ros.attitude_node')
 KEYS = ('node_tick',)
 GAPS_S = (0.0, 1e-4, 1e-3, 3e-3, 1e-2)
 #: The node's diagnostics keys summarised per setting (median and worst 1 s window).

@@ -9,9 +9,22 @@ sample against a reference solved at the tightest tol its model accepts, evaluat
 batch (a different path): the angle between them within the sum of the two bounds. The
 targets of issue 20 (p50 <= 20 us and p99 <= 200 us at T = 1e3 s, p50 <= 50 us at
 T = 1e5 s) are checked per row and reported, not enforced (timings under load vary).
+
+Each scene and horizon is timed twice, and the table says which is which:
+
+- **warm**: in this process, the scenes one after the other, so a scene runs after others
+  have warmed the paths they share (the hypergeometric functions, numba's dispatch, the
+  allocator);
+- **cold**: in a fresh interpreter for that scene alone (``python -m
+  rigidrot_ros.bench.random_access --cold NAME T SEED``, the same times t): what a user's
+  first queries pay (``quick``: the first scene only). Imports and ``solve`` are not timed
+  in either; the numba engine loads from its disk cache in both.
 """
 
+import json
 import os
+import subprocess
+import sys
 import time
 import tracemalloc
 
@@ -25,6 +38,8 @@ from rigidrot_ros.core.dense import BLOCK_BYTES, CHECKPOINT_BYTES, GRID_BYTES
 
 NAME = 'random_access'
 NEEDS = ('numpy', 'yaml')
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.core',)
 
 CALLS = 200
 TOL = 1e-12
@@ -48,7 +63,7 @@ def _reference(scene):
                 raise
 
 
-def _one(name, scene, horizon, seed, log):
+def _one(name, scene, horizon, seed, log, process='warm'):
     t = np.random.default_rng(seed).uniform(0.0, horizon, CALLS)
     sol = solve(scene, tol=TOL)
     q = np.empty((CALLS, 4))
@@ -84,11 +99,13 @@ def _one(name, scene, horizon, seed, log):
            'p50_us': float(np.percentile(us, 50)), 'p99_us': float(np.percentile(us, 99)),
            'max_us': float(us.max()), 'checkpoint_bytes': int(ck), 'peak_traced_bytes': peak,
            'max_error_rad': float(err.max()), 'max_bound_rad': float(bound.max()),
-           'reference_tol': ref.tol, 'bounds_hold': ok, 'exact_anchors': int(anchors)}
+           'reference_tol': ref.tol, 'bounds_hold': ok, 'exact_anchors': int(anchors),
+           'process': process}
     p50_t, p99_t = TARGETS.get(horizon, (None, None))
     row['target_met'] = bool((p50_t is None or row['p50_us'] <= p50_t)
                              and (p99_t is None or row['p99_us'] <= p99_t))
-    log(f'{name:22s} {sol.method:28s} T={horizon:7.0e} s  p50 {row["p50_us"]:7.1f} us  '
+    log(f'{name:22s} {process:4s} {sol.method:28s} T={horizon:7.0e} s  '
+        f'p50 {row["p50_us"]:7.1f} us  '
         f'p99 {row["p99_us"]:8.1f} us  max {row["max_us"]:9.1f} us  checkpoints '
         f'{ck / 1e6:5.2f} MB  peak {peak / 1e6:5.2f} MB  exact {anchors:3d}  err '
         f'{row["max_error_rad"]:.1e} <= bound {row["max_bound_rad"]:.1e}: '
@@ -115,13 +132,42 @@ def run(quick=False, log=print):
     for horizon in horizons:
         for i, (name, scene) in enumerate(picked.items()):
             rows.append(_one(name, scene, horizon, 100 + i, log))
+    cold = list(picked)[:1] if quick else list(picked)      # a smoke run: one fresh process
+    log(f'cold: {", ".join(cold)} again, each in a fresh process (the same times t)')
+    for horizon in horizons:
+        for i, name in enumerate(picked):
+            if name in cold:
+                rows.append(_cold(name, horizon, 100 + i, log))
     return {'part': NAME, 'tol': TOL, 'memory_bound_bytes': MEMORY_BOUND, 'rows': rows,
             'bounds_hold': all(r['bounds_hold'] for r in rows), 'engine': jit,
             'load_average': os.getloadavg()[0]}
 
 
+def _cold(name, horizon, seed, log):
+    """Return the row of :func:`_one` for ``name``, measured in a fresh interpreter."""
+    cmd = [sys.executable, '-m', 'rigidrot_ros.bench.random_access', '--cold', name,
+           repr(float(horizon)), str(int(seed))]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    lines = out.stdout.strip().splitlines()
+    if out.returncode != 0 or not lines:
+        raise RuntimeError(f'random_access --cold {name}: exit {out.returncode}: '
+                           f'{(out.stderr.strip().splitlines() or ["no output"])[-1]}')
+    for line in lines[:-1]:
+        log(line)
+    return json.loads(lines[-1])
+
+
+def _cold_main(name, horizon, seed):
+    """Child side of :func:`_cold`: time one scene first thing; its log, then the row (JSON)."""
+    scene = common.ratio_scenes()[name]
+    row = _one(name, scene, float(horizon), int(seed), print, process='cold')
+    print(json.dumps(row), flush=True)
+    return 0
+
+
 _COLUMNS = (
-    ('scene', lambda r: r['scene']), ('method', lambda r: r['method']),
+    ('scene', lambda r: r['scene']), ('process', lambda r: r.get('process', 'warm')),
+    ('method', lambda r: r['method']),
     ('T [s]', lambda r: common.sci(r['horizon_s'])),
     ('p50 [µs]', lambda r: common.fmt(r['p50_us'])),
     ('p99 [µs]', lambda r: common.fmt(r['p99_us'])),
@@ -155,6 +201,9 @@ def render_md(results):
                             f'interpreted ({jit.get("reason", "?")})')
         + (f', loaded in {common.fmt(jit["load_s"])} s' if 'load_s' in jit else ''),
         'errors against a reference at the tightest tol its model accepts, same run',
+        'process: warm = this process, the scenes in turn (each after the others have '
+        'warmed the paths they share); cold = a fresh interpreter for the scene alone, '
+        'the same t: what a first query pays (imports and solve untimed in both)',
     ]
     body = common.md_bullets(lines) + common.md_columns(_COLUMNS, res['rows'])
     return common.part_md(results, NAME, 'Random access: scalar at(t) after solve, first '
@@ -173,6 +222,9 @@ def main(argv=None):
 
     Its results merge into ``D/results.json`` and its table goes to ``D/random_access.md``.
     """
+    args = sys.argv[1:] if argv is None else list(argv)
+    if args[:1] == ['--cold'] and len(args) == 4:
+        return _cold_main(*args[1:])
     from rigidrot_ros.bench import driver
     return driver.part_main(NAME, argv)
 

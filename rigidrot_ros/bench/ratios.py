@@ -18,6 +18,8 @@ from rigidrot_ros.core import solve
 
 NAME = 'ratios'
 NEEDS = ('scipy',)
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.core',)
 KEYS = ('ratios',)
 
 RATIO_FIELDS = (

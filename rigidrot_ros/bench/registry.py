@@ -14,6 +14,8 @@ and may define (the command does without each):
 
 - ``KEYS``: the top-level keys of ``results.json`` its ``run`` returns (else the whole
   dict is stored under ``NAME``);
+- ``MEASURES``: the modules whose code its tables measure (``rigidrot_bench --stale``;
+  else the whole package);
 - ``DEFAULT = True``: run without ``--only``; ``SHARED_FOOTER = True``: its charts carry
   the shared ``footer`` (else the run's footer is kept as ``footer_<NAME>_run``);
 - ``add_arguments(parser)``: its own command options;
@@ -43,6 +45,8 @@ PARTS = (
     'random_access',
     'generate',
     'node_khz',
+    'view_live',
+    'leaderboard',
     'campaign_ros',
 )
 

@@ -8,7 +8,7 @@ tighter than anything measured. No part imports this module.
 
 import sys
 
-from rigidrot_ros.bench import driver, registry
+from rigidrot_ros.bench import driver, figures, registry, stamps
 from rigidrot_ros.bench.common import footer  # noqa: F401  (was importable from here)
 from rigidrot_ros.tools.cli import OneLineParser
 
@@ -45,9 +45,25 @@ def main(argv=None):
     ap.add_argument('--charts-from', metavar='RESULTS_JSON',
                     help='only redraw the charts and the Markdown tables (<part>.md) from '
                          'a results.json into --out (needs matplotlib, runs nothing)')
+    ap.add_argument('--stale', action='store_true',
+                    help='run nothing: list the committed tables older than the code they '
+                         'measure (their commit against git history; see --results, --strict)')
+    stamps.add_arguments(ap)
+    ap.add_argument('--figures', action='store_true',
+                    help='run nothing: check every figure README.md and doc/*.md quote '
+                         'against its results file (see --write)')
+    figures.add_arguments(ap)
     opts = ap.parse_args(argv)
     if opts.list:
         return list_parts()
+    if opts.stale:
+        return stamps.run(opts)
+    if opts.figures:
+        return figures.run(opts)
+    if opts.results or opts.strict:
+        ap.error('--results and --strict go with --stale')
+    if opts.write:
+        ap.error('--write goes with --figures')
     log = driver.clock_log()
     if opts.charts_from is not None:
         missing = driver.missing_modules(['matplotlib'])

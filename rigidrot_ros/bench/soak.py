@@ -25,6 +25,8 @@ __all__ = ['soak', 'rss_mb', 'slope_mb_per_min', 'run']
 
 NAME = 'soak'
 NEEDS = ()
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.ros.cli', 'rigidrot_ros.ros.attitude_node')
 KEYS = ('soak',)
 
 
@@ -104,34 +106,9 @@ def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
         if subscriber:
             sub = subprocess.Popen([common.script('rigidrot_echo')], env=env,
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        t0 = time.monotonic()
-        next_log = 0.0
-        while True:
-            el = time.monotonic() - t0
-            if node.poll() is not None:
-                log(f'soak: attitude_node exited early with status {node.returncode}')
-                break
-            m = rss_mb(node.pid)
-            if m is not None:
-                samples.append((el, m))
-            if el >= next_log:
-                slope, hw = slope_mb_per_min(samples, warmup)
-                log(f'soak {el / 60:5.1f}/{minutes:g} min  RSS {m or 0:7.1f} MB  slope so far '
-                    f'{slope:+.3f} +- {hw:.3f} MB/min')
-                next_log += 60.0
-            if el >= duration:
-                break
-            time.sleep(min(sample_s, max(duration - el, 0.05)))
+        _sample_rss(node, samples, minutes, duration, warmup, sample_s, log)
     finally:
-        if sub is not None:
-            sub.send_signal(signal.SIGINT)
-        common.stop(node, 60)
-        if sub is not None:
-            try:
-                sub.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                sub.kill()
-                sub.wait()
+        _stop(node, sub)
         errf.seek(0)
         stderr_tail = errf.read()[-2000:]
         errf.close()
@@ -154,6 +131,44 @@ def soak(minutes, log, rate=200.0, sample_s=5.0, record=True, subscriber=True):
         f'({slope * 60 * 24:+.1f} MB/day); node exit {node.returncode}, bag '
         f'{bag_bytes / 1e6:.1f} MB')
     return out
+
+
+def _sample_rss(node, samples, minutes, duration, warmup, sample_s, log):
+    """Append ``(t_s, rss_mb)`` of ``node`` to ``samples`` every ``sample_s`` for ``duration``.
+
+    Logs the slope so far once a minute; stops early if the node exits.
+    """
+    t0 = time.monotonic()
+    next_log = 0.0
+    while True:
+        el = time.monotonic() - t0
+        if node.poll() is not None:
+            log(f'soak: attitude_node exited early with status {node.returncode}')
+            break
+        m = rss_mb(node.pid)
+        if m is not None:
+            samples.append((el, m))
+        if el >= next_log:
+            slope, hw = slope_mb_per_min(samples, warmup)
+            log(f'soak {el / 60:5.1f}/{minutes:g} min  RSS {m or 0:7.1f} MB  slope so far '
+                f'{slope:+.3f} +- {hw:.3f} MB/min')
+            next_log += 60.0
+        if el >= duration:
+            break
+        time.sleep(min(sample_s, max(duration - el, 0.05)))
+
+
+def _stop(node, sub):
+    """Stop the subscriber (SIGINT) and the node (:func:`common.stop`), and reap both."""
+    if sub is not None:
+        sub.send_signal(signal.SIGINT)
+    common.stop(node, 60)
+    if sub is not None:
+        try:
+            sub.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            sub.kill()
+            sub.wait()
 
 
 def run(quick=False, log=print, soak_minutes=10.0):

@@ -18,6 +18,8 @@ from rigidrot_ros.core import quaternion as quat
 
 NAME = 'stability'
 NEEDS = ('scipy',)
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.core',)
 KEYS = ('stability',)
 DEFAULT = True
 SHARED_FOOTER = True

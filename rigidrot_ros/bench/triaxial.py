@@ -12,7 +12,7 @@
 Reference: :func:`taylor_reference`, a 42-digit Taylor-series integration of Euler's
 equations and the quaternion kinematics in the time domain (no elliptic function); where
 it would take too long (streams, T > 1e3 s) the exact model itself, whose agreement with
-that integration is shown by the query rows and by ``test/test_core_triaxial.py``.
+that integration is shown by the query rows and by ``test/core/test_core_triaxial.py``.
 """
 
 import math
@@ -31,6 +31,8 @@ __all__ = ['taylor_reference', 'SCENE', 'run', 'draw', 'draw_charts', 'render_md
 
 NAME = 'triaxial'
 NEEDS = ('scipy',)
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.core',)
 KEYS = ('triaxial',)
 
 #: The work-precision and horizon scene: a generic triaxial body, m = 0.37.

@@ -19,6 +19,8 @@ from rigidrot_ros.core import solve
 
 NAME = 'wp'
 NEEDS = ('scipy',)
+#: The code this part measures (``rigidrot_bench --stale``): modules, with what they import.
+MEASURES = ('rigidrot_ros.core',)
 KEYS = ('work_precision',)
 DEFAULT = True
 SHARED_FOOTER = True

@@ -13,6 +13,10 @@ With M runs of a consistent filter and n = 3 (attitude error):
 Steps are matched across runs by their scene time (ns); only the steps every successful run
 scored are used (``steps_dropped`` counts the others). Everything is computed from the runs
 in index order, so the same runs give the same bytes whichever engine produced them.
+
+``sensors`` is the sensor configuration the runs' descriptions record (the error model the
+estimator was fed, :func:`rigidrot_ros.run.outputs.sensor_config`), a value that differs
+between runs (a seed, a dispersed bias, a drawn turn-on bias) given as :data:`VARIES`.
 """
 
 import math
@@ -21,7 +25,10 @@ import numpy as np
 
 from rigidrot_ros.scoring.score import anees_bounds
 
-__all__ = ['aggregate', 'CSV_FIELDS', 'csv_rows']
+__all__ = ['aggregate', 'CSV_FIELDS', 'csv_rows', 'VARIES']
+
+#: A value of the report's ``sensors`` that differs between runs.
+VARIES = 'varies by run'
 
 
 def aggregate(results, spec):
@@ -34,6 +41,9 @@ def aggregate(results, spec):
               'runs_ok': len(ok), 'runs_failed': len(failed), 'failed': failed}
     if not ok:
         return report
+    sensors = [r['row']['sensors'] for r in ok if 'sensors' in r['row']]
+    if sensors:
+        report['sensors'] = _common(sensors)
     maps = []
     for r in ok:
         s = r['series']
@@ -71,6 +81,16 @@ def aggregate(results, spec):
                                                            & (run_anees <= run_band[1])))},
     })
     return report
+
+
+def _common(values):
+    """Return the value all of ``values`` share, mapping by mapping; :data:`VARIES` else."""
+    first = values[0]
+    if all(v == first for v in values[1:]):
+        return first
+    if all(isinstance(v, dict) and v.keys() == first.keys() for v in values):
+        return {k: _common([v[k] for v in values]) for k in first}
+    return VARIES
 
 
 def _est_label(est):

@@ -21,6 +21,23 @@ def _plt():
     return plt
 
 
+def _plain_log(ax):
+    """Label a log y axis with plain numbers (``3``, ``0.5``, ``20``), not ``3×10⁰``.
+
+    matplotlib's log formatter writes every tick as a power of ten, which over the one or
+    two decades of a NEES chart gives ``2×10⁰``, ``3×10⁰``... The same ticks are labelled
+    (matplotlib's choice of which minor ticks to label is kept), in ``%g``.
+    """
+    from matplotlib import ticker
+
+    class Plain(ticker.LogFormatter):
+        def __call__(self, x, pos=None):
+            return f'{x:g}' if super().__call__(x, pos) else ''
+
+    ax.yaxis.set_major_formatter(Plain())
+    ax.yaxis.set_minor_formatter(Plain(labelOnlyBase=False))
+
+
 def _save(fig, prefix):
     paths = []
     for ext in ('png', 'svg'):
@@ -55,6 +72,7 @@ def write_charts(report, out_dir):
             label=f'NEES averaged over runs ({100 * mc["fraction_inside"]:.0f} % of steps '
                   f'inside)')
     ax.set_yscale('log')
+    _plain_log(ax)
     ax.set_xlabel('scene time, s')
     ax.set_ylabel('Monte Carlo NEES')
     ax.set_title(f'{_label(report)}: M = {m} runs, ANEES {report["anees"]["value"]:.2f}')
@@ -100,6 +118,7 @@ def compare_chart(reports, prefix):
                       f'steps in [{lo:.2f}, {hi:.2f}]')
     ax.axhline(3.0, color='k', lw=0.8, ls=':')
     ax.set_yscale('log')
+    _plain_log(ax)
     ax.set_xlabel('scene time, s')
     ax.set_ylabel('NEES averaged over the runs')
     ax.set_title('Monte Carlo NEES with its 95 % band chi2(3M)/M (shaded)')

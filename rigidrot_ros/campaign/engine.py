@@ -1,9 +1,11 @@
 """Run a campaign's runs on an engine, resumably, and write its outputs.
 
 Engines: a local process pool (default, one worker per core), a Dask
-``distributed.LocalCluster`` (``workers=N``) or a running Dask cluster
-(``scheduler='tcp://host:port'``). Workers compute :func:`run.run_one` and return its
-result; the client alone writes into the output directory:
+``distributed.LocalCluster`` (``workers=N``; on 127.0.0.1, with TLS on temporary
+certificates where ``cryptography`` is installed) or a running Dask cluster
+(``scheduler='tls://host:port'`` with a ``distributed.security.Security``, or
+``tcp://``). Workers compute :func:`run.run_one` and return its result; the client
+alone writes into the output directory:
 
 - ``spec.json``: the validated spec (a rerun into the same directory must match it);
 - ``runs/NNNNNN.json``: each run's row and series, written atomically (temp + rename) as
@@ -12,22 +14,48 @@ result; the client alone writes into the output directory:
 - once all runs are done: ``report.json``, ``runs.csv`` and the charts, computed from the
   run files in index order, so a campaign resumed after SIGINT or a crash ends with the
   same bytes as one that was never stopped.
+
+At most a few runs per worker are submitted at a time (:data:`WINDOW_PER_WORKER`), and
+the client drops each run's future once its result is saved: a million-run campaign does
+not hold a million futures, and a Dask worker that dies does not make the scheduler
+recompute results the client already has. Pool workers end when the client process
+dies, even by SIGKILL (:func:`_orphan_guard`).
 """
 
+import collections
 import concurrent.futures as cf
 import csv
+import ctypes
 import io
 import json
 import multiprocessing
 import os
+import signal
 import sys
+import threading
 import time
 
 from rigidrot_ros.campaign.aggregate import aggregate, csv_rows
 from rigidrot_ros.campaign.run import run_one
 from rigidrot_ros.campaign.spec import SpecError
+from rigidrot_ros.campaign.workdir import sweep_work_dirs
 
-__all__ = ['run_campaign', 'DASK_MISSING', 'write_atomic']
+__all__ = ['run_campaign', 'DASK_MISSING', 'write_atomic', 'WINDOW_PER_WORKER',
+           'CONNECT_TIMEOUT', 'CampaignStopped', 'dask_security']
+
+#: Runs submitted ahead per worker (thread): enough to keep every worker busy.
+WINDOW_PER_WORKER = 4
+#: How long the client tries to reach a Dask scheduler.
+CONNECT_TIMEOUT = '20s'
+_PR_SET_PDEATHSIG = 1                       # <linux/prctl.h>
+
+
+class CampaignStopped(RuntimeError):
+    """The engine failed under the campaign (a worker killed, the cluster lost); one line.
+
+    The runs saved so far are kept: the same command continues.
+    """
+
 
 DASK_MISSING = ('--workers/--scheduler need Dask: pip install "dask[distributed]" '
                 '(or pip install "rigidrot_ros[campaign]")')
@@ -53,6 +81,17 @@ def _run_path(out_dir, i, suffix='.json'):
 
 def prepare_dir(spec, out_dir):
     """Create the output directory or check it holds this spec; the runs already done."""
+    if not out_dir:
+        raise SpecError('-o: the output directory must be named (got an empty path)')
+    try:
+        return _prepare_dir(spec, out_dir)
+    except OSError as exc:
+        where = f' ({exc.filename})' if exc.filename not in (None, out_dir) else ''
+        raise SpecError(f'-o {out_dir}: cannot create or use it{where}: '
+                        f'{exc.strerror or exc}') from None
+
+
+def _prepare_dir(spec, out_dir):
     text = _dumps(spec)
     spec_path = os.path.join(out_dir, 'spec.json')
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
@@ -119,38 +158,199 @@ def _save_run(out_dir, result):
                                                 'series': result['series']}))
 
 
+class _ParentGone(BaseException):
+    """Raised in a pool worker whose client died, to unwind its run (temp files, children)."""
+
+
+_IN_RUN = []
+
+
+def _parent_gone(signum, frame):
+    if _IN_RUN:
+        raise _ParentGone()
+    os._exit(1)
+
+
+def _orphan_guard(parent):
+    """Initialise a pool worker: it ends when the client process ``parent`` dies.
+
+    The kernel sends the worker SIGTERM when the process that started it dies (Linux
+    ``prctl(PR_SET_PDEATHSIG)``; the pool starts its workers from the thread that
+    submits, the campaign's own), even by SIGKILL; elsewhere a thread polls the parent's
+    pid. On that signal a worker between runs exits at once; one inside a run unwinds it
+    first (its temporary directory removed, a ROS run's processes stopped). The resource
+    tracker of the pool ends by itself once the client and every worker are gone.
+    """
+    signal.signal(signal.SIGTERM, _parent_gone)
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), 'prctl')
+    except (OSError, AttributeError):
+        threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+    if os.getppid() != parent:                  # it died before the guard was set
+        os._exit(1)
+
+
+def _watch_parent(parent):
+    while os.getppid() == parent:
+        time.sleep(0.5)
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _pool_run(spec, index, bag_root):
+    """Run one campaign run in a pool worker (see :func:`_orphan_guard`)."""
+    _IN_RUN.append(index)
+    try:
+        return _job(spec)(spec, index, bag_root)
+    except _ParentGone:
+        os._exit(1)
+    finally:
+        _IN_RUN.clear()
+
+
+def _job(spec):
+    """Return the worker's function: one estimator's run, or several on the same run."""
+    if 'estimators' in spec:
+        from rigidrot_ros.campaign.multi import run_one_multi
+        return run_one_multi
+    return run_one
+
+
 def _pool(spec, todo, bag_root, workers):
     ctx = multiprocessing.get_context('spawn')
-    ex = cf.ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, mp_context=ctx)
+    n = workers or os.cpu_count() or 1
+    ex = cf.ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_orphan_guard,
+                                initargs=(os.getpid(),))
+    queue, pending = collections.deque(todo), set()
     try:
-        futs = [ex.submit(run_one, spec, i, bag_root) for i in todo]
-        for f in cf.as_completed(futs):
-            yield f.result()
+        while queue or pending:
+            while queue and len(pending) < WINDOW_PER_WORKER * n:
+                pending.add(ex.submit(_pool_run, spec, queue.popleft(), bag_root))
+            done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+            for f in done:
+                try:
+                    result = f.result()
+                except cf.process.BrokenProcessPool:
+                    raise CampaignStopped('a worker of the process pool died in a run (killed, '
+                                          'or out of memory?)') from None
+                yield result
     except BaseException:
-        for f in futs:
+        for f in pending:
             f.cancel()
         ex.shutdown(wait=False, cancel_futures=True)
         raise
     ex.shutdown(wait=True)
 
 
-def _dask(spec, todo, bag_root, workers, scheduler):
+def dask_security(ca_file=None, cert=None, key=None):
+    """Return the ``distributed.security.Security`` of a client, TLS files checked.
+
+    With ``ca_file`` and ``cert`` (``key`` if the certificate file holds no key): mutual
+    TLS with these files, encryption required. Without them: Dask's configuration
+    (``distributed.comm.tls.ca-file``, ``distributed.comm.tls.client.cert`` and
+    ``.key``, ``distributed.comm.require-encryption``), which is plain TCP unless it
+    says otherwise. SpecError (one line) for a missing or unreadable file.
+    """
     try:
-        from distributed import as_completed, Client, LocalCluster
+        from distributed.security import Security
+    except ImportError:
+        raise SpecError(DASK_MISSING) from None
+    given = {'--tls-ca-file': ca_file, '--tls-cert': cert, '--tls-key': key}
+    if not any(given.values()):
+        return Security()
+    for opt in ('--tls-ca-file', '--tls-cert'):
+        if not given[opt]:
+            with_ = ' and '.join(k for k, v in given.items() if v)
+            raise SpecError(f'{opt} is needed with {with_} (mutual TLS: the CA that signed '
+                            "the scheduler's certificate, and this client's certificate "
+                            'signed by a CA the scheduler trusts)')
+    for opt, path in given.items():
+        if path:
+            try:
+                with open(path, 'rb') as fh:
+                    fh.read(1)
+            except OSError as exc:
+                raise SpecError(f'{opt} {path}: {exc.strerror or exc}') from None
+    return Security(tls_ca_file=ca_file, tls_client_cert=cert, tls_client_key=key,
+                    require_encryption=True)
+
+
+def _local_security():
+    """TLS with temporary certificates for a LocalCluster, where ``cryptography`` is installed.
+
+    Without it the cluster listens in plain TCP on 127.0.0.1, which other users of the
+    machine can reach.
+    """
+    from distributed.security import Security
+    try:
+        return Security.temporary()
+    except ImportError:
+        return None
+
+
+def _connect(scheduler, security):
+    from distributed import Client
+    if scheduler.startswith('tls://') and not security.get_tls_config_for_role('client').get(
+            'cert'):
+        raise SpecError(f'--scheduler {scheduler}: a TLS scheduler needs --tls-ca-file and '
+                        "--tls-cert (and --tls-key), or Dask's configuration "
+                        'distributed.comm.tls.ca-file and distributed.comm.tls.client.cert')
+    if security.require_encryption and not scheduler.startswith('tls://'):
+        raise SpecError(f'--scheduler {scheduler}: the TLS options need a tls:// address')
+    try:
+        return Client(scheduler, timeout=CONNECT_TIMEOUT, security=security)
+    except Exception as exc:  # noqa: B902 - Dask raises OSError, TimeoutError, ssl errors
+        raise SpecError(f'--scheduler {scheduler}: cannot connect ({type(exc).__name__}: '
+                        f'{" ".join(str(exc).split()) or "no reason given"}); is the '
+                        "scheduler running, and does it trust this client's certificate?") \
+            from None
+
+
+def _dask(spec, todo, bag_root, workers, client=None):
+    """Run ``todo`` on ``client``'s cluster, or on a new LocalCluster; closes both."""
+    try:
+        from distributed import as_completed, LocalCluster
     except ImportError:
         raise SpecError(DASK_MISSING) from None
     cluster = None
-    if scheduler:
-        client = Client(scheduler, timeout='20s')
-    else:
+    if client is None:
+        from distributed import Client
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=':0', host='127.0.0.1')
+                               dashboard_address=':0', host='127.0.0.1',
+                               security=_local_security())
         client = Client(cluster)
     try:
-        futs = [client.submit(run_one, spec, i, bag_root, pure=False, key=f'run-{i}')
-                for i in todo]
-        for f in as_completed(futs):
-            yield f.result()
+        threads = max(1, sum(client.nthreads().values()))
+        queue = collections.deque(todo)
+        flow = as_completed()
+        submitted = 0
+
+        def top_up():
+            nonlocal submitted
+            while queue and submitted < WINDOW_PER_WORKER * threads:
+                i = queue.popleft()
+                flow.add(client.submit(_job(spec), spec, i, bag_root, pure=False,
+                                       key=f'run-{i}'))
+                submitted += 1
+
+        top_up()
+        while not flow.is_empty():
+            f = next(flow)
+            try:
+                result = f.result()
+            except SpecError:
+                raise
+            except Exception as exc:  # noqa: B902 - KilledWorker, a lost scheduler, ...
+                raise CampaignStopped(f'Dask gave no result for {f.key} '
+                                      f'({type(exc).__name__}: '
+                                      f'{" ".join(str(exc).split())[:200]})') from None
+            f.release()                # the client has it: the cluster may forget it now
+            del f
+            yield result               # and the caller saves it before asking again
+            submitted -= 1
+            threads = max(1, sum(client.nthreads().values())) if queue else threads
+            top_up()
     finally:
         client.close()
         if cluster is not None:
@@ -158,7 +358,7 @@ def _dask(spec, todo, bag_root, workers, scheduler):
 
 
 def run_campaign(spec, out_dir, workers=None, scheduler=None, dask_local=False,
-                 bag_root=None, progress=True):
+                 bag_root=None, progress=True, security=None):
     """Run (or continue) the campaign into ``out_dir``; return the report dict.
 
     Parameters
@@ -175,13 +375,30 @@ def run_campaign(spec, out_dir, workers=None, scheduler=None, dask_local=False,
         Start a ``distributed.LocalCluster`` of ``workers`` workers.
     bag_root : str, optional
         Keep each run's bags under this (shared) directory.
+    progress : bool
+        Show the progress bar on stderr.
+    security : distributed.security.Security, optional
+        The client's security with ``scheduler`` (:func:`dask_security`); default: Dask's
+        configuration.
     """
-    done = prepare_dir(spec, out_dir)
+    client = None
+    if scheduler:                   # reached before anything is written
+        if security is None:
+            security = dask_security()
+        client = _connect(scheduler, security)
+    try:
+        done = prepare_dir(spec, out_dir)
+    except BaseException:
+        if client is not None:
+            client.close()
+        raise
     todo = [i for i in range(spec['runs']) if i not in done]
     bar = Progress(spec['runs'], len(done), progress)
+    if not todo and client is not None:
+        client.close()
     if todo:
-        gen = _dask(spec, todo, bag_root, workers, scheduler) if (scheduler or dask_local) \
-            else _pool(spec, todo, bag_root, workers)
+        gen = _dask(spec, todo, bag_root, workers, client) \
+            if (scheduler or dask_local) else _pool(spec, todo, bag_root, workers)
         ok = False
         try:
             for result in gen:
@@ -193,6 +410,8 @@ def run_campaign(spec, out_dir, workers=None, scheduler=None, dask_local=False,
                 bar.add(result['row']['status'] != 'ok')
         finally:
             bar.close()
+            gen.close()
+            sweep_work_dirs()           # those of workers killed on this machine
     else:
         bar.close()
     return finish(spec, out_dir)
@@ -204,6 +423,9 @@ def finish(spec, out_dir):
     for i in range(spec['runs']):
         with open(_run_path(out_dir, i), encoding='utf-8') as fh:
             results.append(json.load(fh))
+    if 'estimators' in spec:                # several on the same runs
+        from rigidrot_ros.campaign.multi import finish_multi
+        return finish_multi(spec, out_dir, results, write_atomic, _dumps)
     report = aggregate(results, spec)
     write_atomic(os.path.join(out_dir, 'report.json'), _dumps(report))
     header, rows = csv_rows(results)

@@ -27,8 +27,8 @@ import time
 import traceback
 
 from rigidrot_ros.campaign.failure import RunFailed
-from rigidrot_ros.campaign.spec import BUDGET_TRIES, draw_run, run_values
-from rigidrot_ros.run.generate import GenerationError
+from rigidrot_ros.campaign.spec import draw_run, run_values
+from rigidrot_ros.campaign.workdir import claim_work_dir
 
 __all__ = ['run_one', 'RunFailed', 'score_bag']
 
@@ -63,6 +63,9 @@ def score_bag(path, topic, runs=None):
     row = {'count': r['count'], 'nees_count': r['nees_count'], 'anees': r['anees'],
            'anees_lo': r['anees_bounds_95'][0], 'anees_hi': r['anees_bounds_95'][1],
            'rms_rad': r['rms'], 'max_rad': r['max'], 'p95_rad': r['p95']}
+    sensors = [run['sensors'] for run in bag.runs if isinstance(run.get('sensors'), dict)]
+    if sensors:                 # the error model the estimator was fed (run description)
+        row['sensors'] = sensors[0]
     return row, series
 
 
@@ -121,19 +124,21 @@ def _tail(path, lines=40):
         return ''
 
 
-def _ros(spec, values, work, timing):
-    """Generate the bag, feed it to the command (paced, or a replay at ``rate``), score."""
+def _ros(spec, values, work, timing=None, bag=None):
+    """Feed the run (its bag if given) to the command, paced or replayed at ``rate``; score."""
     from rigidrot_ros.run.generate import generate_bag
     est = spec['estimator']
     if est.get('rate') is None:
         from rigidrot_ros.campaign.session import run_paced
-        path, runs = run_paced(spec, values, work, timing)
+        timing = {} if timing is None else timing
+        path, runs = run_paced(spec, values, work, timing, bag=bag)
         t0 = time.perf_counter()
         try:
             return score_bag(path, est['topics'][0], runs)
         finally:
             timing['score_s'] = time.perf_counter() - t0
-    bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
+    if bag is None:
+        bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
     from rigidrot_ros.bag import read_bag
     contents = read_bag(bag)
     names = sorted(t for t in contents.topics
@@ -228,25 +233,17 @@ def run_one(spec, index, bag_root=None):
     row.update({k: v for k, v in draws.items()})
     out = {'row': row, 'series': None, 'log': ''}
     timing = {}
-    work = os.path.join(bag_root, f'run_{index:06d}') if bag_root else \
-        tempfile.mkdtemp(prefix=f'rigidrot_campaign_{index}_')
+    owned = None if bag_root else claim_work_dir(index)   # removed even if we are killed
+    work = os.path.join(bag_root, f'run_{index:06d}') if bag_root else owned.path
     if bag_root:
         shutil.rmtree(work, ignore_errors=True)
         os.makedirs(work)
     try:
         values = run_values(spec, draws)
-        for attempt in range(BUDGET_TRIES):      # the generator's wall-time budget (spec.py)
-            try:
-                if spec['estimator']['kind'] == 'inproc':
-                    score, series = _inproc(spec, values, work, timing)
-                else:
-                    score, series = _ros(spec, values, work, timing)
-                break
-            except GenerationError as exc:
-                if 'time budget' not in str(exc) or attempt == BUDGET_TRIES - 1:
-                    raise
-                shutil.rmtree(work, ignore_errors=True)
-                os.makedirs(work)
+        if spec['estimator']['kind'] == 'inproc':
+            score, series = _inproc(spec, values, work, timing)
+        else:
+            score, series = _ros(spec, values, work, timing)
         row.update(score)
         out['series'] = series
     except RunFailed as exc:
@@ -265,7 +262,7 @@ def run_one(spec, index, bag_root=None):
                                            f'{" ".join(str(exc).split())}'[:300])
         out['log'] = traceback.format_exc()
     finally:
-        if not bag_root:
-            shutil.rmtree(work, ignore_errors=True)
+        if owned is not None:
+            owned.release()
     out['timing'] = dict(timing, wall_s=time.perf_counter() - t0)
     return out

@@ -438,8 +438,11 @@ def _live_session(est):
     return session
 
 
-def run_paced(spec, values, work, timing):
+def run_paced(spec, values, work, timing, bag=None):
     """Generate run ``values``, feed it to the command, return ``(answers bag, runs)``.
+
+    ``bag``, the run's bag when it is generated already (several estimators on one run),
+    is read instead of generating the messages again.
 
     ``timing`` receives the phases' wall times (seconds): ``generate_s``, the session's
     ``process_start_s``/``ready_s`` (when a process started for this run), ``play_s``,
@@ -457,7 +460,13 @@ def run_paced(spec, values, work, timing):
         if not live:
             session.spawn()                       # it starts while the run is generated
         t0 = time.perf_counter()
-        messages = list(iter_serialized(values, spec['duration'], SENSORS + ('run',)))
+        if bag is None:
+            messages = list(iter_serialized(values, spec['duration'], SENSORS + ('run',)))
+        else:
+            from rigidrot_ros.bag import read_bag
+            messages = [(t, log_ns, bytes(data))
+                        for t, _, log_ns, _, data in read_bag(bag).messages
+                        if t.rsplit('/', 1)[-1] in SENSORS + ('run',)]
         run_data = next(data for t, _, data in messages if t == RUN_TOPIC)
         messages = [m for m in messages if m[0] != RUN_TOPIC]
         run = run_from_string(run_data)

@@ -50,6 +50,7 @@ run's row. A box where no draw can satisfy it is refused when the spec is read.
 import importlib
 import math
 import os
+import reprlib
 import shlex
 import shutil
 
@@ -60,11 +61,14 @@ __all__ = ['SpecError', 'load_spec', 'check_spec', 'draw_run', 'run_values', 'MA
            'load_factory', 'DISPERSIONS']
 
 MAX_REDRAWS = 1000
-#: The node's start-up trial bounds its first samples' wall time: on a loaded machine it can
-#: run out of it. Such a refusal says nothing about the draw, so it is tried again.
-BUDGET_TRIES = 3
+#: The last ROS domain ID (ROS 2's "Domain ID" guide: 0-232 on Linux, the highest whose DDS
+#: ports fit under 65535).
+MAX_DOMAIN_ID = 232
+#: Draws checked before anything runs (:func:`check_draws`); a larger campaign's further
+#: draws are checked by their own runs (a draw the node refuses is a failed run).
+EAGER_DRAWS = 1000
 TOP_KEYS = ('name', 'seed', 'runs', 'duration', 'timeout', 'base', 'dispersions',
-            'sensor_seeds', 'estimator')
+            'sensor_seeds', 'estimator', 'estimators')
 BASE_KEYS = ('params_file', 'overrides')
 DISPERSIONS = ('attitude0', 'omega0', 'imu.gyro_bias', 'inertia', 'torque')
 INPROC_KEYS = ('factory', 'params', 'topic')
@@ -80,24 +84,39 @@ def _num(where, v, lo=-math.inf, hi=math.inf, integer=False, strict_lo=False):
     ok_type = isinstance(v, int) if integer else isinstance(v, (int, float))
     if isinstance(v, bool) or not ok_type:
         raise SpecError(f'{where} must be {"an integer" if integer else "a number"}, '
-                        f'got {v!r}')
-    if not math.isfinite(v) or v < lo or v > hi or (strict_lo and v == lo):
+                        f'got {_short(v)}')
+    finite = isinstance(v, int) or math.isfinite(v)       # an int of 400 digits is finite
+    if not finite or v < lo or v > hi or (strict_lo and v == lo):
         rng = f'{"(" if strict_lo else "["}{lo:g}, {hi:g}]'
-        raise SpecError(f'{where} must lie in {rng}, got {v!r}')
+        raise SpecError(f'{where} must lie in {rng}, got {_short(v)}')
     return v
+
+
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxdict, _REPR.maxstring, _REPR.maxother = 3, 6, 4, 60, 60
+
+
+def _short(v, limit=80):
+    """Return ``repr(v)`` within ``limit`` characters, however big or nested ``v`` is.
+
+    A refused value can be a whole file, or YAML aliases nested into a structure whose
+    full repr would not fit in memory.
+    """
+    text = _REPR.repr(v)
+    return text if len(text) <= limit else text[:limit - 3] + '...'
 
 
 def _vec(where, v, size=3):
     if isinstance(v, (int, float)) and not isinstance(v, bool):
         v = [v] * size
     if not isinstance(v, (list, tuple)) or len(v) != size:
-        raise SpecError(f'{where} must be {size} numbers (or one), got {v!r}')
+        raise SpecError(f'{where} must be {size} numbers (or one), got {_short(v)}')
     return [float(_num(f'{where}[{i}]', x)) for i, x in enumerate(v)]
 
 
 def _keys(where, d, allowed):
     if not isinstance(d, dict):
-        raise SpecError(f'{where} must be a mapping, got {d!r}')
+        raise SpecError(f'{where} must be a mapping, got {_short(d)}')
     unknown = sorted(str(k) for k in d if k not in allowed)
     if unknown:
         raise SpecError(f'{where}: unknown key(s) {", ".join(unknown)} '
@@ -108,7 +127,7 @@ def load_factory(text):
     """Import ``module:factory``; SpecError naming it if it does not import."""
     mod, sep, attr = str(text).partition(':')
     if not sep or not mod or not attr:
-        raise SpecError(f'estimator.factory must be module:callable, got {text!r}')
+        raise SpecError(f'estimator.factory must be module:callable, got {_short(text)}')
     try:
         module = importlib.import_module(mod)
     except Exception as exc:  # noqa: B902 - any import failure is the user's to read
@@ -126,7 +145,7 @@ def _dispersion(name, d):
     where = f'dispersions.{name}'
     if name == 'attitude0':
         if d != 'uniform':
-            raise SpecError(f'{where} must be "uniform" (uniform on SO(3)), got {d!r}')
+            raise SpecError(f'{where} must be "uniform" (uniform on SO(3)), got {_short(d)}')
         return 'uniform'
     if name in ('omega0', 'imu.gyro_bias'):
         _keys(where, d, ('mean', 'sigma'))
@@ -134,7 +153,7 @@ def _dispersion(name, d):
             raise SpecError(f'{where} needs sigma (normal about mean)')
         sigma = _vec(f'{where}.sigma', d['sigma'])
         if any(s < 0 for s in sigma):
-            raise SpecError(f'{where}.sigma must be >= 0, got {d["sigma"]!r}')
+            raise SpecError(f'{where}.sigma must be >= 0, got {_short(d["sigma"])}')
         return {'mean': _vec(f'{where}.mean', d.get('mean', 0.0)), 'sigma': sigma}
     _keys(where, d, ('low', 'high'))
     if 'low' not in d or 'high' not in d:
@@ -160,9 +179,12 @@ def check_spec(doc, base_dir='.'):
     """Validate a spec mapping; return it normalised (a plain dict). SpecError otherwise."""
     from rigidrot_ros.run.generate import GenerationError, load_values, prepare_run
     _keys('spec', doc, TOP_KEYS)
-    for k in ('seed', 'runs', 'duration', 'estimator'):
+    for k in ('seed', 'runs', 'duration'):
         if k not in doc:
             raise SpecError(f'spec: missing key {k}')
+    if ('estimator' in doc) == ('estimators' in doc):
+        raise SpecError('spec: missing key estimator' if 'estimator' not in doc else
+                        'spec: give estimator (one) or estimators (a list), not both')
     spec = {
         'name': str(doc.get('name', '')),
         'seed': _num('seed', doc['seed'], 0, 2 ** 63 - 1, integer=True),
@@ -172,28 +194,37 @@ def check_spec(doc, base_dir='.'):
         'sensor_seeds': doc.get('sensor_seeds', 'per_run'),
     }
     if spec['sensor_seeds'] not in ('per_run', 'fixed'):
-        raise SpecError(f'sensor_seeds must be per_run or fixed, got {spec["sensor_seeds"]!r}')
+        raise SpecError(f'sensor_seeds must be per_run or fixed, got '
+                        f'{_short(spec["sensor_seeds"])}')
     base = doc.get('base') or {}
     _keys('base', base, BASE_KEYS)
     pf = base.get('params_file')
     if pf is not None:
-        pf = os.path.normpath(os.path.join(base_dir, str(pf)))
+        if not isinstance(pf, str) or not pf or '\0' in pf:
+            raise SpecError(f'base.params_file must be a file name, got {_short(pf)}')
+        pf = os.path.normpath(os.path.join(base_dir, pf))
         if not os.path.isfile(pf):
             raise SpecError(f'base.params_file {pf}: no such file')
     overrides = base.get('overrides') or {}
     if not isinstance(overrides, dict):
         raise SpecError(f'base.overrides must be a mapping of parameter: value, got '
-                        f'{overrides!r}')
+                        f'{_short(overrides)}')
     try:
         values = load_values(pf, overrides.items())
         prepare_run(values)
     except GenerationError as exc:
         raise SpecError(f'base: {exc}') from None
+    except RecursionError:
+        raise SpecError(f'base: {pf or "base.overrides"}: nested too deeply to read') from None
     spec['base'] = {'params_file': pf, 'values': values}
     disp = doc.get('dispersions') or {}
     _keys('dispersions', disp, DISPERSIONS)
     spec['dispersions'] = {k: _dispersion(k, disp[k]) for k in DISPERSIONS if k in disp}
-    spec['estimator'] = _estimator(doc['estimator'])
+    if 'estimators' in doc:                 # several on the same runs (campaign/multi.py)
+        from rigidrot_ros.campaign.listing import check_estimators
+        spec['estimators'] = check_estimators(doc['estimators'], _estimator, SpecError)
+    else:
+        spec['estimator'] = _estimator(doc['estimator'])
     return spec
 
 
@@ -208,7 +239,7 @@ def _estimator(est):
             raise SpecError(f'estimator: {", ".join(extra)} apply to a command, not a factory')
         params = est.get('params') or {}
         if not isinstance(params, dict):
-            raise SpecError(f'estimator.params must be a mapping, got {params!r}')
+            raise SpecError(f'estimator.params must be a mapping, got {_short(params)}')
         factory = load_factory(est['factory'])
         try:
             factory(dict(params))                      # the parameters are checked now
@@ -222,22 +253,32 @@ def _estimator(est):
     if extra:
         raise SpecError(f'estimator: {", ".join(extra)} apply to a factory, not a command')
     cmd = est['command']
-    cmd = shlex.split(cmd) if isinstance(cmd, str) else cmd
-    if not isinstance(cmd, list) or not cmd or not all(isinstance(c, str) for c in cmd):
-        raise SpecError(f'estimator.command must be a command line, got {est["command"]!r}')
+    if isinstance(cmd, str):
+        try:
+            cmd = shlex.split(cmd)
+        except ValueError as exc:                    # an unbalanced quote
+            raise SpecError(f'estimator.command {_short(cmd)}: cannot split it into words '
+                            f'as a shell would ({exc})') from None
+    if not isinstance(cmd, list) or not cmd or \
+            not all(isinstance(c, str) and c and '\0' not in c for c in cmd):
+        raise SpecError(f'estimator.command must be a command line, got '
+                        f'{_short(est["command"])}')
     if shutil.which(cmd[0]) is None:
         raise SpecError(f'estimator.command: {cmd[0]}: command not found')
     topics = est.get('topics', ['/estimator/odom'])
     if isinstance(topics, str):
         topics = [topics]
-    if not topics or not all(isinstance(t, str) and t for t in topics):
-        raise SpecError(f'estimator.topics must be a list of topic names, got {topics!r}')
+    if not isinstance(topics, list) or not topics or \
+            not all(isinstance(t, str) and t for t in topics):
+        raise SpecError(f'estimator.topics must be a list of topic names, got '
+                        f'{_short(topics)}')
     topics = [t if t.startswith('/') else '/' + t for t in topics]
     inputs = est.get('inputs')
     if inputs is not None:
         inputs = [inputs] if isinstance(inputs, str) else inputs
         if not isinstance(inputs, list) or not all(isinstance(t, str) and t for t in inputs):
-            raise SpecError(f'estimator.inputs must be a list of topic names, got {inputs!r}')
+            raise SpecError(f'estimator.inputs must be a list of topic names, got '
+                            f'{_short(inputs)}')
         inputs = [t if t.startswith('/') else '/' + t for t in inputs]
     keys = ('rate', 'settle', 'window', 'reset', 'clock_step')
     rate, settle, window, reset, step = (est.get(k) for k in keys)
@@ -248,8 +289,16 @@ def _estimator(est):
     if reset is not None:
         if not isinstance(reset, str) or not reset.strip('/') or rate is not None:
             raise SpecError(f'estimator.reset must be the name of a std_srvs/srv/Trigger '
-                            f'service, without rate: (a replay), got {reset!r}')
+                            f'service, without rate: (a replay), got {_short(reset)}')
         reset = reset if reset.startswith('/') else '/' + reset
+    base = _num('estimator.domain_base', est.get('domain_base', 100), 0, MAX_DOMAIN_ID,
+                integer=True)
+    span = _num('estimator.domain_span', est.get('domain_span', 100), 1, MAX_DOMAIN_ID + 1,
+                integer=True)
+    if base + span - 1 > MAX_DOMAIN_ID:
+        raise SpecError(f'estimator.domain_base + domain_span = {base} + {span}: the domains '
+                        f'[{base}, {base + span - 1}] go past the last ROS domain ID, '
+                        f'{MAX_DOMAIN_ID}; make domain_span at most {MAX_DOMAIN_ID + 1 - base}')
     return {'kind': 'ros', 'command': cmd, 'topics': topics, 'inputs': inputs,
             'rate': None if rate is None else float(_num('estimator.rate', rate, 0, 1e3,
                                                          strict_lo=True)),
@@ -260,21 +309,20 @@ def _estimator(est):
             'reset': reset,
             'clock_step': None if step is None else float(_num('estimator.clock_step', step,
                                                                0, 10)),
-            'domain_base': _num('estimator.domain_base', est.get('domain_base', 100), 0, 232,
-                                integer=True),
-            'domain_span': _num('estimator.domain_span', est.get('domain_span', 100), 1, 233,
-                                integer=True)}
+            'domain_base': base, 'domain_span': span}
 
 
-def load_spec(path):
+def load_spec(path, progress=None):
     """Read and validate a spec file; SpecError (one line) if it cannot run.
 
-    Every run's draw is made and validated too (:func:`check_draws`), so an impossible
+    The runs' draws are made and validated too (:func:`check_draws`, the first
+    :data:`EAGER_DRAWS` of them; ``progress`` is its callback), so an impossible
     dispersion is found before anything is written.
     """
+    from rigidrot_ros.run import rclyaml
     try:
         with open(path, encoding='utf-8') as fh:
-            doc = yaml.safe_load(fh)
+            doc = rclyaml.load(fh, spec=True)     # values typed as the node types them
     except OSError as exc:
         raise SpecError(f'{path}: {exc.strerror or exc}') from None
     except UnicodeDecodeError as exc:
@@ -282,8 +330,12 @@ def load_spec(path):
             from None
     except yaml.YAMLError as exc:
         raise SpecError(f'{path}: not YAML ({" ".join(str(exc).split())})') from None
+    except rclyaml.ParameterValueError as exc:
+        raise SpecError(f'{path}: {exc}') from None
+    except RecursionError:
+        raise SpecError(f'{path}: nested too deeply to read') from None
     spec = check_spec(doc, os.path.dirname(os.path.abspath(path)))
-    check_draws(spec)
+    check_draws(spec, progress=progress)
     return spec
 
 
@@ -341,26 +393,32 @@ def run_values(spec, draws):
     return values
 
 
-def check_draws(spec):
-    """Validate every run's parameters as the node would; SpecError names the first bad run.
+def check_draws(spec, limit=None, progress=None):
+    """Validate the runs' parameters as the node would; SpecError names the first bad run.
 
     The node's checks (model constraints such as a torque along the symmetry axis, the
-    start-up trial) are those of :func:`rigidrot_ros.run.generate.prepare_run`.
+    start-up trial) are those of :func:`rigidrot_ros.run.generate.prepare_run`, about 5 ms
+    a draw. The first ``limit`` runs (default :data:`EAGER_DRAWS`) are checked here, so
+    an impossible dispersion is found before anything is written; the draws of a larger
+    campaign's further runs are checked by the runs themselves (the generator runs the
+    same checks), a draw the node refuses making a failed run with the node's reason,
+    rather than hours of checking before the first run. ``progress(done, total)``, if
+    given, is called after each draw. Returns the number of runs checked.
     """
     from rigidrot_ros.run.generate import GenerationError, prepare_run
     if not spec['dispersions'].keys() - {'attitude0'} and spec['sensor_seeds'] == 'fixed':
-        return
-    for i in range(spec['runs']):
+        return 0
+    total = min(spec['runs'], EAGER_DRAWS if limit is None else limit)
+    for i in range(total):
+        if progress is not None:
+            progress(i, total)
         draws, _ = draw_run(spec, i)
         try:
-            for attempt in range(BUDGET_TRIES):
-                try:
-                    prepare_run(run_values(spec, draws))
-                    break
-                except GenerationError as exc:
-                    if 'time budget' not in str(exc) or attempt == BUDGET_TRIES - 1:
-                        raise
+            prepare_run(run_values(spec, draws))
         except GenerationError as exc:
             shown = {k: v for k, v in draws.items() if not k.endswith('seed')}
             raise SpecError(f'impossible dispersion: run {i} draws {shown}, which the node '
                             f'refuses: {exc}') from None
+    if progress is not None:
+        progress(total, total)
+    return total

@@ -23,9 +23,10 @@ Scene constants travel as one float64 array ``prm``:
 """
 
 import math
-import os
 
 import numpy as np
+
+from rigidrot_ros.runtime import switches
 
 __all__ = ['kernels', 'jit_state', 'MAX_TERMS', 'EPS']
 
@@ -262,7 +263,7 @@ def _jit(numba, fn, **kw):
 def _load():
     py = {'eval_one': eval_one, 'eval_many': eval_many, 'chain': chain,
           'chain_back': chain_back}
-    if os.environ.get('RIGIDROT_NO_JIT', '') not in ('', '0'):
+    if switches.no_jit():
         _STATE.update(compiled=False, cached=False, reason='RIGIDROT_NO_JIT is set')
         return py
     try:

@@ -201,6 +201,61 @@ def _mag(x):
     return -100000 if x == 0 else int(mpmath.mag(x))
 
 
+def _constants_at_prec(i_t, i_3, w0f, mf):
+    """Return ``constants()``: the scene constants at the current mp precision, cached.
+
+    From the exact float inputs: the transverse and axial moments, omega0 and the torque
+    in B'.
+    """
+    cache = {}
+
+    def constants():
+        """Scene constants at the current mp precision, from the exact float inputs."""
+        c = cache.get(mp.prec)
+        if c is not None:
+            return c
+        mI, mI3 = mpmath.mpf(i_t), mpmath.mpf(i_3)
+        r0s = mI3 * w0f[2] / mI                            # omega_S3(0) = (I3/I) r0
+        w_s = [mpmath.mpf(w0f[0]), mpmath.mpf(w0f[1]), r0s]
+        ms = [mpmath.mpf(v) for v in mf]
+        mnorm = mpmath.sqrt(sum(v * v for v in ms))
+        c = cache[mp.prec] = {
+            'mI': mI, 'mI3': mI3, 'w_s': w_s, 'ms': ms, 'mnorm': mnorm,
+            # f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2), A = (I - I3) / I3; zero for a
+            # sphere and a fixed axis
+            'c1': (mI - mI3) * w0f[2] / mI,
+            'c2': (mI - mI3) * ms[2] / (2 * mI * mI3),
+            'r0': mpmath.mpf(w0f[2]), 'rdot': ms[2] / mI3,
+        }
+        if mnorm != 0:
+            q_sk = _q_from_e3([v / mnorm for v in ms])
+            c['q_sk'] = q_sk
+            c['wk'] = _rotate_inverse(q_sk, w_s)          # omega_K = R_KS omega_S
+            c['U'] = mnorm / mI
+        return c
+
+    return constants
+
+
+def _const(constants, name, i=None):
+    """Return a function giving one constant at the current mp precision."""
+    if i is None:
+        return lambda: constants()[name]
+    return lambda: constants()[name][i]
+
+
+def _check_accel(c, scene):
+    """Raise ValueError if torque / inertia is beyond float64's range (c: the constants)."""
+    ms = c['ms']
+    mI, mI3 = c['mI'], c['mI3']
+    accel = max(abs(v) for v in ms) / min(mI, mI3)
+    if accel > np.finfo(float).max:
+        raise ValueError(
+            f'torque / inertia reaches {mpmath.nstr(accel, 3)} rad/s^2: beyond the '
+            f'float64 range (1.8e308) of the body rates returned; scale torque '
+            f'{scene.torque} N m or inertia {scene.inertia} kg m^2 into range')
+
+
 def _default_backend():
     return available_backends()[0]
 
@@ -246,106 +301,93 @@ class Solution(BaseSolution):
             i_t = i_3
         w0f = tuple(float(v) for v in w0)                 # exact: perm only permutes
         mf = tuple(float(v) for v in m)
-        cache = {}
-
-        def constants():
-            """Scene constants at the current mp precision, from the exact float inputs."""
-            c = cache.get(mp.prec)
-            if c is not None:
-                return c
-            mI, mI3 = mpmath.mpf(i_t), mpmath.mpf(i_3)
-            r0s = mI3 * w0f[2] / mI                            # omega_S3(0) = (I3/I) r0
-            w_s = [mpmath.mpf(w0f[0]), mpmath.mpf(w0f[1]), r0s]
-            ms = [mpmath.mpf(v) for v in mf]
-            mnorm = mpmath.sqrt(sum(v * v for v in ms))
-            c = cache[mp.prec] = {
-                'mI': mI, 'mI3': mI3, 'w_s': w_s, 'ms': ms, 'mnorm': mnorm,
-                # f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2), A = (I - I3) / I3; zero for a
-                # sphere and a fixed axis
-                'c1': (mI - mI3) * w0f[2] / mI,
-                'c2': (mI - mI3) * ms[2] / (2 * mI * mI3),
-                'r0': mpmath.mpf(w0f[2]), 'rdot': ms[2] / mI3,
-            }
-            if mnorm != 0:
-                q_sk = _q_from_e3([v / mnorm for v in ms])
-                c['q_sk'] = q_sk
-                c['wk'] = _rotate_inverse(q_sk, w_s)          # omega_K = R_KS omega_S
-                c['U'] = mnorm / mI
-            return c
-
-        def const(name, i=None):
-            """Return a function giving one constant at the current mp precision."""
-            if i is None:
-                return lambda: constants()[name]
-            return lambda: constants()[name][i]
-
+        constants = _constants_at_prec(i_t, i_3, w0f, mf)
         with mp.workprec(SETUP_PREC):
             c = constants()
-            ms = c['ms']
-            mI, mI3 = c['mI'], c['mI3']
-            w_s = c['w_s']
-            accel = max(abs(v) for v in ms) / min(mI, mI3)
-            if accel > np.finfo(float).max:
-                raise ValueError(
-                    f'torque / inertia reaches {mpmath.nstr(accel, 3)} rad/s^2: beyond the '
-                    f'float64 range (1.8e308) of the body rates returned; scale torque '
-                    f'{scene.torque} N m or inertia {scene.inertia} kg m^2 into range')
-            self._f = PolyAngle(const('c1'), const('c2'))
-            kin = 0.0                        # rate of setup-rounding error, see _input_error
-            if self.model == 'fixed-axis':
-                q_sk = [mpmath.mpf(0)] * 3 + [mpmath.mpf(1)]
-                kernel = AxisKernel(const('r0'), const('rdot'))
-            elif c['mnorm'] == 0:
-                q_sk = [mpmath.mpf(0)] * 3 + [mpmath.mpf(1)]
-                kernel = ConstantKernel(const('w_s'))
-            else:
-                q_sk, wk, U = c['q_sk'], c['wk'], c['U']
-                wnorm = mpmath.sqrt(sum(v * v for v in wk))
-                # the transverse rate |omega_S x m| / |m| in K, exactly (rationals): at
-                # SETUP_PREC a tiny one would drown in the rounding of the K frame
-                d2 = _transverse_sq(w0f, mf, i_t, i_3)
-                dk = mpmath.sqrt(mpmath.mpf(d2.numerator) / d2.denominator)
-                prec_in = SETUP_PREC
-                if d2 and dk < wnorm * mpmath.mpf(2) ** (64 - SETUP_PREC):
-                    prec_in = angle_prec(_mag(wnorm) - _mag(dk) + SETUP_PREC - 16)
-                    with mp.workprec(prec_in):
-                        wk, U = constants()['wk'], constants()['U']
-
-                def inputs():
-                    """(p, q, r0, U) in K with at least prec_in bits."""
-                    with mp.workprec(max(mp.prec, prec_in)):
-                        c = constants()
-                        return c['wk'] + [c['U']]
-                # a transverse rate below 2^-200 of the motion's rate scale and below
-                # DROP_RATE is dropped; the kernel's bound grows by dk |t| (AxisKernel's
-                # 'dropped'), checked against tol at every sample
-                tiny = mpmath.mpf(2) ** (-200) * max(wnorm, mpmath.sqrt(U))
-                if d2 == 0 or (dk <= tiny and dk <= DROP_RATE):
-                    kernel = AxisKernel(const('wk', 2), const('U'), dropped=float(dk))
-                else:
-                    # the kernel quaternion may take 2/5 of the attitude budget
-                    ktol = 0.4 * (tol - FLOAT_FLOOR)
-                    kernel = spinor_kernel(wk[0], wk[1], wk[2], U, ktol, backend, max_prec,
-                                           inputs=inputs, setup_prec=prec_in)
-                    if not isinstance(kernel, AdiabaticKernel):
-                        # inputs (and the kernels' derived constants) rounded at prec_in
-                        # bits: relative error < 2^-(prec_in - 8) of the rate, so the
-                        # attitude drifts by at most that times the turn
-                        # int |omega_K| dt <= |omega_K(0)| |t| + U t^2 / 2
-                        kin = 2.0 ** -(prec_in - 8)
-                        self._kin_rates = (float(wnorm), float(U))
-            self._kin = kin
+            _check_accel(c, scene)
+            self._f = PolyAngle(_const(constants, 'c1'), _const(constants, 'c2'))
+            q_sk, kernel = self._kernel_for(constants, w0f, mf, i_t, i_3, max_prec)
             q_sk = np.array([float(v) for v in q_sk])
-            self._w_s0 = np.array([float(v) for v in w_s])
+            ms, mI, mI3 = c['ms'], c['mI'], c['mI3']
+            self._w_s0 = np.array([float(v) for v in c['w_s']])
             self._m_over_I = np.array([float(v / mI) for v in ms])
             self._rdot = float(ms[2] / mI3)                    # d r / dt = m3 / I3
+        self._compose(kernel, q_sk, q_b1b, w0, m)
+
+    def _kernel_for(self, constants, w0f, mf, i_t, i_3, max_prec):
+        """Return (q_SK, kernel) as mpf and a kernel; set ``_kin`` (see _input_error).
+
+        A fixed axis and a torque-free scene take closed forms with K = S; under a
+        torque, :meth:`_torqued_kernel`.
+        """
+        c = constants()
+        kin = 0.0                        # rate of setup-rounding error, see _input_error
+        if self.model == 'fixed-axis':
+            q_sk = [mpmath.mpf(0)] * 3 + [mpmath.mpf(1)]
+            kernel = AxisKernel(_const(constants, 'r0'), _const(constants, 'rdot'))
+        elif c['mnorm'] == 0:
+            q_sk = [mpmath.mpf(0)] * 3 + [mpmath.mpf(1)]
+            kernel = ConstantKernel(_const(constants, 'w_s'))
+        else:
+            q_sk = c['q_sk']
+            kernel, kin = self._torqued_kernel(constants, w0f, mf, i_t, i_3, max_prec)
+        self._kin = kin
+        return q_sk, kernel
+
+    def _torqued_kernel(self, constants, w0f, mf, i_t, i_3, max_prec):
+        """Return (kernel, kin) for the motion in K under a torque.
+
+        The inputs (p, q, r0, U) in K take as many bits as the transverse rate needs;
+        a negligible transverse rate is dropped (AxisKernel), otherwise a spinor kernel.
+        kin: the rate of the attitude error from rounding the inputs (0 if none).
+        """
+        c = constants()
+        wk, U = c['wk'], c['U']
+        wnorm = mpmath.sqrt(sum(v * v for v in wk))
+        # the transverse rate |omega_S x m| / |m| in K, exactly (rationals): at
+        # SETUP_PREC a tiny one would drown in the rounding of the K frame
+        d2 = _transverse_sq(w0f, mf, i_t, i_3)
+        dk = mpmath.sqrt(mpmath.mpf(d2.numerator) / d2.denominator)
+        prec_in = SETUP_PREC
+        if d2 and dk < wnorm * mpmath.mpf(2) ** (64 - SETUP_PREC):
+            prec_in = angle_prec(_mag(wnorm) - _mag(dk) + SETUP_PREC - 16)
+            with mp.workprec(prec_in):
+                wk, U = constants()['wk'], constants()['U']
+
+        def inputs():
+            """(p, q, r0, U) in K with at least prec_in bits."""
+            with mp.workprec(max(mp.prec, prec_in)):
+                c = constants()
+                return c['wk'] + [c['U']]
+        # a transverse rate below 2^-200 of the motion's rate scale and below
+        # DROP_RATE is dropped; the kernel's bound grows by dk |t| (AxisKernel's
+        # 'dropped'), checked against tol at every sample
+        tiny = mpmath.mpf(2) ** (-200) * max(wnorm, mpmath.sqrt(U))
+        if d2 == 0 or (dk <= tiny and dk <= DROP_RATE):
+            kernel = AxisKernel(_const(constants, 'wk', 2), _const(constants, 'U'),
+                                dropped=float(dk))
+            return kernel, 0.0
+        # the kernel quaternion may take 2/5 of the attitude budget
+        ktol = 0.4 * (self.tol - FLOAT_FLOOR)
+        kernel = spinor_kernel(wk[0], wk[1], wk[2], U, ktol, self.backend, max_prec,
+                               inputs=inputs, setup_prec=prec_in)
+        if isinstance(kernel, AdiabaticKernel):
+            return kernel, 0.0
+        # inputs (and the kernels' derived constants) rounded at prec_in bits: relative
+        # error < 2^-(prec_in - 8) of the rate, so the attitude drifts by at most that
+        # times the turn int |omega_K| dt <= |omega_K(0)| |t| + U t^2 / 2
+        self._kin_rates = (float(wnorm), float(U))
+        return kernel, 2.0 ** -(prec_in - 8)
+
+    def _compose(self, kernel, q_sk, q_b1b, w0, m):
+        """Store the kernel and the fixed quaternion factors around it (q_SK: floats)."""
         self._dense_tmax = _dense_tmax(kernel)
         # spinor kernels return |k| = 1 only to within their error: normalise them
         self._unit_fix = isinstance(kernel, _SPINOR_KERNELS)
         self._kernel = kernel
         self._dense = DenseSpinor(kernel) if self._dense_tmax >= 0 else None
         self._left = quat.multiply(
-            quat.multiply(np.array(scene.attitude0), quat.conjugate(q_b1b)), q_sk)
+            quat.multiply(np.array(self.scene.attitude0), quat.conjugate(q_b1b)), q_sk)
         self._mid = quat.conjugate(q_sk)
         self._right = q_b1b
         # q = left ⊗ k ⊗ (cos(f/2) P0 + sin(f/2) P1): q_z(f) is linear in (cos, sin)

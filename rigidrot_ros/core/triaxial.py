@@ -1,5 +1,9 @@
 """Torque-free motion of a body with three different moments (Euler-Poinsot), exact.
 
+One cohesive algorithm, the exact Euler-Poinsot solution, kept in one module: the
+per-scene table of sn, cn, dn and Q, its proved error bounds and the per-sample
+evaluation share the cells, the constants and one error analysis (below).
+
 Frames: N inertial; B body (principal axes); B' the body axes relabelled by a proper
 rotation ``R_B'B`` (a permutation with signs) so that 2' is the intermediate axis and 3'
 the axis about which the angular momentum circulates (the largest-moment axis when
@@ -238,6 +242,167 @@ def _integral_fx_z(coef, z, prec):
         zp = (zp * z) >> prec
     return out
 
+
+# ---------------------------------------------------------------------------------------
+# the table over [0, K]: its pieces, in the order _build_table takes them
+
+def _fixed_point(prec):
+    """Return the conversions of mpf to fixed point at ``prec`` bits and back: (fx, mpf)."""
+    def fx(x):
+        return int(mpmath.nint(mpmath.ldexp(x, prec)))
+
+    def mpf(i):
+        return mpmath.ldexp(mpmath.mpf(i), -prec)
+
+    return fx, mpf
+
+
+def _table_degrees(ncell, closed_form):
+    """Return (k0, deg): the degrees of each cell's series in fixed point and in all.
+
+    deg makes the integral of g's truncation, summed over the cells, below 2^-64 (2^-90
+    without a closed form for the mean rate, where all of each series is fixed point).
+    """
+    target = 2.0 ** -64 if closed_form else 2.0 ** -90
+    deg = _DEG
+    while 2 * ncell * _q_tail(deg) > target:
+        deg += 1
+    k0 = min(_K0, deg) if closed_form else deg
+    return k0, deg
+
+
+def _centre_series(ncell, mf, bf, k0, prec):
+    """Return (s0, vals, lead): the series at 0, the last centre's values, each centre's series.
+
+    s0: sn, cn, dn's series at 0 to the degree that makes it exact to 2^-prec at
+    |z| <= 1/16 (coefficients <= 1: tail <= 16^-(n + 1) * 16 / 15). The centres' values
+    come from u = h/2 and u = h by the addition theorem; ``lead[i]``: centre i's series
+    of sn, cn, dn and g to degree k0, fixed point.
+    """
+    one = 1 << prec
+    s0 = _series(0, one, one, mf, bf, prec // 4 + 1, prec, with_g=False)[:3]
+    half = [_horner_fx(x, 4) for x in s0]                   # at u = h/2
+    step = _add_fx(half, half, mf, prec)                    # at u = h
+    lead = []
+    vals = half
+    for i in range(ncell):
+        if i:
+            vals = _add_fx(vals, step, mf, prec)
+        lead.append(_series(vals[0], vals[1], vals[2], mf, bf, k0, prec))
+    return s0, vals, lead
+
+
+def _float_rows(lead, mf, bf, k0, deg, prec):
+    """Return the cells' series as a (4, deg + 1, ncell) float array, rows > k0 in float64."""
+    one = 1 << prec
+    x = np.empty((4, deg + 1, len(lead)))
+    for i, ser in enumerate(lead):
+        for f in range(4):
+            x[f, :k0 + 1, i] = [v / one for v in ser[f]]  # int / int rounds correctly
+    w0 = np.array([(one + ((bf * ser[2][0]) >> prec)) / one for ser in lead])
+    _extend_float(x, mf / one, bf / one, w0, k0, deg)
+    return x
+
+
+def _centre_integrals(x, lead, err_f, k0, deg, prec):
+    """Return (integ, fp_err): the integral of g from 0 to each centre, fixed point.
+
+    The integrals over each half-cell: the fixed-point rows, then the float rows (their
+    errors, < 2^-67 a half-cell, bounded by fp_err each).
+    """
+    kf = np.arange(k0 + 1, deg + 1)
+    w_plus = _R ** (kf + 1) / (kf + 1)
+    up = (w_plus @ x[3, k0 + 1:]).tolist()                  # int_0^{h/2}
+    down = ((w_plus * (-1.0) ** kf) @ x[3, k0 + 1:]).tolist()   # int_{-h/2}^0
+    fp_err = float(np.sum((err_f[k0 + 1:] + 2 * (deg + 2) * _U * 2.0 ** kf) * w_plus))
+    integ = []
+    acc = 0
+    for i in range(len(lead)):
+        if i:
+            acc += _integral_fx(lead[i - 1][3], 4, 1) + _float_fx(up[i - 1], prec)
+        acc += _integral_fx(lead[i][3], 4, -1) + _float_fx(down[i], prec)
+        integ.append(acc)
+    return integ, fp_err
+
+
+def _check_at_k(m, mf, s0, vals, x, zk, err_e, deg, prec):
+    """Check the table at u = K, where sn = 1, cn = 0, dn = sqrt(1 - m); raise if it fails.
+
+    The values stepped on from the last centre must agree to 2^-83; the last cell's own
+    series, within its truncation r^(deg+1) / (1 - r) and the float rows' error bounds: a
+    check of those bounds at one point.
+    """
+    fx, mpf = _fixed_point(prec)
+    one = 1 << prec
+    at_k = _add_fx(vals, [_horner_fx_z(v, zk, prec) for v in s0], mf, prec)
+    exact_k = [one, 0, fx(mpmath.sqrt(1 - m))]
+    series_k = [_horner_fx_z([_float_fx(v, prec) for v in x[f, :, -1]], zk, prec)
+                for f in range(3)]
+    allow = _R ** (deg + 1) / (1 - _R) + float(np.sum(err_e * _R ** np.arange(deg + 1)))
+    if max(abs(a - b) for a, b in zip(at_k, exact_k)) > one >> 83 or \
+            max(abs(a - b) for a, b in zip(series_k, exact_k)) > _float_fx(allow, prec):
+        raise PrecisionError(
+            f'the elliptic table failed its check at u = K (m = {float(m)!r}): '
+            f'{[float(mpf(a - b)) for a, b in zip(at_k, exact_k)]}, series '
+            f'{[float(mpf(a - b)) for a, b in zip(series_k, exact_k)]}')
+
+
+def _stored_coefficients(x, lead, integ, gbar_fx, k0, prec):
+    """Return the (_DEG + 1, ncell, 4) coefficients of sn, cn, dn and Q at the centres.
+
+    sn, cn, dn as computed; Q = integral of (g - gbar): its constant and linear terms
+    from fixed point, then g_(k-1) / k.
+    """
+    one = 1 << prec
+    coef = np.empty((_DEG + 1, len(lead), 4))
+    coef[:, :, :3] = x[:3, :_DEG + 1].transpose(1, 2, 0)
+    for i, ser in enumerate(lead):
+        centre_fx = (2 * i + 1) << (prec - 4)                 # (i + 1/2) / 8
+        coef[0, i, 3] = (integ[i] - ((gbar_fx * centre_fx) >> prec)) / one
+        coef[1, i, 3] = (ser[3][0] - gbar_fx) / one
+        for k in range(1, min(k0, _DEG - 1) + 1):
+            coef[k + 1, i, 3] = (ser[3][k] // (k + 1)) / one
+    kq = np.arange(k0 + 1, _DEG)
+    if len(kq):
+        coef[kq + 1, :, 3] = x[3, kq] / (kq + 1)[:, None]
+    return coef
+
+
+def _cell_bounds(coef, k0, err_e, err_f, q_err):
+    """Return the a-priori error bounds per cell and function, (ncell, 4).
+
+    Truncation + the coefficients' errors (one rounding for those from fixed point, the
+    proved bound for the float rows) + Horner; Q's also its constant terms' q_err.
+    """
+    r = _R
+    tail = np.array([r ** (_DEG + 1) / (1 - r)] * 3 +
+                    [r * (2 * r) ** _DEG / (_DEG + 1) / (1 - 2 * r)])
+    absc = np.abs(coef)
+    rk = r ** np.arange(_DEG + 1)
+    exact_rows = np.zeros((_DEG + 1, 4), dtype=bool)
+    exact_rows[:k0 + 1, :3] = True
+    exact_rows[:k0 + 2, 3] = True
+    coef_err = _U * np.einsum('k,knf->nf', rk, absc * exact_rows[:, None, :])
+    ee = np.zeros((_DEG + 1, 4))
+    ee[:, :3] = err_e[:_DEG + 1, None]
+    kq_all = np.arange(1, _DEG + 1)
+    ee[1:, 3] = (err_f[kq_all - 1] + _U * (2.0 ** (kq_all - 1) + err_f[kq_all - 1])) \
+        / kq_all * 1.001
+    coef_err += np.sum(np.where(exact_rows, 0.0, ee) * rk[:, None], axis=0)[None, :]
+    ncell = coef.shape[1]
+    y = np.zeros((ncell, 4))
+    e = np.zeros((ncell, 4))
+    for k in range(_DEG, -1, -1):
+        y_next = y
+        y = absc[k] + r * y_next
+        e = r * e * (1 + 3 * _U) + _U * (2 * r * y_next + y) * (1 + 2 * _U)
+    cell_err = (e + coef_err + tail) * 1.01                 # (ncell, 4)
+    cell_err[:, 3] += q_err                                 # Q's constant terms
+    return cell_err
+
+
+# ---------------------------------------------------------------------------------------
+# per-scene constants (K, u0, the mean rate: mpmath, Arb) and the phase reduction
 
 def _pieces(x, count=8, bits=26):
     """Split mpf x into floats of <= ``bits`` significant bits; residual after each."""
@@ -594,6 +759,12 @@ class TriaxialSolution(BaseSolution):
         return abs((i3 - i1) * e2 / ((i3 - i2) * e1))
 
     def _setup(self, rows, on_separatrix, q_b1b, max_prec):
+        """Compute the per-scene constants at mp's precision, then the table or closed form.
+
+        The amplitudes, lam, h and 2T in B' (Landau & Lifshitz, Sec. 37), the parameter m
+        and the phase u0; then :meth:`_setup_frames`, and :meth:`_setup_separatrix` or
+        :meth:`_setup_table`.
+        """
         inertia = self.scene.inertia
         wb = [mpmath.mpf(v) for v in self.scene.omega0]
         ib = [mpmath.mpf(v) for v in inertia]
@@ -629,7 +800,15 @@ class TriaxialSolution(BaseSolution):
         cq = (i1 * amp1) * (i2 * amp2) / hn ** 2
         self._cq = float(cq)
         self._lam = float(lam)
-        # q_NL: q_NB(0) ⊗ q_BB' ⊗ conj(q_LB'(0)); q_LB' = (u2, -u1, 0, 1 + u3) / norm
+        self._setup_frames(hvec, hn, q_b1b)
+        if on_separatrix:
+            self._setup_separatrix(beta, u0, cq, two_t, hn)
+        else:
+            self._setup_table(m, beta, kk, lam, u0, cq, two_t, hn, max_prec)
+
+    def _setup_frames(self, hvec, hn, q_b1b):
+        """Store q_NL = q_NB(0) ⊗ q_BB' ⊗ conj(q_LB'(0)) and q_B'B, the outer factors."""
+        # q_LB' = (u2, -u1, 0, 1 + u3) / norm
         u = [v / hn for v in hvec]
         p = [u[1], -u[0], mpmath.mpf(0), 1 + u[2]]
         pn = mpmath.sqrt(sum(v * v for v in p))
@@ -643,23 +822,27 @@ class TriaxialSolution(BaseSolution):
         self._right = np.array(q_b1b, dtype=float)
         self._left_t = tuple(self._left)
         self._right_t = tuple(self._right)
-        if on_separatrix:
-            self.method = 'separatrix-closed-form'
-            self.precision = 128
-            self._sep = True
-            self._u0 = float(u0)
-            self._u0_err = 2 * _U * abs(self._u0)
-            rb = mpmath.sqrt((1 - beta) / (1 + beta))
-            self._sep_c = (float(2 / mpmath.sqrt(1 - beta ** 2)), float(rb))
-            f0 = 2 / mpmath.sqrt(1 - beta ** 2) * mpmath.atan(rb * mpmath.tanh(u0 / 2))
-            self._xi_c = float(cq * f0)
-            omega = two_t / hn
-            self._xi_turns = _Turns(omega / (4 * mp.pi), 0)
-            # rounding of xi = 4 pi tau + xi_c - c F (|F| <= c0 pi / 2), then sin, cos
-            self._xi_round = 4 * _U * (2 * math.pi + abs(self._xi_c) +
-                                       abs(self._cq) * self._sep_c[0] * math.pi / 2) + 4 * _U
-            self._static_bound = self._floor + 40 * _U * (1 + abs(self._u0))
-            return
+
+    def _setup_separatrix(self, beta, u0, cq, two_t, hn):
+        """Set the closed form on the separatrix (m = 1): its constants and bound."""
+        self.method = 'separatrix-closed-form'
+        self.precision = 128
+        self._sep = True
+        self._u0 = float(u0)
+        self._u0_err = 2 * _U * abs(self._u0)
+        rb = mpmath.sqrt((1 - beta) / (1 + beta))
+        self._sep_c = (float(2 / mpmath.sqrt(1 - beta ** 2)), float(rb))
+        f0 = 2 / mpmath.sqrt(1 - beta ** 2) * mpmath.atan(rb * mpmath.tanh(u0 / 2))
+        self._xi_c = float(cq * f0)
+        omega = two_t / hn
+        self._xi_turns = _Turns(omega / (4 * mp.pi), 0)
+        # rounding of xi = 4 pi tau + xi_c - c F (|F| <= c0 pi / 2), then sin, cos
+        self._xi_round = 4 * _U * (2 * math.pi + abs(self._xi_c) +
+                                   abs(self._cq) * self._sep_c[0] * math.pi / 2) + 4 * _U
+        self._static_bound = self._floor + 40 * _U * (1 + abs(self._u0))
+
+    def _setup_table(self, m, beta, kk, lam, u0, cq, two_t, hn, max_prec):
+        """Set the table (m < 1), the phases' rates and offsets, and the bound."""
         self._sep = False
         self.method = 'jacobi-elliptic-table'
         # precision for carrying the cell centres over [0, K] (errors grow like e^u there)
@@ -702,58 +885,19 @@ class TriaxialSolution(BaseSolution):
         truncation, summed over the cells, is in Q's bound).
         """
         prec = mp.prec
-        one = 1 << prec
-
-        def fx(x):
-            return int(mpmath.nint(mpmath.ldexp(x, prec)))
-
-        def mpf(i):
-            return mpmath.ldexp(mpmath.mpf(i), -prec)
-
+        fx, mpf = _fixed_point(prec)
         mf, bf = fx(m), fx(beta)
         ncell = int(mpmath.ceil(kk / _H))
         # the mean rate sets the phase at long times: from its closed form; where that is
         # out of reach, the table's own, which then needs its integral to 2^-90, all of
         # each cell's series in fixed point
         gbar = _mean_rate(m, beta, self.backend == 'flint')
-        target = 2.0 ** -64 if gbar is not None else 2.0 ** -90
-        deg = _DEG
-        while 2 * ncell * _q_tail(deg) > target:
-            deg += 1
-        k0 = min(_K0, deg) if gbar is not None else deg
+        k0, deg = _table_degrees(ncell, gbar is not None)
         self._degrees = (k0, deg)
         err_e, err_f = _float_errors(k0, deg)
-        # the series at 0 to the degree that makes it exact to 2^-prec at |z| <= 1/16
-        # (coefficients <= 1: tail <= 16^-(n + 1) * 16 / 15)
-        s0 = _series(0, one, one, mf, bf, prec // 4 + 1, prec, with_g=False)[:3]
-        half = [_horner_fx(x, 4) for x in s0]                   # at u = h/2
-        step = _add_fx(half, half, mf, prec)                    # at u = h
-        lead = []
-        vals = half
-        for i in range(ncell):
-            if i:
-                vals = _add_fx(vals, step, mf, prec)
-            lead.append(_series(vals[0], vals[1], vals[2], mf, bf, k0, prec))
-        x = np.empty((4, deg + 1, ncell))
-        for i, ser in enumerate(lead):
-            for f in range(4):
-                x[f, :k0 + 1, i] = [v / one for v in ser[f]]  # int / int rounds correctly
-        w0 = np.array([(one + ((bf * ser[2][0]) >> prec)) / one for ser in lead])
-        _extend_float(x, mf / one, bf / one, w0, k0, deg)
-        # integrals of g over each half-cell: the fixed-point rows, then the float rows
-        # (their errors, < 2^-67 a half-cell, go into q_err)
-        kf = np.arange(k0 + 1, deg + 1)
-        w_plus = _R ** (kf + 1) / (kf + 1)
-        up = (w_plus @ x[3, k0 + 1:]).tolist()                  # int_0^{h/2}
-        down = ((w_plus * (-1.0) ** kf) @ x[3, k0 + 1:]).tolist()   # int_{-h/2}^0
-        fp_err = float(np.sum((err_f[k0 + 1:] + 2 * (deg + 2) * _U * 2.0 ** kf) * w_plus))
-        integ = []
-        acc = 0
-        for i in range(ncell):
-            if i:
-                acc += _integral_fx(lead[i - 1][3], 4, 1) + _float_fx(up[i - 1], prec)
-            acc += _integral_fx(lead[i][3], 4, -1) + _float_fx(down[i], prec)
-            integ.append(acc)
+        s0, vals, lead = _centre_series(ncell, mf, bf, k0, prec)
+        x = _float_rows(lead, mf, bf, k0, deg, prec)
+        integ, fp_err = _centre_integrals(x, lead, err_f, k0, deg, prec)
         self._fx = (fx, mpf, prec)
         self._g_lead = [ser[3] for ser in lead]
         self._g_rest = x[3, k0 + 1:]
@@ -761,23 +905,25 @@ class TriaxialSolution(BaseSolution):
         # reaches any u (Q(u0) for the phase constant)
         self._q_err = (2 * ncell + 1) * (_q_tail(deg) + fp_err + (deg + 2) * 2.0 ** -prec)
         zk = fx(kk - (ncell - mpmath.mpf(0.5)) * _H)            # |zk| <= h/2
-        at_k = _add_fx(vals, [_horner_fx_z(v, zk, prec) for v in s0], mf, prec)
-        exact_k = [one, 0, fx(mpmath.sqrt(1 - m))]
-        # the last cell's own series at K, within its truncation r^(deg+1) / (1 - r) and
-        # the float rows' error bounds: a check of those bounds at one point
-        series_k = [_horner_fx_z([_float_fx(v, prec) for v in x[f, :, -1]], zk, prec)
-                    for f in range(3)]
-        allow = _R ** (deg + 1) / (1 - _R) + float(np.sum(err_e * _R ** np.arange(deg + 1)))
-        if max(abs(a - b) for a, b in zip(at_k, exact_k)) > one >> 83 or \
-                max(abs(a - b) for a, b in zip(series_k, exact_k)) > _float_fx(allow, prec):
-            raise PrecisionError(
-                f'the elliptic table failed its check at u = K (m = {float(m)!r}): '
-                f'{[float(mpf(a - b)) for a, b in zip(at_k, exact_k)]}, series '
-                f'{[float(mpf(a - b)) for a, b in zip(series_k, exact_k)]}')
+        _check_at_k(m, mf, s0, vals, x, zk, err_e, deg, prec)
         total = mpf(integ[-1] + _integral_fx_z(self._g_fx(ncell - 1), zk, prec))
-        # the table's mean, total / K, is known to (its integral's errors + the 2^-83 its
-        # check stands for, per unit u) / K: it must agree with the closed form to that;
-        # where there is no closed form it is the mean rate, and the phase bound says so
+        self._settle_mean_rate(gbar, total, m, kk)
+        self._integ_fx = integ
+        coef = _stored_coefficients(x, lead, integ, fx(self._gbar_mp), k0, prec)
+        self._coef = coef
+        # (degree, function * ncell + cell): what _table gathers from
+        self._coef_flat = np.ascontiguousarray(coef.transpose(0, 2, 1)).reshape(_DEG + 1, -1)
+        self._centres = (np.arange(ncell) + 0.5) * _H
+        self._ncell = ncell
+        self._cell_err = _cell_bounds(coef, k0, err_e, err_f, self._q_err)
+
+    def _settle_mean_rate(self, gbar, total, m, kk):
+        """Keep the mean rate of g, gbar (None: none in closed form), checked by the table.
+
+        The table's mean, total / K, is known to (its integral's errors + the 2^-83 its
+        check stands for, per unit u) / K: it must agree with the closed form to that;
+        where there is no closed form it is the mean rate, and the phase bound says so.
+        """
         total_err = self._q_err + float(kk) * 2.0 ** -83
         self._gbar_rel_err = 0.0
         if gbar is None:
@@ -788,52 +934,6 @@ class TriaxialSolution(BaseSolution):
                                  f' disagrees with its closed form {mpmath.nstr(gbar, 20)} '
                                  f'(m = {float(m)!r})')
         self._gbar_mp = gbar
-        self._integ_fx = integ
-        # the stored coefficients: sn, cn, dn as computed; Q = integral of (g - gbar):
-        # its constant and linear terms from fixed point, then g_(k-1) / k
-        gbar_fx = fx(gbar)
-        coef = np.empty((_DEG + 1, ncell, 4))
-        coef[:, :, :3] = x[:3, :_DEG + 1].transpose(1, 2, 0)
-        for i, ser in enumerate(lead):
-            centre_fx = (2 * i + 1) << (prec - 4)                 # (i + 1/2) / 8
-            coef[0, i, 3] = (integ[i] - ((gbar_fx * centre_fx) >> prec)) / one
-            coef[1, i, 3] = (ser[3][0] - gbar_fx) / one
-            for k in range(1, min(k0, _DEG - 1) + 1):
-                coef[k + 1, i, 3] = (ser[3][k] // (k + 1)) / one
-        kq = np.arange(k0 + 1, _DEG)
-        if len(kq):
-            coef[kq + 1, :, 3] = x[3, kq] / (kq + 1)[:, None]
-        self._coef = coef
-        # (degree, function * ncell + cell): what _table gathers from
-        self._coef_flat = np.ascontiguousarray(coef.transpose(0, 2, 1)).reshape(_DEG + 1, -1)
-        self._centres = (np.arange(ncell) + 0.5) * _H
-        self._ncell = ncell
-        # a-priori bounds per cell and function: truncation + the coefficients' errors
-        # (one rounding for those from fixed point, the proved bound for the float rows)
-        # + Horner
-        r = _R
-        tail = np.array([r ** (_DEG + 1) / (1 - r)] * 3 +
-                        [r * (2 * r) ** _DEG / (_DEG + 1) / (1 - 2 * r)])
-        absc = np.abs(coef)
-        rk = r ** np.arange(_DEG + 1)
-        exact_rows = np.zeros((_DEG + 1, 4), dtype=bool)
-        exact_rows[:k0 + 1, :3] = True
-        exact_rows[:k0 + 2, 3] = True
-        coef_err = _U * np.einsum('k,knf->nf', rk, absc * exact_rows[:, None, :])
-        ee = np.zeros((_DEG + 1, 4))
-        ee[:, :3] = err_e[:_DEG + 1, None]
-        kq_all = np.arange(1, _DEG + 1)
-        ee[1:, 3] = (err_f[kq_all - 1] + _U * (2.0 ** (kq_all - 1) + err_f[kq_all - 1])) \
-            / kq_all * 1.001
-        coef_err += np.sum(np.where(exact_rows, 0.0, ee) * rk[:, None], axis=0)[None, :]
-        y = np.zeros((ncell, 4))
-        e = np.zeros((ncell, 4))
-        for k in range(_DEG, -1, -1):
-            y_next = y
-            y = absc[k] + r * y_next
-            e = r * e * (1 + 3 * _U) + _U * (2 * r * y_next + y) * (1 + 2 * _U)
-        self._cell_err = (e + coef_err + tail) * 1.01            # (ncell, 4)
-        self._cell_err[:, 3] += self._q_err                      # Q's constant terms
 
     def _g_fx(self, i):
         """Cell i's series of g in fixed point (the float rows exactly, below 2^-prec)."""

@@ -7,7 +7,7 @@ each primitive aligned to its size counted from after those 4 bytes) such a mess
 constant template in which only the stamp (two 32-bit words) and a run of doubles change.
 A batch is therefore one ``(n, size)`` byte array: the template repeated, the stamps and
 the doubles written in as columns. Padding bytes are zero (rclpy's serializer leaves them
-as they were in its buffer; every value byte is the same, see ``test/test_cdr.py``).
+as they were in its buffer; every value byte is the same, see ``test/msgs/test_cdr.py``).
 
 API
 ---
@@ -19,7 +19,7 @@ API
 - Builders with the semantics of :mod:`rigidrot_ros.msgs.messages` (same values, field for
   field): :func:`attitude`, :func:`vector`, :func:`imu` (with or without an
   accelerometer), :func:`star_tracker`, :func:`transform`, :func:`odometry`,
-  :func:`magnetic_field`.
+  :func:`magnetic_field`; and :func:`string`, one ``std_msgs/String`` (the run description).
 """
 
 from dataclasses import dataclass
@@ -28,7 +28,7 @@ import numpy as np
 
 __all__ = ['serialize_batch', 'type_name_of', 'Batch', 'Layout', 'KINDS', 'attitude',
            'vector', 'imu', 'star_tracker', 'transform', 'odometry', 'magnetic_field',
-           'ENCAPSULATION']
+           'string', 'ENCAPSULATION']
 
 #: XCDR1 little-endian encapsulation header (CDR_LE, options 0).
 ENCAPSULATION = b'\x00\x01\x00\x00'
@@ -285,3 +285,9 @@ def odometry(stamps_ns, q, omega, attitude_variance, rate_variance, frame_id,
     vals[:, 46:49] = w
     vals[:, 49:85] = _cov6(rv[:, None, None] * eye)
     return serialize_batch('Odometry', stamps_ns, vals, frame_id, child_frame_id)
+
+
+def string(text):
+    """Return the CDR bytes of one ``std_msgs/String`` of ``text`` (as rclpy writes them)."""
+    data = text.encode('utf-8') + b'\x00'
+    return ENCAPSULATION + len(data).to_bytes(4, 'little') + data

@@ -33,7 +33,8 @@ from visualization_msgs.msg import Marker, MarkerArray
 from rigidrot_ros.core.quaternion import multiply_floats
 
 __all__ = ['stamp', 'attitude', 'vector', 'imu', 'odometry', 'transform', 'star_tracker',
-           'body_markers', 'box_size', 'delta_velocity', 'magnetic_field', 'UNUSED']
+           'body_markers', 'box_size', 'delta_velocity', 'magnetic_field', 'axis_from_x',
+           'UNUSED']
 
 #: Diagonal value that marks a covariance block as "not provided".
 UNUSED = -1.0
@@ -212,7 +213,7 @@ def body_markers(stamp_msg, frame_id, q, inertia, namespace='body'):
         arrow.ns, arrow.id, arrow.type, arrow.action = namespace, k + 1, Marker.ARROW, \
             Marker.ADD
         # an ARROW points along its pose's x axis: rotate body x onto body axis k
-        qa = _axis_from_x(k)
+        qa = axis_from_x(k)
         _set_quaternion(arrow.pose.orientation, multiply_floats((x, y, z, w), qa))
         arrow.scale.x, arrow.scale.y, arrow.scale.z = length, 0.04, 0.04
         arrow.color.r, arrow.color.g, arrow.color.b, arrow.color.a = r, g, b, 1.0
@@ -220,7 +221,7 @@ def body_markers(stamp_msg, frame_id, q, inertia, namespace='body'):
     return out
 
 
-def _axis_from_x(k):
+def axis_from_x(k):
     """Quaternion (x, y, z, w) turning the x axis onto axis k (0, 1, 2)."""
     h = math.sqrt(0.5)
     return ((0.0, 0.0, 0.0, 1.0), (0.0, 0.0, h, h), (0.0, -h, 0.0, h))[k]

@@ -1,91 +1,59 @@
 """attitude_node: publish the exact attitude and body rate of the configured scene.
 
-Topics (relative names, so namespaces and remapping apply):
-- ``attitude`` (geometry_msgs/QuaternionStamped): ``q_NB``, (x, y, z, w), header.frame_id
-  = ``frame_id`` (the inertial frame N).
-- ``angular_velocity`` (geometry_msgs/Vector3Stamped): omega of B relative to N, in B,
-  rad/s, header.frame_id = ``body_frame_id``.
-- ``transform`` (geometry_msgs/TransformStamped, parent N, child B; ``transform.enable``),
-  ``odom`` (nav_msgs/Odometry; ``odom.enable``), ``markers``
-  (visualization_msgs/MarkerArray; ``markers.enable``): the same truth for evo, odometry
-  consumers and Foxglove/RViz. All off by default: the default output stays two topics.
-- ``imu`` (sensor_msgs/Imu), ``delta_angle`` and ``delta_rotation``
-  (geometry_msgs/Vector3Stamped, rad, in B) with ``imu.enable``: a rate-integrating gyro
-  with seeded noise and bias, and the exact increments over each gyro interval; with
-  ``accel.enable`` the same ``imu`` carries the accelerometer's specific force, and
-  ``delta_velocity`` (Vector3Stamped, m/s, in B) its exact increment.
-- ``mag`` (sensor_msgs/MagneticField, tesla, in B) with ``mag.enable``.
-- ``star_tracker`` (geometry_msgs/PoseWithCovarianceStamped) with ``star_tracker.enable``.
-- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
-- ``~/run`` (std_msgs/String, transient-local, depth 1): the run description as JSON
-  (scene, model, method, tol, backend, ``start_ns``, ``time_scale``, version, topics),
-  published with the first tick of each run, so a bag of any recorder can be scored.
+Topics (relative names, so namespaces and remapping apply): those of the output table
+(:mod:`rigidrot_ros.run.table`) that the parameters switch on: ``attitude`` (q_NB in N) and
+``angular_velocity`` (in B) always; ``transform``, ``odom``, ``markers`` (the same truth);
+``imu`` with its increments, ``star_tracker``, ``mag`` (sensors); and ``~/run``
+(std_msgs/String, transient-local, depth 1: the run description as JSON, published with the
+first tick of each run, so a bag of any recorder can be scored). ``/diagnostics`` at 1 Hz.
 Service ``~/reset`` (std_srvs/Trigger): restart at t = 0 from the current parameters.
 
 This module is the wiring; the parts are elsewhere: the parameters in
 :mod:`rigidrot_ros.run.params`, the run set-up in :func:`rigidrot_ros.run.settings.prepare_run`,
-the tick grids in :mod:`~rigidrot_ros.run.grid` (stamps: see there), the sensor streams
-in :mod:`~rigidrot_ros.run.streams` and each one's schedule, look-ahead and messages in
-:mod:`~rigidrot_ros.run.sensor_ahead`, the schedule's grid, timing and choice of the next
-batch in :mod:`~rigidrot_ros.run.scheduler`, the truth ahead of time in
-:mod:`~rigidrot_ros.runtime.lookahead`, the messages in :mod:`~rigidrot_ros.run.outputs`,
-the diagnostics in :mod:`~rigidrot_ros.runtime.diagnostics`, ``~/run`` and the recorder in
-:mod:`~rigidrot_ros.ros.recording`, ``--help`` and ``main`` in
-:mod:`~rigidrot_ros.ros.cli`. Because the coming ticks' times are known, their samples are
-evaluated, and the attitude and rate messages built and serialized, ahead in batches; a
-tick reads the clock and publishes the bytes.
+every output (topic, type, rank, switch, reading, encoding) in the table
+:mod:`rigidrot_ros.run.table`, the one scheduler timer's calls in
+:mod:`~rigidrot_ros.run.schedule` (the truth's grid and look-ahead in
+:mod:`~rigidrot_ros.run.truth_ahead`, each sensor's in :mod:`~rigidrot_ros.run.sensor_ahead`,
+the grids in :mod:`~rigidrot_ros.run.grid`), the diagnostics in
+:mod:`~rigidrot_ros.runtime.diagnostics`, ``~/run`` and the recorder in
+:mod:`~rigidrot_ros.ros.recording`, ``--help`` and ``main`` in :mod:`~rigidrot_ros.ros.cli`.
+Because the coming samples' times are known, they are evaluated and their messages encoded
+ahead in batches; a call reads the clock and publishes the bytes.
 """
 
 import contextlib
-import os
 import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import QuaternionStamped, TransformStamped, Vector3Stamped
-from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.time import Time
-from std_msgs.msg import String
 from std_srvs.srv import Trigger
-from visualization_msgs.msg import MarkerArray
 
 from rigidrot_ros.core import PrecisionError
-from rigidrot_ros.msgs import cdr
-from rigidrot_ros.msgs import messages as msgs
 from rigidrot_ros.ros import cli, recording
 from rigidrot_ros.ros.cli import SceneError
+from rigidrot_ros.ros.recorder import msg_class
 from rigidrot_ros.ros.ros_params import descriptor, UnknownParameterError, warn_unknown_overrides
-from rigidrot_ros.run import grid, outputs, scheduler, settings
+from rigidrot_ros.run import settings, table
 from rigidrot_ros.run.params import BY_NAME, PARAMS
+from rigidrot_ros.run.schedule import Schedule
 from rigidrot_ros.run.sensor_ahead import Sensor
-from rigidrot_ros.run.streams import make_streams, scene_time, STREAMS
-from rigidrot_ros.runtime import collector, diagnostics, realtime
-from rigidrot_ros.runtime.lookahead import BatchWorker, Lookahead
+from rigidrot_ros.runtime import collector, diagnostics, realtime, switches
+from rigidrot_ros.runtime.lookahead import BatchWorker
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
 
-#: The truth outputs beyond the pair, by topic: message class.
-_EXTRA_TYPES = {'transform': TransformStamped, 'odom': Odometry, 'markers': MarkerArray}
 _LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
-#: A scheduler call this many timer periods after its due time is a catch-up (see _refill).
+#: A scheduler call this many timer periods after its due time is a catch-up (see refill).
 _CATCH_UP = 1.0
 #: A call that ended within this share of its timer period after its due time runs the
 #: collector's pending pass (collector.Passes; a pass takes 0.3 to 1 ms under load).
 _GC_ROOM = 0.4
-
-
-def _use_worker():
-    """Whether look-ahead batches run in a worker thread (``RIGIDROT_LOOKAHEAD_WORKER=0``: not).
-
-    The variable is for measuring the two against each other; anything but ``0`` means on.
-    """
-    return os.environ.get('RIGIDROT_LOOKAHEAD_WORKER', '1').strip() != '0'
 
 
 class AttitudeNode(Node):
@@ -108,60 +76,61 @@ class AttitudeNode(Node):
         except ValueError as exc:
             raise SceneError(str(exc)) from None
         self._frames = self._setup.frames
-        self._t_start = None
-        self._grid0 = None              # clock ns of the truth grid's index 0 (see _anchor)
-        self._tick_k = -1               # the last truth grid index published
-        self._ahead = None
-        self._last_sample = None
         self._counters = diagnostics.Counters()
         self._gc = diagnostics.GcWatch()
-        #: Freezes the start-up heap out of the collector's full passes (node.collector)
+        #: Freezes the start-up heap out of the collector's full passes (runtime.collector)
         self._freezer = collector.Freezer()
-        #: The young passes, run right after a call that ended early (node.collector)
+        #: The young passes, run right after a call that ended early (runtime.collector)
         self._passes = collector.Passes()
         #: The publishing thread's scheduling policy (realtime.request; diagnostics)
         self._scheduling = realtime.describe()
         #: Runs the look-ahead batches off the executor's thread (lookahead.BatchWorker)
-        self._worker = BatchWorker() if _use_worker() else None
+        self._worker = BatchWorker() if switches.lookahead_worker() else None
         self._gate_last = (0, 0)        # the worker gate's holds and ns at the last report
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._on_post_set)
+        self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        #: (publisher, message class) by relative topic, for the outputs' encoded bytes
+        self._pubs = {}
         self._make_publishers()
         self._srv = self.create_service(Trigger, '~/reset', self._on_reset)
         self._runs = recording.RunLog(self._pub_run, recording.open_recorder(
             self, self._values, self._worker) if self._values['record'] else None)
         self._timer = None
-        self._period_hz = float(self._values['publish_rate'])
-        self._streams, self._sensors = [], []
+        self._schedule = self._new_schedule()
         self._next_diag = time.monotonic() + 1.0
-        self._start_streams()
         self._make_timer(self._values['publish_rate'])
         self._freezer.start()           # before the first tick: a full pass costs ~70 ms
         self._passes.start()
         self.get_logger().info(
             f'running model {self.solution.model} ({self.solution.method}) at '
             f'{self._period_hz:g} Hz')
+        self.get_logger().info('publishing ' + ', '.join(
+            f'{p.topic_name} ({p.msg_type.__name__})' for p in self.publishers
+            if p.topic_name not in ('/rosout', '/parameter_events')))
 
     def _make_publishers(self):
-        """Create the publishers of the outputs that are on (the switches are read only)."""
+        """Create the publishers of the topics of the run's outputs (the table's), ``~/run`` too.
+
+        At ``~/reset`` only those of topics that come or go with the new run are created or
+        destroyed (a topic that needs an increment quantum set).
+        """
         qos = QoSProfile(depth=self._values['qos_depth'],
                          reliability=ReliabilityPolicy.RELIABLE)
-        self._pub_att = self.create_publisher(QuaternionStamped, 'attitude', qos)
-        self._pub_rate = self.create_publisher(Vector3Stamped, 'angular_velocity', qos)
-        #: Publisher by topic for the outputs built as ``(topic, msg)`` (extras, sensors).
-        self._pubs = {}
-        for topic, switch in outputs.TRUTH_EXTRAS:
-            if self._values[switch]:
-                self._pubs[topic] = self.create_publisher(_EXTRA_TYPES[topic], topic, qos)
-        self._pubs_extra = bool(self._pubs)
-        for stream in make_streams(self._setup):
-            for topic, cls in stream.topics:
-                self._pubs[topic] = self.create_publisher(cls, topic, qos)
-        self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        # the run description: JSON on ~/run, kept for late joiners (recording.RunLog)
-        self._pub_run = self.create_publisher(
-            String, '~/run', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        want = {t.name: (t.type, kind) for kind in self._setup.outputs
+                for t in kind.topics_on(self._setup.values)}
+        for name in [n for n in self._pubs if n not in want]:
+            self.destroy_publisher(self._pubs.pop(name)[0])
+        for name, (type_name, kind) in want.items():
+            if name not in self._pubs:
+                cls = msg_class(type_name)
+                self._pubs[name] = (self.create_publisher(
+                    cls, name, latched if kind.latched else qos), cls)
+        # ~/run: published by RunLog with a run's first call, kept for late joiners
+        self._pub_run = next(self._pubs[t.name][0] for kind in self._setup.outputs
+                             if kind.grid == 'start' for t in kind.topics)
 
     @property
     def solution(self):
@@ -243,58 +212,51 @@ class AttitudeNode(Node):
             self._make_timer(self._values['publish_rate'])
         if names & {'frame_id', 'body_frame_id'}:
             self._frames = (self._values['frame_id'], self._values['body_frame_id'])
-            if self._ahead is not None:
-                self._ahead.drop_built()     # messages built ahead carry the old frames
+            self._schedule.drop_built()     # messages built ahead carry the old frames
+
+    def _new_schedule(self):
+        """Return the schedule of the current run set-up (its outputs fresh: new noise)."""
+        return Schedule(self._setup, self._counters, lambda: self._frames, self._worker)
 
     def _make_timer(self, rate):
         """(Re)create the one scheduler timer: the shortest period of every stream."""
         if self._timer is not None:
             self.destroy_timer(self._timer)
         self._period_hz = float(rate)
-        self._period = 1.0 / float(rate)
-        self._grid0 = None              # the next tick anchors a new grid (same t_start)
-        self._timer_ns = scheduler.timer_period_ns([rate] + [s.rate for s in self._streams])
+        self._timer_ns = self._schedule.retime(rate)    # a new truth grid at the next call
         self._timer = self.create_timer(self._timer_ns * 1e-9, self._on_timer)
 
-    # -- the scheduler -----------------------------------------------------------------------
+    # -- the scheduler call ------------------------------------------------------------------
     def _on_timer(self):
-        """Publish every sample due now, of every stream, in stamp order (the one timer).
+        """Publish every sample due now, of every output, in stamp order (the one timer).
 
-        Then at most one look-ahead batch (the stream whose buffer runs out first), and
-        the diagnostics once a second. Each phase's time goes to the diagnostics (the
-        window's longest call: ``call_max_phases``).
+        Then the look-ahead batches owed (:meth:`Schedule.refill`), and the diagnostics once
+        a second. Each phase's time goes to the diagnostics (the window's longest call:
+        ``call_max_phases``).
         """
         c_tick = time.perf_counter_ns()
         gc0 = self._gc.total_ns
         now_ns = self._now_ns()
-        due_ns = self._grid_due_ns(now_ns)
-        groups = []                     # (stamp ns, rank, [(publisher, msg, raw), ...])
-        owed = []                       # (stream, samples due, of them evaluated now)
-        truth = self._truth_due(now_ns, groups, owed)
-        if self._t_start is not None:
-            for sensor in self._sensors:
-                n0, m0 = len(groups), sensor.ahead.misses
-                sensor.due(now_ns, groups, self._pubs, self._failed)
-                owed.append((sensor.stream.name, len(groups) - n0,
-                             sensor.ahead.misses - m0))
+        sch = self._schedule
+        due_ns = sch.grid_due_ns(now_ns)
+        call = sch.collect(now_ns, self._timer.time_until_next_call, self._failed)
+        if call.started:
+            self._freezer.arm()         # what the run's start makes: frozen soon
         c_collect = c_publish = c_record = time.perf_counter_ns()
-        if groups:
-            groups.sort(key=lambda g: (g[0], g[1]))
-            items = [it for g in groups for it in g[2]]
+        if call.groups:
+            items = [self._pubs[topic] + (raw,) for topic, raw in call.items()]
             pub_ns = self._now_ns()
             if not self._publish(items):
                 return
-            for sensor in self._sensors:
-                sensor.published(pub_ns, self._counters)
+            sch.published(pub_ns)
             c_publish = time.perf_counter_ns()
-            if truth:
+            if call.truth:
                 self._counters.tick_times.append(c_publish - c_tick)
-            start = self._t_start.nanoseconds if self._t_start is not None else now_ns
-            self._runs.tick(self, self._setup, start, now_ns, items)
+            self._runs.tick(self, self._setup, sch.t_start_ns, now_ns, items)
             c_record = time.perf_counter_ns()
         # a call that came late (a catch-up) leaves its batch to the next call while the
         # buffers hold enough: a batch now would make the next samples late too
-        batch = self._refill(behind=now_ns - due_ns > _CATCH_UP * self._timer_ns)
+        batch = sch.refill(behind=now_ns - due_ns > _CATCH_UP * self._timer_ns)
         c_batch = time.perf_counter_ns()
         if time.monotonic() >= self._next_diag:
             self._next_diag = max(self._next_diag + 1.0, time.monotonic() + 0.5)
@@ -305,101 +267,15 @@ class AttitudeNode(Node):
         self._passes.poll(wake + time.perf_counter_ns() - c_tick <= _GC_ROOM * self._timer_ns)
         c_end = time.perf_counter_ns()
         if self._worker is not None:
-            self._open_gate(c_tick, now_ns, c_end)
+            sch.open_gate(c_tick, now_ns, c_end)
         gc_ns = self._gc.total_ns - gc0
         self._counters.call(wake + c_end - c_tick, lambda: [
             ('wake', wake),
             ('collect', (c_collect - c_tick, ', '.join(
-                f'{name} {n} owed/{m} now' for name, n, m in owed if n or m))),
+                f'{name} {n} owed/{m} now' for name, n, m in call.owed if n or m))),
             ('publish', c_publish - c_collect), ('record', c_record - c_publish),
             ('batch', (c_batch - c_record, batch)), ('diag', c_end - c_batch),
             ('gc', gc_ns)])
-
-    def _open_gate(self, c_tick, now_ns, c_end):
-        """Let the worker run until shortly before the next call (lookahead.SlackGate).
-
-        For good while a stream's batch in the worker is needed soon (``Ahead.urgent``).
-        ``c_tick``, ``c_end``: the call's start and end (perf_counter ns); ``now_ns``: its
-        start on the node's clock.
-        """
-        gate = self._worker.gate
-        if (self._ahead is not None and self._ahead.urgent()) or \
-                any(s.ahead.urgent() for s in self._sensors):
-            gate.open()
-            return
-        nxt = self._grid_due_ns(now_ns + c_end - c_tick) + self._timer_ns
-        gate.open_until(gate.deadline_ns(c_tick + (nxt - now_ns), self._timer_ns))
-
-    def _grid_due_ns(self, now_ns):
-        """Return the scheduler grid time this call was due at (the last one at or before now)."""
-        if self._grid0 is None or now_ns < self._grid0:
-            return now_ns
-        return now_ns - (now_ns - self._grid0) % self._timer_ns
-
-    def _refill(self, behind=False):
-        """Start the look-ahead batches this call owes (:func:`scheduler.next_batch` chooses).
-
-        Inline (no worker) at most one: a batch holds the executor. With the worker every
-        stream that needs one gets its batch queued there (each stream at most one at a
-        time): after a catch-up every buffer is empty, and a stream left for a later call
-        would evaluate its next sample alone. Returns what ran, for the diagnostics:
-        ``'<stream> <samples>'`` (comma-separated), ``'deferred'`` or ''.
-        """
-        streams = [(s.ahead, s.track.last, s.track.rate) for s in self._sensors]
-        names = [s.stream.name for s in self._sensors]
-        if self._ahead is not None:
-            streams.insert(0, (self._ahead, self._tick_k, self._period_hz))
-            names.insert(0, 'truth')
-        ran = []
-        while streams:
-            best = scheduler.next_batch(streams, behind)
-            if best is scheduler.DEFERRED:
-                self._counters.deferred += 1
-                ran.append('deferred')
-                break
-            if best is None:
-                break
-            n = best[0].refill(best[1])
-            i = next(i for i, (a, _, _) in enumerate(streams) if a is best[0])
-            if n:
-                ran.append(f'{names[i]} {n}')
-            if self._worker is None:
-                break
-            del streams[i], names[i]
-        return ', '.join(ran)
-
-    # -- the truth ---------------------------------------------------------------------------
-    def _anchor(self, now_ns):
-        """Anchor the truth grid at the scheduled time of this timer call (grid.anchor_ns).
-
-        The first anchor of a run is also its ``t_start`` (scene time 0).
-        """
-        until = self._timer.time_until_next_call() if self._timer is not None else None
-        g0 = grid.anchor_ns(now_ns, until, self._timer_ns)
-        if self._t_start is None:
-            self._t_start = Time(nanoseconds=g0, clock_type=self.get_clock().clock_type)
-            self._runs.pending = True       # the first publication announces it on ~/run
-            self._start_sensor_tracks()
-            self._freezer.arm()             # what the run's start makes: frozen soon
-        self._grid0, self._tick_k = g0, -1
-        # the grid, run start and scale are bound now: a batch may run in the worker thread
-        hz, t0, scale = self._period_hz, self._t_start.nanoseconds, self._setup.time_scale
-        self._ahead = Lookahead(
-            self.solution, lambda k: scene_time(grid.stamp_ns(g0, hz, k), t0, scale),
-            self._period, build=lambda start, data: self._build_ahead(start, data, g0, hz),
-            worker=self._worker)
-
-    def _build_ahead(self, start, data, g0, hz):
-        """Serialize (CDR) the attitude and rate messages of a batch of ticks to come.
-
-        One :mod:`rigidrot_ros.msgs.cdr` call per topic: the tick then publishes the bytes
-        (``publish_raw``), and the recorder writes the same bytes. ``g0``, ``hz``: the grid.
-        """
-        q, w, _ = data
-        stamps = [grid.stamp_ns(g0, hz, k) for k in range(start, start + len(q))]
-        frame, body = self._frames
-        return list(zip(cdr.attitude(stamps, q, frame).tolist(),
-                        cdr.vector(stamps, w, body).tolist()))
 
     def _now_ns(self):
         """Return the node clock's time (ns).
@@ -412,91 +288,15 @@ class AttitudeNode(Node):
             return time.time_ns()
         return self.get_clock().now().nanoseconds
 
-    def _tick_stamp_ns(self, k):
-        return grid.stamp_ns(self._grid0, self._period_hz, k)
-
-    def _scene_time(self, ns):
-        return scene_time(ns, self._t_start.nanoseconds, self._setup.time_scale)
-
     def _publish(self, items):
-        """Publish ``(publisher, msg, raw)`` items (``raw``: the message's bytes, or None).
-
-        False if the context shut down meanwhile.
-        """
+        """Publish ``(publisher, class, bytes)`` items (False: the context shut down meanwhile)."""
         try:
-            for pub, msg, raw in items:
-                pub.publish(msg if raw is None else raw)
+            for pub, _, raw in items:
+                pub.publish(raw)
         except _rclpy.RCLError:
             if self.context.ok():
                 raise
             return False            # shut down (SIGINT/SIGTERM) while this callback ran
-        return True
-
-    def _truth_messages(self, stamp_ns, sample, built=None):
-        """Build the truth of one sample as ``(publisher, msg or class, raw)`` items.
-
-        ``sample``: ``(quaternion, omega, error_bound)`` as :class:`Lookahead` gives it;
-        ``built``: the ``(attitude, rate)`` bytes :meth:`_build_ahead` made, if any.
-        """
-        if built is None:
-            att, rate = outputs.truth_pair(stamp_ns, sample, self._frames)
-            out = [(self._pub_att, att, None), (self._pub_rate, rate, None)]
-        else:
-            out = [(self._pub_att, QuaternionStamped, built[0]),
-                   (self._pub_rate, Vector3Stamped, built[1])]
-        if self._pubs_extra:
-            stamp = msgs.stamp(stamp_ns)
-            for topic, msg in outputs.truth_extras(stamp, sample, self._frames, self._setup):
-                out.append((self._pubs[topic], msg, None))
-        return out
-
-    def _truth_due(self, now_ns, groups, owed):
-        """Append the truth ticks due at ``now_ns`` to ``groups``; True if any.
-
-        Every grid tick from the last published one to now goes out (a call that comes
-        late publishes the ticks it owes: counted ``ticks_late``, not lost); only a backlog
-        beyond a second (a clock jump) is skipped and counted ``ticks_missed``
-        (:func:`grid.truth_due`). Appends ``('truth', ticks, of them evaluated now)`` to
-        ``owed``.
-        """
-        st = self._counters
-        if self._grid0 is None or now_ns < self._grid0:     # new grid, or the clock went back
-            self._anchor(now_ns)
-        due = grid.truth_due(self._grid0, self._period_hz, self._tick_k, now_ns)
-        if due is None:
-            return False                # this grid time is published already
-        if due is grid.NEW_GRID:
-            self._anchor(now_ns)        # the clock went back: a new grid, from its tick 0
-            due = (0, 0, 0)
-        first, k, missed = due
-        st.missed += missed
-        if k > first:
-            st.late += 1
-        m0 = self._ahead.misses
-        n0 = len(groups)
-        self._ahead.fill_to(first, k)       # a catch-up: the owed ticks as one batch
-        for j in range(first, k + 1):
-            if not self._truth_tick(j, now_ns, groups):
-                break
-        owed.append(('truth', len(groups) - n0, self._ahead.misses - m0))
-        return True
-
-    def _truth_tick(self, k, now_ns, groups):
-        """Append tick k's items to ``groups`` (False if its sample failed)."""
-        st = self._counters
-        self._tick_k = k
-        stamp_ns = self._tick_stamp_ns(k)
-        st.latencies.append(now_ns - stamp_ns)
-        c0 = time.perf_counter()
-        try:
-            sample, built = self._ahead.get(k)
-        except Exception as exc:        # PrecisionError, or anything else: report, keep going
-            self._failed(self._scene_time(stamp_ns), exc)
-            return False
-        st.times.append(time.perf_counter() - c0)
-        groups.append((stamp_ns, 0, self._truth_messages(stamp_ns, sample, built)))
-        st.published += 1
-        self._last_sample = (self._scene_time(stamp_ns), sample[2])
         return True
 
     def _failed(self, t, exc):
@@ -506,19 +306,6 @@ class AttitudeNode(Node):
         self.get_logger().error(f'evaluation failed at t = {t} s: {text}',
                                 throttle_duration_sec=1.0)
 
-    # -- the sensors -------------------------------------------------------------------------
-    def _start_streams(self):
-        """Make the sensor streams of the run (fresh noise); their grids start with t_start."""
-        self._streams = make_streams(self._setup)
-        self._sensors = []
-
-    def _start_sensor_tracks(self):
-        """At a run's t_start: each sensor's grid, timing model and look-ahead."""
-        t0 = self._t_start.nanoseconds
-        self._sensors = [Sensor(s, t0, rank, self._setup, self._counters, lambda: self._frames,
-                                self._worker)
-                         for rank, s in enumerate(self._streams, start=1)]
-
     # -- diagnostics -------------------------------------------------------------------------
     def _publish_diagnostics(self, wait=False):
         """Take the window's counts now; build and publish the report in the worker thread.
@@ -527,15 +314,11 @@ class AttitudeNode(Node):
         scheduler call (under load): a sample or two late every second at 1 kHz. With
         ``wait``, return once it is published.
         """
-        ahead = self._ahead
-        snap = {'raw': self._counters.take(self._gc.take()),
-                'batches': ahead.take_stats() if ahead is not None else [],
-                'ahead': ahead, 'solution': self.solution, 'period_hz': self._period_hz,
-                'sensors': {s.stream.name: s.take_latencies() for s in self._sensors},
-                'gyro': [s.bound for s in self._streams if s.name == 'imu'],
-                'delivered': self._delivered_rate(), 'last': self._last_sample,
-                'stamp': self.get_clock().now(), 'scheduling': self._scheduling,
-                'gate': self._gate_window()}
+        snap = self._schedule.snapshot()
+        snap.update(raw=self._counters.take(self._gc.take()), solution=self.solution,
+                    period_hz=self._period_hz, delivered=self._delivered_rate(),
+                    stamp=self.get_clock().now(), scheduling=self._scheduling,
+                    gate=self._gate_window())
         if self._worker is None:
             self._send_diagnostics(snap)
         else:
@@ -560,14 +343,13 @@ class AttitudeNode(Node):
 
     def _send_diagnostics(self, snap):
         """Build the report of a :meth:`_publish_diagnostics` snapshot, and publish it."""
-        last, gyro = snap['last'], snap['gyro']
+        last = snap['last']
         level, msg, values = diagnostics.report(
-            diagnostics.Counters.summarize(snap['raw'], STREAMS), snap['solution'],
-            period_hz=snap['period_hz'], delivered=snap['delivered'],
+            diagnostics.Counters.summarize(snap['raw'], table.sensor_names()),
+            snap['solution'], period_hz=snap['period_hz'], delivered=snap['delivered'],
             error_bound=float(last[1]) if last else 0.0,
-            scene_time=last[0] if last else None,
-            increment_bound=gyro[0] if gyro else 0.0, lookahead=snap['ahead'],
-            batches=snap['batches'],
+            scene_time=last[0] if last else None, increment_bound=snap['bound'],
+            lookahead=snap['ahead'], batches=snap['batches'],
             sensors={k: Sensor.report_of(v) for k, v in snap['sensors'].items()})
         status = DiagnosticStatus(level=_LEVELS[level], name=f'{self.get_name()}: exact '
                                   'attitude', message=msg,
@@ -610,12 +392,9 @@ class AttitudeNode(Node):
             response.message = f'reset refused, previous scene keeps running: {exc}'
             return response
         self._setup = setup
-        self._t_start = None
-        self._grid0 = None                  # the next tick anchors the new run's grid
-        self._ahead = None
-        self._last_sample = None
+        self._make_publishers()             # topics that come or go with the new run
         self._runs.pending = True           # the next tick announces the new run on ~/run
-        self._start_streams()               # fresh noise; a new run's increment bound
+        self._schedule = self._new_schedule()   # fresh noise; a new run's increment bound
         self._make_timer(self._values['publish_rate'])     # the new run's sensor rates
         response.success = True
         response.message = f'running model {setup.solution.model} ({setup.solution.method})'

@@ -5,11 +5,13 @@ The node itself is :class:`rigidrot_ros.ros.attitude_node.AttitudeNode`; its mod
 """
 
 import sys
+import textwrap
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 
 from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown, split_ros_args
+from rigidrot_ros.run import table
 from rigidrot_ros.run.params import help_text
 from rigidrot_ros.runtime import realtime
 
@@ -39,13 +41,7 @@ def usage():
         'current parameters',
         '  ~/run               std_msgs/String                  run description as JSON '
         '(transient-local)',
-        '  with imu.enable: imu (sensor_msgs/Imu), delta_angle, delta_rotation '
-        '(Vector3Stamped);',
-        '  with accel.enable: linear_acceleration in imu, delta_velocity (Vector3Stamped);',
-        '  with mag.enable: mag (sensor_msgs/MagneticField);',
-        '  with star_tracker.enable: star_tracker (PoseWithCovarianceStamped); with '
-        'odom.enable,',
-        '  transform.enable, markers.enable: odom, transform, markers (the truth)',
+        *_switched_topics(),
         '',
         'Truth tick k is stamped g + k / publish_rate: g is t_start (scene time 0, the '
         "timer's first",
@@ -66,6 +62,22 @@ def usage():
         'ordinary process; /diagnostics reports which (key scheduling).',
     ]
     return '\n'.join(lines)
+
+
+def _switched_topics():
+    """Return the help lines of the outputs a switch turns on, from the output table."""
+    lines = []
+    for kind in table.OUTPUTS:
+        if kind.enable is None:
+            continue
+        parts = []
+        for t in kind.topics:
+            needs = [p for p in t.needs if p != kind.enable]
+            parts.append(f'{t.name} ({t.type.replace("/msg/", "/")})' +
+                         (f' with {" and ".join(needs)}' if needs else ''))
+        lines += textwrap.wrap(f'with {kind.enable}: {"; ".join(parts)}', 92,
+                               initial_indent='  ', subsequent_indent='      ')
+    return lines
 
 
 def main(args=None, node_class=None):

@@ -41,9 +41,7 @@ Discovery and what it guarantees:
 """
 
 import importlib
-import queue
 import re
-import threading
 import time
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -167,31 +165,12 @@ class Recorder:
     on_event : callable, optional
         ``on_event(level, text)`` for 'info', 'warn' and 'error' events (default: the
         node's logger).
-    threaded : bool
-        Write in a thread of its own: every call that writes (:meth:`record_published`,
-        :meth:`add_run`, a subscription's message, a flush) only queues its work, and the
-        writer thread does it in the order queued (serializing the message objects,
-        packing each run of queued messages with one ``write_many``, compressing and
-        writing the chunks). The caller's thread (a node's publishing callback) then never
-        waits for the file. The thread drains the queue every ``drain_period`` seconds
-        (0.05; not at every message: fewer wake-ups contending for the interpreter with
-        the publishing thread). The queue has no bound: a writer that falls behind (a stalled
-        disk) holds the messages in memory until it catches up, never drops nor reorders
-        them; :meth:`close` writes what is queued before it finishes the file.
     """
 
     def __init__(self, node, writer, topics=(), all_topics=False, runs=False,
-                 exclude_own=False, poll_period=0.05, flush_timer=0.1, on_event=None,
-                 threaded=False, drain_period=0.05):
+                 exclude_own=False, poll_period=0.05, flush_timer=0.1, on_event=None):
         self._node = node
         self._writer = writer
-        self._drain_period = float(drain_period)
-        self._queue = None
-        if threaded:
-            self._queue = queue.SimpleQueue()
-            self._thread = threading.Thread(target=self._drain, name='rigidrot-recorder',
-                                            daemon=True)
-            self._thread.start()
         self._wanted = []
         self._typed = {}          # topic -> type given by the user (subscribed at once)
         self._verified = set()    # typed topics whose publishers' QoS has been checked
@@ -249,66 +228,6 @@ class Recorder:
         {'info': logger.info, 'warn': logger.warning, 'error': logger.error}[level](text)
 
     # -- writing -----------------------------------------------------------------------------
-    def _do(self, fn, *args):
-        """Run ``fn(*args)`` now, or queue it for the writer thread (``threaded``)."""
-        if self._queue is None:
-            fn(*args)
-        else:
-            self._queue.put((fn, args))
-
-    @property
-    def queued(self):
-        """Writes queued for the writer thread and not done yet (0 unthreaded)."""
-        return self._queue.qsize() if self._queue is not None else 0
-
-    def _drain(self):
-        """Do the queued writes in order, consecutive messages at once (the writer thread)."""
-        msgs = ([], [], [])             # topics, payloads, log times not written yet
-        while True:
-            item = self._queue.get()
-            while item is not None:
-                fn, args = item
-                try:
-                    if fn == self._write_published:     # bound: equal, not identical
-                        self._collect_published(msgs, *args)
-                    else:
-                        self._write_collected(msgs)
-                        fn(*args)
-                except Exception as exc:    # noqa: B902 - never end the thread silently
-                    self._fail(exc)
-                try:
-                    item = self._queue.get_nowait()
-                except queue.Empty:
-                    break
-            self._write_collected(msgs)
-            if item is None:
-                return
-            time.sleep(self._drain_period)  # the next drain takes what came meanwhile
-
-    def _collect_published(self, msgs, now_ns, published):
-        """Add a call's published messages to ``msgs`` (channels registered on first use)."""
-        if not self.active:
-            return
-        try:
-            for topic, msg, raw in published:
-                self._register_own(topic, msg)
-                msgs[0].append(topic)
-                msgs[1].append(serialize_message(msg) if raw is None else raw)
-                msgs[2].append(now_ns)
-        except OSError as exc:
-            self._fail(exc)
-
-    def _write_collected(self, msgs):
-        if not msgs[0]:
-            return
-        try:
-            if self.active:
-                self._writer.write_many(*msgs)
-        except OSError as exc:
-            self._fail(exc)
-        for lst in msgs:
-            lst.clear()
-
     def _register_own(self, topic, msg):
         if not self._writer.has_topic(topic):
             self._direct.add(topic)
@@ -318,29 +237,10 @@ class Recorder:
         """Write messages this node has just published: ``[(resolved_topic, msg, raw), ...]``.
 
         ``raw`` is the message serialized (CDR) if the node made those bytes to publish
-        them, else None (serialized here, or in the writer thread: the message must not
-        change after this call). The log time is ``now_ns``; each topic's channel is
-        registered on first use with the QoS of the node's publisher of that topic. A
-        writer with ``BATCHED`` set (:class:`rigidrot_ros.bag.process.ProcessBagWriter`)
-        gets the call's messages in one ``write_many`` once their channels exist.
+        them, else None (serialized here). The log time is ``now_ns``; each topic's channel
+        is registered on first use with the QoS of the node's publisher of that topic.
         """
         if not self.active:
-            return
-        if self._queue is not None:
-            for topic, _, _ in published:       # seen now: not subscribed meanwhile
-                self._direct.add(topic)
-            self._queue.put((self._write_published, (now_ns, list(published))))
-            return
-        self._write_published(now_ns, published)
-
-    def _write_published(self, now_ns, published):
-        if getattr(self._writer, 'BATCHED', False) and all(
-                self._writer.has_topic(topic) for topic, _, _ in published):
-            # a writer process: one frame (a new channel: registered message by message
-            # below, so its record lands in the chunk where the inline recorder puts it)
-            msgs = ([], [], [])
-            self._collect_published(msgs, now_ns, published)
-            self._write_collected(msgs)
             return
         try:
             for topic, msg, raw in published:
@@ -352,10 +252,6 @@ class Recorder:
 
     def add_run(self, info):
         """Write a ``rigidrot_run`` metadata record (the node's own recorder)."""
-        if self.active:
-            self._do(self._add_run, info)
-
-    def _add_run(self, info):
         if self.active:
             try:
                 self._writer.add_run(info)
@@ -369,11 +265,7 @@ class Recorder:
     def _on_raw(self, topic, data):
         if not self.active or topic in self._direct:
             return                              # closed, or the node writes it itself
-        self._do(self._write_raw, topic, data, self._node.get_clock().now().nanoseconds)
-
-    def _write_raw(self, topic, data, log_ns):
-        if not self.active:
-            return
+        log_ns = self._node.get_clock().now().nanoseconds
         try:
             if not self._writer.has_topic(topic):       # a typed topic's first message
                 self._add_channel(topic, self._typed[topic],
@@ -383,10 +275,6 @@ class Recorder:
             self._fail(exc)
 
     def _flush(self):
-        if self.active:
-            self._do(self._flush_now)
-
-    def _flush_now(self):
         if self.active:
             try:
                 self._writer.maybe_flush()
@@ -480,7 +368,7 @@ class Recorder:
             cls = msg_class(type_name)
             schema_text(type_name)              # fail now if its definition is missing
             if infos:
-                self._do(self._add_channel, topic, type_name, infos)
+                self._add_channel(topic, type_name, infos)
         except (ImportError, AttributeError, ValueError, OSError) as exc:
             self._subs[topic] = None
             self._on_event('error', f'cannot record {topic} ({type_name}): {exc}')
@@ -506,9 +394,6 @@ class Recorder:
                 timer.cancel()
             except Exception:   # noqa: B902 - the context may be gone already
                 pass
-        if self._queue is not None and self._thread.is_alive():
-            self._queue.put(None)           # after everything queued: written first
-            self._thread.join()
         if not self._writer.closed:
             self._writer.close()
         return self._writer.path, self._writer.counts

@@ -3,23 +3,19 @@
 :class:`RunLog` announces each run (start-up, every ``~/reset``) with its first
 publication, and hands what the node published to the recorder
 (:class:`rigidrot_ros.ros.recorder.Recorder`, which writes the same bytes); the recorder is
-opened by :func:`open_recorder` from the parameters; it writes inline, or with
-``RIGIDROT_RECORD_THREAD=1`` in a thread of its own (``Recorder(threaded=True)``), or with
-``RIGIDROT_RECORD_PROCESS=1`` through a child process that does all the file work
-(:class:`rigidrot_ros.bag.process.ProcessBagWriter`: the node only hands CDR bytes over).
-Inline (the default), the chunks' compression and writes run in the node's look-ahead
-worker (``BagWriter(offload=...)``; ``RIGIDROT_RECORD_OFFLOAD=0``: on the publishing thread).
+opened by :func:`open_recorder` from the parameters. It packs the records on the
+publishing thread; the chunks' compression and writes run in the node's look-ahead worker
+(``BagWriter(offload=...)``; ``RIGIDROT_RECORD_OFFLOAD=0``: on the publishing thread).
 """
 
 import functools
-import os
 import sys
 
 from rigidrot_ros.bag import BagWriter
-from rigidrot_ros.bag.process import ProcessBagWriter
 from rigidrot_ros.ros.cli import SceneError
 from rigidrot_ros.ros.recorder import Recorder, type_name_of
 from rigidrot_ros.run import outputs
+from rigidrot_ros.runtime import switches
 
 __all__ = ['RunLog', 'open_recorder', 'RECORD_FLUSH_S']
 
@@ -28,68 +24,31 @@ __all__ = ['RunLog', 'open_recorder', 'RECORD_FLUSH_S']
 RECORD_FLUSH_S = 0.1
 
 
-def _threaded():
-    """Whether the recorder writes in its own thread (``RIGIDROT_RECORD_THREAD=1``: it does).
-
-    Off by default: measured at 1 kHz under load, a third Python thread contending for
-    the interpreter cost more wake-up latency than writing inline (doc/node.md). The
-    variable is for measuring the two against each other; ``1`` means on.
-    """
-    return os.environ.get('RIGIDROT_RECORD_THREAD', '0').strip() == '1'
-
-
-def _in_process():
-    """Whether the bag is written by a child process (``RIGIDROT_RECORD_PROCESS=1``: it is).
-
-    The node then only pickles each call's CDR bytes into a pipe; MCAP records, chunks,
-    zstd and file writes run in the child, outside the node's interpreter lock. Off by
-    default: at 1 kHz under load the child's CPU time on two shared cores cost about what
-    it saved (late gyro samples no better over 9 pairs, doc/recording.md).
-    """
-    return os.environ.get('RIGIDROT_RECORD_PROCESS', '0').strip() == '1'
-
-
-def _offloaded():
-    """Whether the inline writer hands its chunk writes to the worker (RIGIDROT_RECORD_OFFLOAD).
-
-    On by default (``0`` turns it off, for measuring): closing a chunk (every
-    :data:`RECORD_FLUSH_S`) then only detaches it on the publishing thread; zstd, the
-    records and the file write run in the look-ahead worker (doc/recording.md).
-    """
-    return os.environ.get('RIGIDROT_RECORD_OFFLOAD', '1').strip() != '0'
-
-
 def open_recorder(node, values, worker=None):
     """Return a :class:`Recorder` of ``node`` into a new bag (``record_path``, ``record_topics``).
 
     ``worker``: the node's :class:`rigidrot_ros.runtime.lookahead.BatchWorker`, if it has one;
-    the inline writer then closes its chunks there (``BagWriter(offload=worker.call)``,
-    outside the worker's evaluation lock; its gate opened where the node waits for a chunk
-    write), unless the bag is written
-    by a thread or a process of its own or ``RIGIDROT_RECORD_OFFLOAD=0``. Raises
-    :class:`SceneError` naming the path or the parameter when it cannot.
+    the writer then closes its chunks there (``BagWriter(offload=worker.call)``, outside the
+    worker's evaluation lock; its gate opened where the node waits for a chunk write),
+    unless ``RIGIDROT_RECORD_OFFLOAD=0``. Raises :class:`SceneError` naming the path or the
+    parameter when it cannot.
     """
     path = values['record_path'] or 'runs'
     topics = [t for t in (values['record_topics'] or []) if t]
+    offload = {}
+    if worker is not None and switches.record_offload():
+        offload = dict(offload=functools.partial(worker.call, evaluates=False),
+                       on_wait=worker.gate.open)
     try:
-        if _in_process():
-            writer = ProcessBagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S)
-        elif worker is not None and not _threaded() and _offloaded():
-            writer = BagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S,
-                               offload=functools.partial(worker.call, evaluates=False),
-                               on_wait=worker.gate.open)
-        else:
-            writer = BagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S)
+        writer = BagWriter(path, node.get_name(), flush_period=RECORD_FLUSH_S, **offload)
     except OSError as exc:
         raise SceneError(f'cannot record to {path!r}: {exc}') from None
     try:
-        recorder = Recorder(node, writer, topics=topics, exclude_own=True,
-                            threaded=_threaded())
+        recorder = Recorder(node, writer, topics=topics, exclude_own=True)
     except Exception as exc:  # noqa: B902 - ValueError, or rclpy's invalid-name errors
         writer.close()
         raise SceneError(f'parameter record_topics: {exc}') from None
-    node.get_logger().info(f'recording to {writer.path}' + (
-        f' (writer process {writer.pid})' if isinstance(writer, ProcessBagWriter) else ''))
+    node.get_logger().info(f'recording to {writer.path}')
     return recorder
 
 

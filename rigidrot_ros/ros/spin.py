@@ -3,10 +3,12 @@
 - :func:`split_ros_args` separates a script's own arguments from ``--ros-args ... [--]``.
 - :func:`init_ros` runs ``rclpy.init`` and turns a failure (a missing ``--params-file``, a
   malformed ``-p``) into one line of text instead of rcl's log line and a traceback; it
-  makes the first Ctrl-C shut ROS down without a KeyboardInterrupt (:func:`_quiet_sigint`).
+  makes the first Ctrl-C shut ROS down without a KeyboardInterrupt (:func:`_quiet_sigint`),
+  and SIGINTs within :data:`SIGNAL_MERGE_S` of the first one request.
 - :func:`spin_until_shutdown` spins until Ctrl-C, SIGTERM or a shutdown, then cleans up,
-  on the executor :func:`make_executor` chooses (:data:`EXECUTOR`; the environment
-  variable ``RIGIDROT_EXECUTOR`` = ``single`` or ``events`` overrides it, for measuring).
+  on the executor :func:`make_executor` makes.
+  The clean-up (the node's ``destroy_node``: a recorder finishes its bag) runs to
+  its end whatever signal arrives meanwhile.
 """
 
 import os
@@ -15,13 +17,23 @@ import signal
 import sys
 import tempfile
 import threading
+import time
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ['split_ros_args', 'init_ros', 'spin_until_shutdown', 'make_executor', 'EXECUTOR',
-           'EXECUTORS']
+from rigidrot_ros.bag.metadata import uninterrupted
+from rigidrot_ros.run.rclyaml import MIXED_HINT
+
+__all__ = ['split_ros_args', 'init_ros', 'spin_until_shutdown', 'make_executor',
+           'SIGNAL_MERGE_S']
+
+#: SIGINTs that arrive within this many seconds of the first are one request to stop: ``kill
+#: -INT`` of ``timeout``, or of a shell's job, reaches the process twice within microseconds
+#: (once directly, once through its process group), and a user's Ctrl-C that repeats at once
+#: is one too. A SIGINT later than that is a second request: it raises KeyboardInterrupt.
+SIGNAL_MERGE_S = 0.5
 
 
 def split_ros_args(argv):
@@ -75,7 +87,7 @@ def _clean_rcl_message(text):
 
 
 def _quiet_sigint():
-    """Let the first SIGINT shut ROS down without raising KeyboardInterrupt; the second raises.
+    """Let the first SIGINT shut ROS down without raising KeyboardInterrupt; a second raises.
 
     rclpy's SIGINT handler, installed by ``rclpy.init`` in front of the one found, shuts the
     context down, which ends every spin loop of the console scripts. Python's default
@@ -83,16 +95,21 @@ def _quiet_sigint():
     inside rclpy's executor that can be half way through a ``Task``'s constructor, whose
     ``__del__`` then prints an AttributeError traceback at exit (rclpy's ``Future``; seen
     in a test of ours). Installed only over Python's default handler and from the main
-    thread; a second Ctrl-C raises KeyboardInterrupt, for a process that would not stop.
+    thread. SIGINTs within :data:`SIGNAL_MERGE_S` of the first are the same request; a
+    later one raises KeyboardInterrupt, for a process that would not stop (its clean-up,
+    :func:`spin_until_shutdown`'s, still runs to its end). SIGTERM is rclpy's alone: it
+    shuts ROS down, however often it comes.
     """
     if threading.current_thread() is not threading.main_thread() or \
             signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
         return
-    count = [0]
+    first = []
 
     def handler(signum, frame):
-        count[0] += 1
-        if count[0] > 1:
+        now = time.monotonic()
+        if not first:
+            first.append(now)
+        elif now - first[0] > SIGNAL_MERGE_S:
             raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, handler)
@@ -134,6 +151,8 @@ def init_ros(prog, ros_args):
                 where = 'environment' if 'ROS_' in text and 'parse' not in text else \
                     '--ros-args'
                 reason = f'invalid {where}: {text}'
+                if 'Sequence should be of same type' in text:
+                    reason += f' ({MIXED_HINT})'
             finally:
                 os.dup2(saved, 2)
             if reason is None:
@@ -146,27 +165,14 @@ def init_ros(prog, ros_args):
     return reason
 
 
-#: The executors :func:`make_executor` knows, by name.
-EXECUTORS = ('single', 'events')
-#: The executor the console scripts spin on (see doc/node.md for the measurement).
-EXECUTOR = 'single'
+def make_executor():
+    """Return a new executor: rclpy's ``SingleThreadedExecutor``.
 
-
-def make_executor(name=None):
-    """Return a new executor: ``name``, else ``$RIGIDROT_EXECUTOR``, else :data:`EXECUTOR`.
-
-    ``'single'`` is rclpy's ``SingleThreadedExecutor``; ``'events'`` its
-    ``rclpy.experimental.EventsExecutor`` (experimental in Jazzy). Anything else raises
-    ValueError naming the variable.
+    rclpy's ``EventsExecutor`` (experimental in Jazzy) was measured and left out: its
+    ``spin()`` stopped firing the node's timer after the first calls, and the node then
+    ignored SIGINT and SIGTERM (CHANGELOG, issue 28).
     """
-    name = name or os.environ.get('RIGIDROT_EXECUTOR') or EXECUTOR
-    if name == 'single':
-        from rclpy.executors import SingleThreadedExecutor
-        return SingleThreadedExecutor()
-    if name == 'events':
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor()
-    raise ValueError(f'RIGIDROT_EXECUTOR must be one of {", ".join(EXECUTORS)}, got {name!r}')
+    return SingleThreadedExecutor()
 
 
 def _spin(node):
@@ -186,8 +192,9 @@ def spin_until_shutdown(node, loop=None):
 
     Ctrl-C, an external shutdown (SIGINT/SIGTERM through rclpy's handlers) and a publish
     that races the shutdown (``RCLError`` once the context is gone) end it quietly; any
-    other error propagates. The node's ``destroy_node`` runs in every case, so a recorder
-    finishes its file.
+    other error propagates. The node's ``destroy_node`` runs in every case, to its end
+    whatever signal arrives meanwhile (:func:`rigidrot_ros.bag.metadata.uninterrupted`), so
+    a recorder finishes its file; a Ctrl-C during it is then taken as done.
     """
     try:
         (loop or _spin)(node)
@@ -197,5 +204,8 @@ def spin_until_shutdown(node, loop=None):
         if rclpy.ok():
             raise               # a real failure; after a shutdown it is only the race
     finally:
-        node.destroy_node()
+        try:
+            uninterrupted(node.destroy_node)
+        except KeyboardInterrupt:
+            pass                # the clean-up it asked for is done
         rclpy.try_shutdown()

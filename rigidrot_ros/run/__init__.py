@@ -1,8 +1,12 @@
-"""The run model, with no ROS: parameters, scene set-up, the output table, streams, generation.
+"""The run model, with no ROS: parameters, set-up, the table of outputs, schedule, generation.
 
-``params`` (the one parameter table) and ``settings`` (values -> a validated run set-up),
-``grid`` (every stream's stamps on one grid) and ``scheduler`` (which samples a tick is due),
-``outputs`` (the table of outputs: topic, type, rank, enabling parameter), ``streams`` and
-``sensor_ahead`` (blocks of samples, truth and sensors, ahead of their stamps), and
-``generate`` (a whole run into a bag offline, byte-identical to the node's recording).
+``params`` (the one parameter table) and ``settings`` (values -> a validated run set-up);
+``grid`` (every stream's stamps) and ``scheduler`` (sensor grids, timing models, the choice
+of the next batch); ``table`` (the table of outputs: one kind per row, each in its own
+module, ``truth_outputs``, ``imu_output``, ``star_output``, ``mag_output``, and ``outputs``
+for the run description, all on the base classes of ``output``: topics, type, rank,
+enabling parameter, reading a block of samples, encoding to CDR and to messages);
+``schedule``, ``truth_ahead`` and ``sensor_ahead`` (the node's one timer: what each call
+publishes, its samples read and encoded ahead); and ``generate`` (a whole run into a bag
+offline, byte-identical to the node's recording).
 """

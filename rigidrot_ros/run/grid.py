@@ -19,7 +19,10 @@ generator).
 
 import math
 
-__all__ = ['stamp_ns', 'index', 'anchor_ns', 'due', 'truth_due', 'BACKLOG_MIN', 'NEW_GRID']
+import numpy as np
+
+__all__ = ['stamp_ns', 'stamps_ns', 'index', 'anchor_ns', 'due', 'truth_due', 'BACKLOG_MIN',
+           'NEW_GRID']
 
 #: A sensor backlog of more than ``max(BACKLOG_MIN, rate)`` samples (over a second: a clock
 #: jump) restarts the sensor's chain at the newest sample.
@@ -31,6 +34,17 @@ NEW_GRID = 'new grid'
 def stamp_ns(origin_ns, rate, k):
     """Return the stamp (ns) of index ``k`` on the grid ``origin_ns + k / rate`` (Hz)."""
     return origin_ns + round(k * 1e9 / rate)
+
+
+def stamps_ns(origin_ns, rate, ks):
+    """Return :func:`stamp_ns` of the indices ``ks`` (a range) as an int64 array, vectorised.
+
+    ``origin + round(k * 1e9 / rate)``: the same float64 product and quotient, and
+    ``np.rint`` rounds half to even as Python's ``round`` does, so every stamp is the
+    scalar function's (``test/run/test_generate.py`` compares them index by index).
+    """
+    k = np.arange(ks.start, ks.stop, dtype=np.int64)
+    return int(origin_ns) + np.rint(k * 1e9 / rate).astype(np.int64)
 
 
 def index(origin_ns, rate, now_ns):

@@ -1,8 +1,10 @@
-"""What a run publishes, as plain functions of its set-up (no rclpy, no node).
+"""The run description: what a run publishes about itself on ``~/run`` (no rclpy, no node).
 
-The node and the offline generator build the same messages through these: the truth of
-one tick (:func:`truth_pair`, :func:`truth_extras`), the run description on ``~/run``
-(:func:`run_description`, :func:`run_message`). Topics are the node's relative names.
+:func:`run_description` builds it from a run's set-up; :class:`RunOutput` is its row of the
+output table (:mod:`rigidrot_ros.run.table`): ``~/run`` (std_msgs/String, JSON,
+transient-local with depth 1), published once at the start of each run, after every
+message of that first call. The node and the offline generator both encode it here.
+With it, :func:`sensor_config`: the effective configuration of each running sensor.
 """
 
 import json
@@ -11,55 +13,16 @@ import numpy as np
 from std_msgs.msg import String
 
 from rigidrot_ros import __version__
-from rigidrot_ros.msgs import messages as msgs
+from rigidrot_ros.msgs import cdr
+from rigidrot_ros.run.output import Output, Topic
+from rigidrot_ros.run.params import PARAMS
 from rigidrot_ros.run.scheduler import timing_of
 
-__all__ = ['truth_pair', 'truth_extras', 'run_description', 'run_message', 'TRUTH_EXTRAS',
-           'RUN_FORMAT']
+__all__ = ['run_description', 'run_message', 'RunOutput', 'RUN_FORMAT', 'sensor_config',
+           'SENSOR_GROUPS']
 
-#: The truth outputs beyond attitude and angular_velocity: (topic, switch parameter).
-TRUTH_EXTRAS = (('transform', 'transform.enable'), ('odom', 'odom.enable'),
-                ('markers', 'markers.enable'))
 #: Version of the run description's layout (its ``rigidrot_run`` key).
 RUN_FORMAT = 1
-_EPS = float(np.finfo(float).eps)
-
-
-def truth_pair(stamp_ns, sample, frames):
-    """Return ``(attitude, angular_velocity)`` messages of a truth sample, one stamp.
-
-    ``sample``: ``(q_NB (x, y, z, w), omega_BN_B rad/s, error_bound rad)``;
-    ``frames``: ``(frame_id, body_frame_id)``.
-    """
-    frame, body = frames
-    stamp = msgs.stamp(stamp_ns)
-    return msgs.attitude(stamp, frame, sample[0]), msgs.vector(stamp, body, sample[1])
-
-
-def truth_extras(stamp, sample, frames, setup):
-    """Return ``[(topic, msg), ...]`` of the further truth outputs that ``setup`` turns on.
-
-    ``stamp`` is the tick's builtin_interfaces/Time (the pair's header stamp); the order is
-    transform, odom, markers. The odometry's rate variance is (32 eps |omega|)^2, its
-    attitude variance the sample's bound squared.
-    """
-    cfg = setup.sensors
-    if not (cfg.transform or cfg.odom or cfg.markers):
-        return []
-    frame, body = frames
-    q, omega, bound = sample
-    out = []
-    if cfg.transform:
-        out.append(('transform', msgs.transform(stamp, frame, body, q)))
-    if cfg.odom:
-        rate_sd = 32.0 * _EPS * float(np.linalg.norm(omega))
-        out.append(('odom', msgs.odometry(stamp, frame, body, q, omega,
-                                          attitude_variance=bound ** 2,
-                                          rate_variance=rate_sd ** 2)))
-    if cfg.markers:
-        out.append(('markers', msgs.body_markers(stamp, frame, q,
-                                                 setup.solution.scene.inertia)))
-    return out
 
 
 def run_description(setup, start_ns, run_index, node_name, topics):
@@ -78,24 +41,92 @@ def run_description(setup, start_ns, run_index, node_name, topics):
     topics : dict
         Resolved topic name -> type name (``pkg/msg/Type``) of every publisher.
 
-    ``sensor_timing`` holds each running sensor's timing model
+    ``sensor_timing`` holds the timing model of each sensor kind of the run
     (:class:`rigidrot_ros.run.scheduler.Timing`: latency, stamp jitter, drop probability,
     clock offset; all 0 when off), so a scorer knows which stamps are not true sample times.
+    ``sensors`` holds each running sensor's whole configuration (:func:`sensor_config`), so
+    the bag says which error model produced it.
     """
     sol = setup.solution
-    cfg = setup.sensors
-    timing = {name: timing_of(setup.values, name).as_dict()
-              for name, on in (('imu', cfg.imu), ('star_tracker', cfg.star_tracker),
-                               ('mag', cfg.mag)) if on}
+    timing = {kind.name: timing_of(setup.values, kind.name).as_dict()
+              for kind in setup.outputs if kind.grid == 'sensor'}
     return {
         'rigidrot_run': RUN_FORMAT, 'run': run_index, 'start_ns': int(start_ns),
         'time_scale': setup.time_scale, 'scene': sol.scene.as_dict(), 'tol': sol.tol,
         'backend': sol.backend, 'model': sol.model, 'method': sol.method,
         'package': f'rigidrot_ros {__version__}', 'node': node_name, 'topics': dict(topics),
-        'sensor_timing': timing,
+        'sensor_timing': timing, 'sensors': sensor_config(setup),
     }
+
+
+#: Each sensor of the run description and the parameter groups it is configured by (the
+#: accelerometer's ``accel.`` parameters belong to ``imu``, whose messages carry it).
+SENSOR_GROUPS = (('imu', ('imu.', 'accel.')), ('star_tracker', ('star_tracker.',)),
+                 ('mag', ('mag.',)))
+
+
+def sensor_config(setup):
+    """Return the effective configuration of each running sensor (a JSON-ready dict).
+
+    For every sensor that runs (``imu``, ``star_tracker``, ``mag``): ``rate_hz``, its rate
+    (``0`` resolved to ``publish_rate``), and ``parameters``, the value of every parameter
+    of its groups (:data:`SENSOR_GROUPS`; all but the ``.enable`` switches, the
+    accelerometer's only where it is on) as the run uses it, after the import of a Kalibr
+    file, by the parameter's name (units: ``attitude_node --help``). The imu adds
+    ``turn_on_bias`` (the gyro's and the accelerometer's bias drawn from the seed,
+    ``*.bias_stddev``, rad/s and m/s^2, in B) and, with ``imu.kalibr_yaml``, ``kalibr``:
+    the values the file supplied.
+    """
+    values, cfg = setup.values, setup.sensors
+    on = {'imu': cfg.imu, 'star_tracker': cfg.star_tracker, 'mag': cfg.mag}
+    rates = {'imu': cfg.imu_rate, 'star_tracker': cfg.star_tracker_rate, 'mag': cfg.mag_rate}
+    out = {}
+    for sensor, groups in SENSOR_GROUPS:
+        if not on[sensor]:
+            continue
+        if not cfg.accel:
+            groups = tuple(g for g in groups if g != 'accel.')
+        entry = {'rate_hz': float(rates[sensor]), 'parameters': {
+            p.name: _plain(values[p.name]) for p in PARAMS
+            if p.name.startswith(groups) and not p.name.endswith('.enable')}}
+        if sensor == 'imu':
+            entry['turn_on_bias'] = {'gyro': cfg.gyro.turn_on_bias.tolist()}
+            if cfg.accel:
+                entry['turn_on_bias']['accel'] = cfg.accel_noise.turn_on_bias.tolist()
+            if values.get('imu.kalibr_yaml'):
+                entry['kalibr'] = {k: _plain(v) for k, v in
+                                   sorted(getattr(setup, 'kalibr', {}).items())}
+        out[sensor] = entry
+    return out
+
+
+def _plain(v):
+    """Return a parameter value as JSON writes it (tuples and arrays: lists of floats)."""
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [float(x) for x in v]
+    return v
 
 
 def run_message(info):
     """Return the std_msgs/String carrying a run description as JSON."""
     return String(data=json.dumps(info))
+
+
+class RunOutput(Output):
+    """``~/run``: the run description as JSON, once at the start of each run.
+
+    Its one column ``info`` holds the description (a dict, :func:`run_description`).
+    """
+
+    name = 'run'
+    grid = 'start'
+    latched = True
+    topics = (Topic('~/run', 'std_msgs/msg/String', 99),)
+
+    def encode(self, topic, stamps, cols, frames):
+        """Return the CDR of each description."""
+        return [cdr.string(json.dumps(info)) for info in cols['info']]
+
+    def messages(self, topic, stamps, cols, frames):
+        """Return the std_msgs/String of each description."""
+        return [run_message(info) for info in cols['info']]

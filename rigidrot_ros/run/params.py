@@ -232,7 +232,7 @@ def _positive(p, v):
     return float(v)
 
 
-def _imu_terms(prefix, unit, increment, big, lsb, what):
+def _imu_terms(prefix, unit, increment, big, lsb, what, measured):
     """Return the error terms shared by the gyro (``imu.gyro_``) and the accelerometer."""
     return (
         _double(f'{prefix}bias_stddev', 0.0, f'turn-on {what} bias spread, {unit}: '
@@ -251,17 +251,22 @@ def _imu_terms(prefix, unit, increment, big, lsb, what):
         _double(f'{prefix}quantum', 0.0, f'LSB of the {what} output, {unit} (rounded); 0 = '
                 'not quantised', 'reset', 0.0, lsb, unit),
         _double(f'{prefix}increment_quantum', 0.0, f'LSB of the {what} increment, '
-                f'{increment} (the residual carried to the next sample); 0 = not quantised',
+                f'{increment}: above 0 the measured increments, quantised with the residual '
+                f'carried to the next sample, are published on {measured}; 0 = none',
                 'reset', 0.0, lsb, increment),
     )
 
 
 #: The sensor parameters of issue 19 (appended to :data:`PARAMS`).
-SENSOR_PARAMS = _imu_terms('imu.gyro_', 'rad/s', 'rad', 10.0, 1.0, 'gyro') + (
+SENSOR_PARAMS = _imu_terms('imu.gyro_', 'rad/s', 'rad', 10.0, 1.0, 'gyro',
+                           'delta_angle_measured') + (
     Param('imu.kalibr_yaml', 'string', '', "a Kalibr imu.yaml ('' = none) whose noise "
           'densities, random walks and update_rate replace the defaults of '
           'imu.gyro_noise_density, imu.gyro_random_walk, accel.noise_density, '
-          'accel.random_walk and imu.rate; a value set both ways and different is refused',
+          'accel.random_walk and imu.rate (with model: scale-misalignment, its M and '
+          'C_gyro_i also those of imu.gyro_scale_factor, imu.gyro_misalignment, '
+          'accel.scale_factor and accel.misalignment); a value set both ways and different '
+          'is refused',
           'reset', _string),
     _switch('accel.enable', 'add the accelerometer to imu (linear_acceleration, the specific '
             'force in B, m/s^2, with its covariance) and publish delta_velocity '
@@ -278,7 +283,8 @@ SENSOR_PARAMS = _imu_terms('imu.gyro_', 'rad/s', 'rad', 10.0, 1.0, 'gyro') + (
             'm/s^3/sqrt(Hz)'),
     _vector('accel.bias', [0.0, 0.0, 0.0], 'initial accelerometer bias [bx, by, bz], m/s^2, '
             'in B, |b_i| <= 100'),
-) + _imu_terms('accel.', 'm/s^2', 'm/s', 100.0, 10.0, 'accelerometer') + (
+) + _imu_terms('accel.', 'm/s^2', 'm/s', 100.0, 10.0, 'accelerometer',
+               'delta_velocity_measured') + (
     _switch('mag.enable', 'publish a magnetometer as sensor_msgs/MagneticField on mag '
             '(tesla, in B, frame body_frame_id)'),
     _rate('mag.rate', 0.0, 'magnetometer'),

@@ -153,7 +153,7 @@ class Track:
         jitter); ``keep`` (bool): False where the sample is dropped.
         """
         n = len(ks)
-        true = np.array([self.stamp_ns(k) for k in ks], dtype=np.int64)
+        true = grid.stamps_ns(self.origin_ns, self.rate, range(ks.start, ks.stop))
         t = self.timing
         stamps = true + t.offset_ns
         if t.stamp_jitter > 0:

@@ -8,7 +8,7 @@ set a run up through :func:`prepare_run`, so a scene is validated by one
 piece of code wherever it comes from. :func:`load_defaults` reads a params file.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 import os
 import sys
@@ -16,15 +16,15 @@ import time
 from typing import Optional, Tuple
 
 import numpy as np
-import yaml
 
 from rigidrot_ros.core import NoExactSolution, PrecisionError, Scene, solve
+from rigidrot_ros.run import rclyaml, table
 from rigidrot_ros.run.params import BY_NAME, check_values
 from rigidrot_ros.sensors import (
     Accelerometer, AttitudeNoise, Gyro, ImuNoise, load_kalibr_imu, Magnetometer, StarTracker,
 )
 from rigidrot_ros.sensors.accel import check_gravity, check_lever_arm
-from rigidrot_ros.sensors.kalibr import KALIBR_KEYS
+from rigidrot_ros.sensors.kalibr import KALIBR_SOURCES
 
 __all__ = ['PACKAGE', 'SCENE_KEYS', 'OUTPUT_KEYS', 'find_config', 'load_defaults',
            'scene_from_params', 'solver_options', 'sensor_settings', 'SensorSettings',
@@ -69,10 +69,14 @@ def find_config(name='default.yaml'):
 
 
 def load_defaults(path=None):
-    """Read the ``ros__parameters`` of a params YAML (first node entry) as a dict."""
+    """Read the ``ros__parameters`` of a params YAML (first node entry) as a dict.
+
+    Values are typed as rcl types them (:func:`rigidrot_ros.run.rclyaml.load`: ``2e-4`` is
+    a double, a list of mixed types is refused), so the file means what it means to the node.
+    """
     path = path or find_config()
     with open(path, encoding='utf-8') as fh:
-        doc = yaml.safe_load(fh)
+        doc = rclyaml.load(fh)
     if not isinstance(doc, dict) or not doc:
         raise ValueError(f'{path}: not a ROS 2 params file')
     for entry in doc.values():
@@ -121,16 +125,16 @@ def apply_kalibr(params):
         found, _topic = load_kalibr_imu(path)
     except ValueError as exc:
         raise ValueError(f'parameter imu.kalibr_yaml: {exc}') from None
-    keys = {name: key for key, (name, _, _) in KALIBR_KEYS.items()}
     out = dict(params)
     for name, value in found.items():
         value = BY_NAME[name].check(value)
-        current, default = params[name], BY_NAME[name].default
+        current, default = params[name], BY_NAME[name].check(BY_NAME[name].default)
         if current == default or current == value:
             out[name] = value
         else:
             raise ValueError(f'parameter {name} = {current!r} contradicts imu.kalibr_yaml '
-                             f'({path}: {keys[name]} = {value!r}); set it one way only')
+                             f'({path}: {KALIBR_SOURCES[name]} = {value!r}); set it one '
+                             'way only')
     return out
 
 
@@ -250,11 +254,12 @@ def build_solution(values):
                          f'{list(scene.omega0)})') from None
 
 
-def _timed(fn, fails, slow, hint):
+def _trial_sample(fn, fails, slow, hint, limit=True):
     """Run one trial sample ``fn()``: ``(result, None)``, or ``(None, why it is refused)``.
 
     ``fails`` says what could not be evaluated, ``slow`` what took too long (formatted
-    with ``cost``, s), ``hint`` what to try (appended to both).
+    with ``cost``, s), ``hint`` what to try (appended to both); ``limit`` False: no bound
+    on the time it takes.
     """
     c0 = time.perf_counter()
     try:
@@ -262,7 +267,7 @@ def _timed(fn, fails, slow, hint):
     except Exception as exc:        # PrecisionError, ValueError, or anything else
         return None, f'{fails}: {type(exc).__name__}: {exc}{hint}'
     cost = time.perf_counter() - c0
-    if cost > TRIAL_LIMIT_S:
+    if limit and cost > TRIAL_LIMIT_S:
         return None, (slow.format(cost=cost) +
                       f", beyond the node's limit of {TRIAL_LIMIT_S:g} s{hint}")
     return result, None
@@ -272,7 +277,7 @@ class TrialError(ValueError):
     """A run's first samples cannot be evaluated in time (:func:`trial`'s reason)."""
 
 
-def trial(sol, values, cfg=None):
+def trial(sol, values, cfg=None, timed=True):
     """Evaluate the first samples of a candidate run; return None or why it fails (str).
 
     A scene whose first tick (t = 0) or second (one period in, scaled by ``time_scale``)
@@ -282,7 +287,15 @@ def trial(sol, values, cfg=None):
     ``time_scale / imu_rate`` s of scene time, its quadrature within :data:`SAMPLE_BUDGET_S`
     as in the node) and the first star tracker sample are tried the same way, and a gyro
     sample whose increment bound is not finite refuses the scene too.
+
+    ``timed`` False (offline generation, which has no deadline): the same samples are
+    evaluated and judged, but neither :data:`TRIAL_LIMIT_S` nor :data:`SAMPLE_BUDGET_S`
+    applies, so the answer does not depend on how fast or loaded the machine is.
     """
+    budget = SAMPLE_BUDGET_S if timed else None
+
+    def _timed(*args):
+        return _trial_sample(*args, limit=timed)
     time_scale = float(values['time_scale'])
     t1 = time_scale / float(values['publish_rate'])
     for t in (0.0, t1):
@@ -299,7 +312,7 @@ def trial(sol, values, cfg=None):
 
         def gyro():                 # an ideal gyro: the run's own noise stream stays fresh
             with np.errstate(over='ignore', invalid='ignore'):  # judged below, not warned
-                return Gyro(sol).read(0.0, dt, budget=SAMPLE_BUDGET_S)
+                return Gyro(sol).read(0.0, dt, budget=budget)
         r, reason = _timed(
             gyro, f'the first gyro sample (imu.rate {cfg.imu_rate:g} Hz, time_scale '
             f'{time_scale:g}: {dt:g} s of scene time) cannot be evaluated',
@@ -318,7 +331,7 @@ def trial(sol, values, cfg=None):
         def accel():
             with np.errstate(over='ignore', invalid='ignore'):
                 return Accelerometer(sol, lever_arm=cfg.lever_arm, gravity=cfg.gravity) \
-                    .read(0.0, dt, budget=SAMPLE_BUDGET_S)
+                    .read(0.0, dt, budget=budget)
         r, reason = _timed(
             accel, f'the first accelerometer sample (imu.rate {cfg.imu_rate:g} Hz: {dt:g} s '
             'of scene time) cannot be evaluated',
@@ -374,6 +387,12 @@ class RunSetup:
         Truth rate, Hz.
     frames : tuple of str
         ``(frame_id, body_frame_id)``: the frames N and B of the messages.
+    kalibr : dict
+        The values the Kalibr file of ``imu.kalibr_yaml`` supplied, by parameter name
+        (empty without one); ``values`` holds them too.
+    outputs : tuple
+        The kinds of output of :data:`rigidrot_ros.run.table.OUTPUTS` that the values
+        switch on, in rank order.
     """
 
     values: dict
@@ -386,6 +405,20 @@ class RunSetup:
     frames: Tuple[str, str]
     accel: Optional[Accelerometer] = None
     mag: Optional[Magnetometer] = None
+    kalibr: dict = field(default_factory=dict)
+    outputs: tuple = ()
+
+
+def _kalibr_supplied(values):
+    """Return ``{name: value}`` that the Kalibr file of checked ``values`` supplies (or {})."""
+    path = values.get('imu.kalibr_yaml', '')
+    if not path:
+        return {}
+    try:
+        found, _topic = load_kalibr_imu(path)
+    except ValueError:              # read by apply_kalibr a moment ago: changed since
+        return {}
+    return {name: values[name] for name in found if name in values}
 
 
 def check_run(values):
@@ -402,19 +435,24 @@ def check_run(values):
     return p
 
 
-def prepare_run(values, try_samples=True):
+def prepare_run(values, try_samples=True, timed=True):
     """Validate parameter ``values`` and set a run up: a :class:`RunSetup`.
 
     Each value is checked by its entry of :data:`rigidrot_ros.run.params.PARAMS`, the scene is
     solved, the sensor settings validated, and (``try_samples``) the first samples tried
     (:func:`trial`). The node calls this at start-up, for a parameter change and on
-    ``~/reset``; the offline generator calls it for its run.
+    ``~/reset``; the offline generator calls it for its run, with ``timed`` False.
 
     Parameters
     ----------
     values : dict
         Every parameter of the table by its dotted name (e.g. ``params.defaults()`` updated
         with overrides).
+    try_samples : bool
+        Try the first samples (:func:`trial`).
+    timed : bool
+        Bound the trial's wall time, as the node must (:data:`TRIAL_LIMIT_S`); False for
+        offline generation, whose answer must not depend on the machine's speed.
 
     Raises
     ------
@@ -427,11 +465,11 @@ def prepare_run(values, try_samples=True):
     solution = build_solution(p)
     sensors = sensor_settings(p)
     if try_samples:
-        reason = trial(solution, p, sensors)
+        reason = trial(solution, p, sensors, timed=timed)
         if reason is not None:
             raise TrialError(reason)
     return RunSetup(
-        values=p, solution=solution, sensors=sensors,
+        values=p, solution=solution, sensors=sensors, kalibr=_kalibr_supplied(p),
         gyro=Gyro(solution, sensors.gyro) if sensors.imu else None,
         star_tracker=(StarTracker(solution, sensors.attitude_noise) if sensors.star_tracker
                       else None),
@@ -439,4 +477,5 @@ def prepare_run(values, try_samples=True):
         frames=(p['frame_id'], p['body_frame_id']),
         accel=(Accelerometer(solution, sensors.accel_noise, sensors.lever_arm, sensors.gravity)
                if sensors.imu and sensors.accel else None),
-        mag=Magnetometer(solution, **sensors.mag_options) if sensors.mag else None)
+        mag=Magnetometer(solution, **sensors.mag_options) if sensors.mag else None,
+        outputs=table.kinds_on(p))

@@ -41,8 +41,9 @@ have run (generation 1 every 10th, 2 every 100th: the same counters,
 """
 
 import gc
-import os
 import time
+
+from rigidrot_ros.runtime import switches
 
 __all__ = ['Freezer', 'FREEZE_AFTER_S', 'enabled', 'Passes', 'STEP', 'LATE_STEP',
            'SAFETY_THRESHOLD', 'scheduled']
@@ -60,12 +61,12 @@ SAFETY_THRESHOLD = 20 * STEP
 
 def scheduled():
     """Whether the node runs the young passes itself (``RIGIDROT_GC_SCHEDULE=0``: not)."""
-    return os.environ.get('RIGIDROT_GC_SCHEDULE', '1').strip() != '0'
+    return switches.gc_schedule()
 
 
 def enabled():
     """Whether the node freezes its heap (``RIGIDROT_GC_FREEZE=0``: it does not)."""
-    return os.environ.get('RIGIDROT_GC_FREEZE', '1').strip() != '0'
+    return switches.gc_freeze()
 
 
 class Freezer:

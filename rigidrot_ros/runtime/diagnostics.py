@@ -234,9 +234,28 @@ def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_b
         latency is the publication time minus the sample's grid time (its true sample
         time), over the window.
     """
-    mean, p99, mx = w.eval_s
+    level, msg = _level(w, sol, period_hz, delivered, error_bound, increment_bound)
+    values = _solution_values(w, sol, error_bound, scene_time)
+    values.update(_lookahead_values(w, lookahead, batches))
+    values.update(_stream_values(w, sensors))
+    values.update({
+        'sensor_samples_skipped': str(w.skipped),
+        'increment_error_bound_rad': f'{increment_bound:.3g}',
+        'ticks_published': str(w.published),
+        'ticks_late': str(w.late), 'ticks_missed': str(w.missed),
+        'publish_rate_hz': f'{period_hz:g}',
+        'delivered_rate_hz': '' if delivered is None else f'{delivered:.4g}',
+    })
+    values.update(phase_values(w.slowest))
+    g0, g1, g2, longest = w.gc
+    values.update({'gc_collections': f'{g0}/{g1}/{g2}', 'gc_max_us': f'{longest / 1e3:.1f}'})
+    return level, msg, values
+
+
+def _level(w, sol, period_hz, delivered, error_bound, increment_bound):
+    """Return ``(level, message)`` of a window: OK, or every reason to warn, or the error."""
     warns = []                  # every reason of this window, not only the last
-    if mx > 1.0 / period_hz:
+    if w.eval_s[2] > 1.0 / period_hz:
         warns.append('evaluation slower than the timer period')
     if delivered is not None and delivered < 0.9 * period_hz:
         warns.append(f'delivering {delivered:.4g} Hz of the {period_hz:g} Hz asked '
@@ -253,7 +272,12 @@ def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_b
         level, msg = WARN, '; '.join(warns)
     if w.errors:
         level, msg = ERROR, '; '.join([f'evaluation failed: {w.last_error}'] + warns)
-    ahead = lookahead
+    return level, msg
+
+
+def _solution_values(w, sol, error_bound, scene_time):
+    """Return the solution's values and the window's evaluation, tick and latency times."""
+    mean, p99, mx = w.eval_s
     values = {
         'model': sol.model, 'method': sol.method, 'backend': sol.backend,
         'multiprecision_bits': str(sol.precision), 'tol_rad': f'{sol.tol:.3g}',
@@ -265,14 +289,24 @@ def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_b
     for name, (m, p, x) in (('tick', w.tick_s), ('latency', w.latency_s)):
         values.update({f'{name}_mean_us': f'{m * 1e6:.1f}', f'{name}_p99_us': f'{p * 1e6:.1f}',
                        f'{name}_max_us': f'{x * 1e6:.1f}'})
-    values.update({
+    return values
+
+
+def _lookahead_values(w, ahead, batches):
+    """Return the look-ahead's values: its size (or why it is off), batches, cost."""
+    return {
         'lookahead': ('' if ahead is None else f'{ahead.size} samples a batch'
                       if ahead.size else f'off: {ahead.off_reason}'),
         'lookahead_batches': str(len(batches)),
         'lookahead_deferred': str(w.deferred),
         'lookahead_batch_max_us': f'{max(batches, default=0.0) * 1e6:.1f}',
         'lookahead_sample_us': f'{(ahead.last_per_sample if ahead else 0.0) * 1e6:.2f}',
-    })
+    }
+
+
+def _stream_values(w, sensors):
+    """Return each stream's sample counts and times, then each sensor's latency."""
+    values = {}
     for name, (count, s_mean, s_max) in w.streams.items():
         values.update({f'{name}_samples': str(count),
                        f'{name}_sample_mean_us': f'{s_mean * 1e6:.1f}',
@@ -282,18 +316,7 @@ def report(w, sol, *, period_hz, delivered, error_bound, scene_time, increment_b
                        f'{name}_latency_p99_us': f'{p * 1e6:.1f}',
                        f'{name}_latency_max_us': f'{x * 1e6:.1f}',
                        f'{name}_dropped': str(dropped)})
-    values.update({
-        'sensor_samples_skipped': str(w.skipped),
-        'increment_error_bound_rad': f'{increment_bound:.3g}',
-        'ticks_published': str(w.published),
-        'ticks_late': str(w.late), 'ticks_missed': str(w.missed),
-        'publish_rate_hz': f'{period_hz:g}',
-        'delivered_rate_hz': '' if delivered is None else f'{delivered:.4g}',
-    })
-    values.update(phase_values(w.slowest))
-    g0, g1, g2, longest = w.gc
-    values.update({'gc_collections': f'{g0}/{g1}/{g2}', 'gc_max_us': f'{longest / 1e3:.1f}'})
-    return level, msg, values
+    return values
 
 
 def phase_values(slowest):

@@ -58,7 +58,6 @@ worker (it opens the gate first).
 
 import abc
 import contextlib
-import os
 import queue
 import sys
 import threading
@@ -66,9 +65,11 @@ import time
 
 import numpy as np
 
+from rigidrot_ros.runtime import switches
+
 __all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'BatchWorker', 'AHEAD_MIN', 'AHEAD_MAX',
            'BATCH_BUDGET_S', 'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S',
-           'SWITCH_INTERVAL_S', 'WORKER_NICE', 'WORKER_AHEAD_S', 'WORKER_BATCH',
+           'SWITCH_INTERVAL_S', 'WORKER_AHEAD_S', 'WORKER_BATCH',
            'WORKER_BUDGET_S', 'SlackGate', 'GATE_GUARD_S', 'GATE_HOLD_MAX_S',
            'GATE_URGENT_S', 'GATE_MIN_PERIOD_S']
 
@@ -109,11 +110,6 @@ WORKER_BATCH = AHEAD_MAX
 WORKER_BUDGET_S = 6e-3
 #: Batches the cost model remembers.
 _HISTORY = 8
-#: How much nicer (lower CPU priority, ``setpriority`` on the thread: no root needed) the
-#: worker thread runs than the publishing thread (``RIGIDROT_WORKER_NICE`` overrides it).
-#: 0: measured no better at 10 on the shared machine (late gyro 487, 323 against 414, 287
-#: at 1 kHz over 20 s; a niced worker starved by other processes made calls wait for it).
-WORKER_NICE = 0
 #: With a worker, the next batch starts while at least this many seconds of samples are
 #: buffered (measured: calls waited 4 to 11 ms for batches of 8 to 16 samples at 1 kHz,
 #: under load, when they started with a batch left).
@@ -150,11 +146,6 @@ GATE_URGENT_S = 0.02
 GATE_HOLD_MAX_S = 0.02
 
 
-def _gated():
-    """Whether the worker runs only in the scheduler's slack (``RIGIDROT_WORKER_GATE=0``: not)."""
-    return os.environ.get('RIGIDROT_WORKER_GATE', '1').strip() != '0'
-
-
 class SlackGate:
     """The worker's work, held to the publishing thread's slack between two calls.
 
@@ -185,7 +176,7 @@ class SlackGate:
     FREE = (1 << 63) - 1
 
     def __init__(self, clock=time.perf_counter_ns, hold_max_s=GATE_HOLD_MAX_S, on=None):
-        self.on = _gated() if on is None else bool(on)
+        self.on = switches.worker_gate() if on is None else bool(on)
         self._clock = clock
         self._hold_max_ns = int(hold_max_s * 1e9)
         self._deadline = self.FREE
@@ -282,23 +273,6 @@ class _Job:
         self.done.set()
 
 
-def _worker_batch():
-    """Return :data:`WORKER_BATCH`, or ``$RIGIDROT_WORKER_BATCH`` (0 to AHEAD_MAX) if set."""
-    try:
-        n = int(os.environ.get('RIGIDROT_WORKER_BATCH', WORKER_BATCH))
-    except ValueError:
-        return WORKER_BATCH
-    return n if n == 0 else min(max(n, AHEAD_MIN), AHEAD_MAX)
-
-
-def _worker_nice():
-    """Return :data:`WORKER_NICE`, or ``$RIGIDROT_WORKER_NICE`` (an integer >= 0) if set."""
-    try:
-        return max(int(os.environ.get('RIGIDROT_WORKER_NICE', WORKER_NICE)), 0)
-    except ValueError:
-        return WORKER_NICE
-
-
 class _Call:
     """A plain call for the worker; its exception goes to ``on_error``.
 
@@ -379,13 +353,6 @@ class BatchWorker:
         self._jobs.put(job)
 
     def _loop(self):
-        nice = _worker_nice()
-        if nice > 0:
-            try:
-                tid = threading.get_native_id()
-                os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
-            except (OSError, AttributeError):
-                pass                    # not allowed here, or not Linux: as it is
         while True:
             job = self._jobs.get()
             if job is None:
@@ -444,7 +411,8 @@ class Ahead(abc.ABC):
                  first=0, clock=time.monotonic, worker=None):
         self.period_s = float(period_s)
         self.worker = worker            # a BatchWorker: refill()'s batches run there
-        self._fixed_size = _worker_batch() if worker is not None else 0
+        self._fixed_size = (switches.worker_batch(WORKER_BATCH, AHEAD_MIN, AHEAD_MAX)
+                            if worker is not None else 0)
         self._job = None                # the batch in the worker, if any
         self.build = build
         self.budget_s = float(budget_s)

@@ -14,8 +14,8 @@ conditions, back to back: 229 late samples of 13 001 as an ordinary process, 0 w
 ``SCHED_FIFO`` at :data:`PRIORITY` for the main thread; every thread made afterwards
 inherits it: ROS's, the look-ahead worker (it holds the interpreter lock while it runs: an
 ordinary worker preempted with the lock held stalls the publishing thread; measured: 61
-and 9 late against 1 and 4 with the publishing thread alone on ``SCHED_FIFO``), and a
-recorder child process. It needs the right to (root, ``CAP_SYS_NICE``, or an ``rtprio``
+and 9 late against 1 and 4 with the publishing thread alone on ``SCHED_FIFO``), and any
+child process. It needs the right to (root, ``CAP_SYS_NICE``, or an ``rtprio``
 limit in ``/etc/security/limits.conf``: the set-up ROS documents for real-time nodes);
 without it the node runs as before and says so in one line. The kernel's real-time
 throttling (``sched_rt_runtime_us``: 95 % by default) keeps a run-away real-time thread
@@ -24,6 +24,8 @@ keeps the ordinary policy.
 """
 
 import os
+
+from rigidrot_ros.runtime import switches
 
 __all__ = ['request', 'describe', 'PRIORITY', 'priority_from_env']
 
@@ -35,20 +37,9 @@ PRIORITY = 10
 def priority_from_env(environ=None):
     """Return the priority ``RIGIDROT_RT_PRIORITY`` asks for (0: off), or raise ValueError.
 
-    Unset or empty: :data:`PRIORITY`.
+    Unset or empty: :data:`PRIORITY` (:func:`rigidrot_ros.runtime.switches.rt_priority`).
     """
-    text = (os.environ if environ is None else environ).get('RIGIDROT_RT_PRIORITY', '')
-    text = text.strip()
-    if not text:
-        return PRIORITY
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if not 0 <= value <= 99:
-        raise ValueError(f'RIGIDROT_RT_PRIORITY must be an integer from 0 (off) to 99, '
-                         f'got {text!r}')
-    return value
+    return switches.rt_priority(PRIORITY, environ)
 
 
 def request(priority=None, environ=None):

@@ -23,6 +23,12 @@ Error conventions (quaternions (x, y, z, w), ``q_NB``):
   (about ``sigma_j |omega|`` rad of attitude, ``sigma_j |omega_dot|`` of rate, which a
   stated covariance does not include); each such result says so
   (``timing``: ``clock_offset_s``, ``stamp_jitter_s``, ``scored_at``).
+- sensor error model: a run description's ``sensors`` (the node's and the generator's
+  effective sensor configuration: noise densities, random walks, biases and the drawn
+  turn-on bias, scale factors, misalignment, quanta, Gauss-Markov terms, soft and hard
+  iron, the values a Kalibr file supplied) goes with each result of a sensor topic
+  (``sensor``: the sensor's name, rate and parameters), found as the timing model is;
+  :func:`describe_sensor` says it in one line.
 - consistency: ``NEES = e^T P^-1 e`` per sample with an orientation covariance ``P``;
   ANEES is its mean over the M samples that have one, and its 95 % bounds are
   ``chi2.ppf([0.025, 0.975], 3 M) / M``. They assume independent samples; the errors of a
@@ -183,6 +189,72 @@ def sensor_timing(run, topic):
     return timing[name]
 
 
+#: The node's sensor topics (last name component) and the sensor that publishes each.
+SENSOR_TOPICS = {'imu': 'imu', 'delta_angle': 'imu', 'delta_rotation': 'imu',
+                 'delta_velocity': 'imu', 'star_tracker': 'star_tracker', 'mag': 'mag'}
+
+
+def sensor_config(run, topic):
+    """Return ``(sensor, configuration)`` of the run's sensor that publishes ``topic``, or None.
+
+    The configuration is the run description's ``sensors`` entry (``rate_hz``,
+    ``parameters``, ...); the topic is matched as :func:`sensor_timing` matches it.
+    """
+    if topic is None:
+        return None
+    sensor = SENSOR_TOPICS.get(topic.rsplit('/', 1)[-1])
+    config = (run.get('sensors') or {}).get(sensor)
+    listed = run.get('topics')
+    if not isinstance(config, dict) or (listed and topic not in listed):
+        return None
+    return sensor, config
+
+
+def _sensor_note(runs, topic):
+    """Return the ``sensor`` entry of a result: the last run's sensor for ``topic``, or None."""
+    found = [c for c in (sensor_config(r, topic) for r in runs) if c is not None]
+    if not found:
+        return None
+    sensor, config = found[-1]
+    return dict(config, name=sensor)
+
+
+#: Parameters shown by :func:`describe_sensor` even at their default: the noise levels.
+_ALWAYS_SHOWN = ('noise_density', 'random_walk', '_arcsec')
+
+
+def describe_sensor(note):
+    """Return one line for a result's ``sensor`` entry: the values that shape its error.
+
+    Its rate, then each parameter that is not at its default in the parameter table, and
+    the noise levels (densities, random walks, star tracker sigmas) always; the drawn
+    turn-on biases where not zero; the Kalibr file, if any.
+    """
+    from rigidrot_ros.run.params import BY_NAME
+    parts = []
+    for name, value in (note.get('parameters') or {}).items():
+        p = BY_NAME.get(name)
+        default = None if p is None else p.default
+        if value != default or name.endswith(_ALWAYS_SHOWN):
+            parts.append(f'{name} {_short(value)}')
+    for which, bias in sorted((note.get('turn_on_bias') or {}).items()):
+        if any(bias):
+            parts.append(f'{which} turn-on bias {_short(bias)}')
+    rate = note.get('rate_hz')
+    head = f'{note.get("name", "sensor")} at {_short(rate)} Hz' if rate else \
+        str(note.get('name', 'sensor'))
+    if not parts:
+        return f'{head}: every parameter at its default'
+    return f'{head}: {", ".join(parts)} (the rest at their defaults)'
+
+
+def _short(v):
+    if isinstance(v, list):
+        return '[' + ', '.join(_short(x) for x in v) + ']'
+    return f'{v:.4g}' if isinstance(v, float) else f'{v:g}' if isinstance(v, int) and \
+        not isinstance(v, bool) else str(v)
+
+
 def _offset_ns(run, topic):
     t = sensor_timing(run, topic)
     return 0 if t is None else round(float(t.get('clock_offset_s', 0.0)) * 1e9)
@@ -315,11 +387,19 @@ def score_against_runs(bag, streams, cov_frame='body'):
                 err[sel] = np.linalg.norm(d, axis=-1)
         nv = nees(comp, s.cov) if (s.field == ORIENTATION and s.cov is not None) else None
         out = _summary(s, t, err, comp, nv)
-        note = _timing_note(runs, s.topic)
-        if note is not None:
-            out['timing'] = note
+        _notes(out, runs, s.topic)
         results.append(out)
     return results
+
+
+def _notes(out, runs, topic):
+    """Add the timing model and the sensor's configuration of ``topic`` to a result."""
+    note = _timing_note(runs, topic)
+    if note is not None:
+        out['timing'] = note
+    sensor = _sensor_note(runs, topic)
+    if sensor is not None:
+        out['sensor'] = sensor
 
 
 def _slerp(q0, q1, w):
@@ -405,9 +485,7 @@ def score_against_stream(bag, streams, truth_bag, truth_streams, cov_frame='body
         out = _summary(s, t, err, comp, nv)
         out['truth_topic'] = ref.topic
         out['truth_gaps'] = gaps
-        note = _timing_note(runs, s.topic)
-        if note is not None:
-            out['timing'] = note
+        _notes(out, runs, s.topic)
         results.append(out)
     return results
 
@@ -419,4 +497,4 @@ def check_bag(bag):
 
 
 __all__ += ['RATE', 'scene_times', 'TRUTH_NAMES', 'GAP_FACTOR', 'sensor_timing',
-            'TIMED_SENSORS']
+            'TIMED_SENSORS', 'sensor_config', 'describe_sensor', 'SENSOR_TOPICS']

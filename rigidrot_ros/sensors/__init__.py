@@ -1,7 +1,12 @@
 """Sensor models over the exact motion: pure math, seeded, no ROS.
 
-Error models (:mod:`.noise`) are kept apart from the sensors that sample the exact motion
-(:mod:`.sensors`), as gz-sensors keeps its noise models apart from its sensors.
+Error models (:mod:`.noise`, :mod:`.imu_noise`: white noise, bias random walk,
+Gauss-Markov and turn-on bias, scale factor, misalignment, quantisation) are kept apart
+from the sensors that sample the exact motion (:mod:`.sensors`: the rate-integrating gyro
+and the star tracker; :mod:`.batch`: the gyro over a block of intervals; :mod:`.accel`:
+the accelerometer and its exact delta-v; :mod:`.mag`: the magnetometer), as gz-sensors
+keeps its noise models apart from its sensors. :mod:`.increments` holds the exact
+delta-angle and delta-rotation, :mod:`.kalibr` the import of Kalibr's ``imu.yaml``.
 Conventions: frames N inertial, B body; quaternions (x, y, z, w), active, ``q_NB``;
 rates of B relative to N, in B, rad/s.
 """

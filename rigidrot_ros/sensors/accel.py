@@ -381,43 +381,52 @@ def delta_velocity_many(solution, t0, t1, lever_arm, gravity, tol=DV_TOL, bound=
     n, trunc = rules_from_log(_log_truncation_many(bound, t0, t1, lever, grav), tol)
     total = tangential.copy()
     err = err + trunc
-    hh, tm, h = 0.5 * (t1 - t0), 0.5 * (t0 + t1), t1 - t0
     for rule in sorted(set(n.tolist()) - {0}):
-        idx = np.flatnonzero(n == rule)
-        x, wts = _RULES[rule]
-        h_i = hh[idx, None]
-        ts = (tm[idx, None] + h_i * x).ravel()
-        ws = h_i * wts                                    # (k, n): hh w_j, as _nodes
-        part, e = total[idx], err[idx]
-        scale = np.zeros(len(idx))
-        if lever > 0.0:
-            om = np.asarray(solution.omega_at(ts), dtype=float).reshape(len(idx), rule, 3)
-            cen = _cross(om, _cross(om, r))
-            acc = ws[:, 0, None] * cen[:, 0]
-            for j in range(1, rule):
-                acc = acc + ws[:, j, None] * cen[:, j]
-            part = part + acc
-            w = np.max(norm3(om), axis=1)
-            e = e + h[idx] * 64.0 * _EPS * w * w * lever
-            scale = np.maximum(scale, w * w * lever)
-        if grav > 0.0:
-            s = solution.at(ts)
-            g_b = _gravity_in_body(np.asarray(s.quaternion, dtype=float), g)
-            g_b = g_b.reshape(len(idx), rule, 3)
-            acc = ws[:, 0, None] * g_b[:, 0]
-            for j in range(1, rule):
-                acc = acc + ws[:, j, None] * g_b[:, j]
-            part = part - acc
-            eb = np.asarray(s.error_bound, dtype=float).reshape(len(idx), rule)
-            e = e + h[idx] * grav * np.max(eb, axis=1)
-            scale = np.maximum(scale, grav)
-        e = e + math.sqrt(3.0) * h[idx] * (rule + 24) * _EPS * scale \
-            + 4 * _EPS * norm3(part)
-        total[idx], err[idx] = part, e
+        _add_rule(solution, rule, np.flatnonzero(n == rule), t0, t1, r, g, total, err)
     for i in np.flatnonzero(n == 0):            # past 32 nodes: subintervals, alone
         total[i], err[i] = delta_velocity(solution, float(t0[i]), float(t1[i]), r, g,
                                           tol=tol, bound=bound, deadline=deadline)
     return total, err
+
+
+def _add_rule(solution, rule, idx, t0, t1, r, g, total, err):
+    """Add the ``rule``-node Gauss sums and their bounds to rows ``idx`` of total, err.
+
+    In place; the rows' centripetal term (if ``|r| > 0``) and gravity term (if
+    ``|g| > 0``), each summed over the nodes in order, then the rounding of the sums.
+    """
+    lever, grav = float(norm3(r)), float(norm3(g))
+    hh, tm, h = 0.5 * (t1 - t0), 0.5 * (t0 + t1), t1 - t0
+    x, wts = _RULES[rule]
+    h_i = hh[idx, None]
+    ts = (tm[idx, None] + h_i * x).ravel()
+    ws = h_i * wts                                    # (k, n): hh w_j, as _nodes
+    part, e = total[idx], err[idx]
+    scale = np.zeros(len(idx))
+    if lever > 0.0:
+        om = np.asarray(solution.omega_at(ts), dtype=float).reshape(len(idx), rule, 3)
+        part = part + _node_sum(ws, _cross(om, _cross(om, r)))
+        w = np.max(norm3(om), axis=1)
+        e = e + h[idx] * 64.0 * _EPS * w * w * lever
+        scale = np.maximum(scale, w * w * lever)
+    if grav > 0.0:
+        s = solution.at(ts)
+        g_b = _gravity_in_body(np.asarray(s.quaternion, dtype=float), g)
+        part = part - _node_sum(ws, g_b.reshape(len(idx), rule, 3))
+        eb = np.asarray(s.error_bound, dtype=float).reshape(len(idx), rule)
+        e = e + h[idx] * grav * np.max(eb, axis=1)
+        scale = np.maximum(scale, grav)
+    e = e + math.sqrt(3.0) * h[idx] * (rule + 24) * _EPS * scale \
+        + 4 * _EPS * norm3(part)
+    total[idx], err[idx] = part, e
+
+
+def _node_sum(ws, vals):
+    """Return ``sum_j ws[:, j] vals[:, j]`` over the nodes j in order: (k, n), (k, n, 3)."""
+    acc = ws[:, 0, None] * vals[:, 0]
+    for j in range(1, vals.shape[1]):
+        acc = acc + ws[:, j, None] * vals[:, j]
+    return acc
 
 
 @dataclass(frozen=True)

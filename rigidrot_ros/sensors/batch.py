@@ -293,7 +293,7 @@ def _ends(gyro, times):
     return q, e
 
 
-def read_block(gyro, times, budget=None, attitudes=None):
+def read_block(gyro, times, budget=None):
     """Sample the m intervals between consecutive ``times`` (m + 1 ends, s): a GyroBlock.
 
     Parameters
@@ -305,10 +305,6 @@ def read_block(gyro, times, budget=None, attitudes=None):
         Interval ends, strictly increasing, finite (at least 2).
     budget : float, optional
         Seconds the quadrature may take; past it ValueError, the noise stream untouched.
-    attitudes : (ndarray (m + 1, 4), ndarray (m + 1,)), optional
-        ``solution.at(times)``'s quaternions and error bounds, if the caller has them
-        (e.g. from another process: a sample's bits depend on its time alone, so they are
-        the ones this call would compute).
 
     Returns
     -------
@@ -326,12 +322,7 @@ def read_block(gyro, times, budget=None, attitudes=None):
     dt = t1 - t0
     da, da_bound = delta_angle_many(gyro.solution, t0, t1, gyro.tol, gyro._bound,
                                     deadline=deadline)
-    if attitudes is None:
-        q, e = _ends(gyro, ts)
-    else:
-        q = np.asarray(attitudes[0], dtype=float).reshape(len(ts), 4)
-        e = np.asarray(attitudes[1], dtype=float).reshape(len(ts))
-        gyro._last = (float(ts[-1]), q[-1].copy(), float(e[-1]))
+    q, e = _ends(gyro, ts)
     dr, dr_bound = delta_rotation_many(q[:-1], q[1:], e[:-1], e[1:])
     avg = da / dt[:, None]
     noise = gyro.noise

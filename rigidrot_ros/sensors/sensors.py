@@ -109,15 +109,13 @@ class Gyro:
                            None if b.delta_angle_measured is None
                            else b.delta_angle_measured[0])
 
-    def read_many(self, times, budget=None, attitudes=None):
+    def read_many(self, times, budget=None):
         """Sample the intervals between consecutive ``times`` (m + 1 ends, s) at once.
 
         A :class:`rigidrot_ros.sensors.batch.GyroBlock` of m rows, bit for bit the m
         readings :meth:`read` gives over the same intervals (state carried either way).
-        ``attitudes``: ``solution.at(times)``'s quaternions and bounds, if at hand
-        (:func:`rigidrot_ros.sensors.batch.read_block`).
         """
-        return read_block(self, times, budget=budget, attitudes=attitudes)
+        return read_block(self, times, budget=budget)
 
 
 @dataclass(frozen=True)

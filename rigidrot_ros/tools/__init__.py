@@ -1,1 +1,6 @@
-"""Command-line tools (thin mains): echo, record, reindex, replay, compare, demo estimator."""
+"""Command-line tools, thin mains over the packages below them.
+
+``echo``, ``record``, ``reindex``, ``replay``, ``compare``, ``generate``, ``campaign``
+and ``demo_estimator`` (the console scripts ``rigidrot_<name>``), and ``cli``, the
+conventions they share (one line and exit status 2 for a bad argument).
+"""

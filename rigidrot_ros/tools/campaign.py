@@ -1,13 +1,14 @@
 """rigidrot_campaign: Monte Carlo consistency campaign of an attitude estimator.
 
 Reads a YAML spec (``rigidrot_ros.campaign.spec``), runs its M runs on a local process
-pool, a Dask LocalCluster (--workers N) or a running Dask cluster (--scheduler), and
-writes report.json, runs.csv and charts into -o DIR. Rerun with the same -o to continue a
-stopped campaign.
+pool, a Dask LocalCluster (--workers N) or a running Dask cluster (--scheduler, with
+--tls-ca-file/--tls-cert/--tls-key for a TLS one), and writes report.json, runs.csv and
+charts into -o DIR. Rerun with the same -o to continue a stopped campaign.
 """
 
 import os
 import sys
+import time
 
 from rigidrot_ros.tools.cli import fail, OneLineParser
 
@@ -27,10 +28,36 @@ def _parser():
     eng.add_argument('--processes', type=int,
                      help='size of the local process pool (the default engine; default: '
                           'one per core)')
+    tls = ap.add_argument_group('TLS with --scheduler tls://HOST:PORT (mutual TLS; default: '
+                                "Dask's configuration distributed.comm.tls.*)")
+    tls.add_argument('--tls-ca-file', metavar='PEM',
+                     help="the CA certificate that signed the scheduler's certificate")
+    tls.add_argument('--tls-cert', metavar='PEM',
+                     help="this client's certificate, signed by a CA the scheduler trusts")
+    tls.add_argument('--tls-key', metavar='PEM',
+                     help="this client's private key (if not in --tls-cert's file)")
     ap.add_argument('--bags', help="keep each run's bags under this directory (a shared "
                                    'path with a cluster); default: temporary, removed')
     ap.add_argument('--quiet', action='store_true', help='no progress bar')
     return ap
+
+
+class _CheckProgress:
+    """Say on stderr how far the check of the runs' draws is, once it takes over 1 s."""
+
+    def __init__(self):
+        self.t0 = self.last = time.monotonic()
+
+    def __call__(self, done, total):
+        """Redraw the line (at most ten times a second)."""
+        now = time.monotonic()
+        if now - self.t0 < 1.0 or (done < total and now - self.last < 0.1):
+            return
+        self.last = now
+        rate = done / (now - self.t0)
+        left = f', ~{(total - done) / rate:.0f} s left' if done and done < total else ''
+        print(f'\r[campaign] checking the draws as the node would: {done}/{total}{left}   ',
+              end='' if done < total else '\n', file=sys.stderr, flush=True)
 
 
 def main(argv=None):
@@ -40,29 +67,52 @@ def main(argv=None):
         v = getattr(opts, name)
         if v is not None and not 1 <= v <= 4096:
             return fail('rigidrot_campaign', f'--{name} must be in [1, 4096], got {v}')
+    tls = [f'--{k.replace("_", "-")}' for k in ('tls_ca_file', 'tls_cert', 'tls_key')
+           if getattr(opts, k)]
+    if tls and not opts.scheduler:
+        return fail('rigidrot_campaign', f'{" ".join(tls)} apply to --scheduler (a --workers '
+                    'LocalCluster makes temporary certificates of its own)')
     if opts.workers is not None or opts.scheduler:
         try:
             import distributed  # noqa: F401
         except ImportError:
             from rigidrot_ros.campaign.engine import DASK_MISSING
             return fail('rigidrot_campaign', DASK_MISSING)
-    from rigidrot_ros.campaign.engine import run_campaign
+    from rigidrot_ros.campaign.engine import CampaignStopped, dask_security, run_campaign
     from rigidrot_ros.campaign.spec import load_spec, SpecError
     try:
-        spec = load_spec(opts.spec)
+        security = dask_security(opts.tls_ca_file, opts.tls_cert, opts.tls_key) \
+            if opts.scheduler else None
+        spec = load_spec(opts.spec, progress=None if opts.quiet else _CheckProgress())
         if opts.bags:
-            os.makedirs(opts.bags, exist_ok=True)
+            try:
+                os.makedirs(opts.bags, exist_ok=True)
+            except OSError as exc:
+                raise SpecError(f'--bags {opts.bags}: cannot create it: '
+                                f'{exc.strerror or exc}') from None
         report = run_campaign(spec, opts.output,
                               workers=opts.workers if opts.workers else opts.processes,
                               scheduler=opts.scheduler, dask_local=opts.workers is not None,
                               bag_root=opts.bags and os.path.abspath(opts.bags),
-                              progress=not opts.quiet)
+                              progress=not opts.quiet, security=security)
     except SpecError as exc:
         return fail('rigidrot_campaign', exc)
+    except (OSError, CampaignStopped) as exc:   # a full disk, a worker killed, ...
+        what = f'{exc.filename or opts.output}: {exc.strerror or exc}' \
+            if isinstance(exc, OSError) else str(exc)
+        return fail('rigidrot_campaign', f'{what}; finished runs are kept: run the same '
+                    'command again to continue', 1)
     except KeyboardInterrupt:
         print('rigidrot_campaign: stopped; finished runs are kept: run the same command '
               'again to continue', file=sys.stderr)
         return 130
+    if 'estimators' in spec:                # several on the same runs
+        from rigidrot_ros.campaign.multi import summary_lines
+        for line in summary_lines(report):
+            print(line)
+        print(f'report: {os.path.join(opts.output, "report.json")}, comparison: '
+              f'{os.path.join(opts.output, "comparison.md")}')
+        return 0 if any(e['runs_ok'] for e in report['comparison']['table']) else 1
     a = report.get('anees')
     if a:
         mc = report['mc_nees']
@@ -73,6 +123,12 @@ def main(argv=None):
               f'{100 * mc["fraction_inside"]:.1f} % of {report["steps"]} steps')
     else:
         print(f'{report["runs_ok"]}/{report["runs"]} runs ok: nothing to aggregate')
+    if report.get('sensors'):
+        from rigidrot_ros.scoring.score import describe_sensor
+        print('sensor error models of the runs (report.json "sensors"):')
+        for name, config in report['sensors'].items():
+            if isinstance(config, dict):
+                print(f'  {describe_sensor(dict(config, name=name))}')
     print(f'report: {os.path.join(opts.output, "report.json")}')
     return 0 if report['runs_ok'] else 1
 

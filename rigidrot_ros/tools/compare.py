@@ -16,8 +16,10 @@ import os
 import sys
 
 from rigidrot_ros.bag import BagError, read_bag
+from rigidrot_ros.bag.metadata import bags_below
 from rigidrot_ros.scoring.score import (
-    check_bag, extract_streams, score_against_runs, score_against_stream, ScoreError,
+    check_bag, describe_sensor, extract_streams, score_against_runs, score_against_stream,
+    ScoreError,
 )
 from rigidrot_ros.tools.cli import OneLineParser
 
@@ -26,6 +28,13 @@ CONVENTION = ('attitude error e: q_true^-1 * q_est = exp(e/2), e in the body fra
               'NEES = e^T P^-1 e with P the orientation covariance')
 _ARRAYS = ('t', 'error', 'nees', 'components', 'sigma')
 _FLOOR = 1e-17
+#: The log error axes start at the decade below this quantile of a panel's errors: a few
+#: samples far below the rest (an estimator started at the truth, t = 0 exact to 1e-17)
+#: would otherwise stretch the axis over many empty decades.
+AXIS_QUANTILE = 0.01
+#: Colours of the error components x, y, z in the covariance panels (ColorBrewer Dark2:
+#: none of them is a topic's colour, which come from matplotlib's C0...C9).
+_AXIS_COLORS = ('#1b9e77', '#d95f02', '#7570b3')
 PLOT_SUFFIXES = ('.png', '.svg', '.pdf')
 
 
@@ -54,6 +63,13 @@ def _table(results, skipped):
     for s in skipped:
         lines.append(f'{s["topic"]:36s} {s["type"].split("/")[-1]:26s}  not scored: '
                      f'{s["reason"]}')
+    sensors = {}
+    for r in results:
+        if r.get('sensor'):
+            sensors.setdefault(r['sensor'].get('name'), r['sensor'])
+    if sensors:
+        lines.append('sensor error models (from the run description):')
+        lines += [f'  {describe_sensor(s)}' for s in sensors.values()]
     return '\n'.join(lines)
 
 
@@ -77,7 +93,21 @@ def _import_pyplot():
     return plt
 
 
+def _log_bottom(rs):
+    """Return the bottom of a log error axis: the decade below the AXIS_QUANTILE of errors."""
+    errs = sorted(e for r in rs for e in r['error'] if math.isfinite(e) and e >= _FLOOR)
+    if not errs:
+        return _FLOOR
+    pos = AXIS_QUANTILE * (len(errs) - 1)               # linear interpolation, as numpy's
+    k = int(pos)
+    q = errs[k] + (pos - k) * (errs[min(k + 1, len(errs) - 1)] - errs[k])
+    return max(_FLOOR, 10.0 ** math.floor(math.log10(q)))
+
+
 def _plot(plt, results, path, title, yscale):
+    # one colour per topic in every panel (its attitude and its rate alike)
+    topics = list(dict.fromkeys(r['topic'] for r in results))
+    color = {t: f'C{k % 10}' for k, t in enumerate(topics)}
     angle = [r for r in results if r['unit'] == 'rad' and r['count']]
     rate = [r for r in results if r['unit'] == 'rad/s' and r['count']]
     banded = [r for r in angle if 'components' in r][:3]
@@ -87,29 +117,33 @@ def _plot(plt, results, path, title, yscale):
                              squeeze=False)
     for ax, (kind, rs) in zip(axes[:, 0], rows):
         if kind in ('angle', 'rate'):
-            # a log axis cannot show zeros, and errors below float64 rounding of a unit
-            # quantity (1e-17) say nothing more: those are drawn at 1e-17, and counted
-            floor = _FLOOR if yscale == 'log' else None
+            # a log axis cannot show zeros, and a few samples far below the rest (errors
+            # below float64 rounding of a unit quantity, 1e-17, say nothing more) would
+            # squeeze the useful range: the axis starts at the decade below the panel's
+            # 1st percentile, and the samples below it are drawn on it, and counted
+            floor = _log_bottom(rs) if yscale == 'log' else None
             for r in rs:
                 err = r['error']
-                low = sum(1 for e in err if e < _FLOOR) if floor else 0
+                low = sum(1 for e in err if not e >= floor) if floor else 0
                 label = r['label']
                 if low:
-                    err = [max(e, floor) for e in err]
-                    label += f' ({low} below {floor:.0e}, drawn at it)'
-                ax.plot(r['t'], err, '.', ms=2, label=label)
+                    err = [e if e >= floor else floor for e in err]
+                    label += f' ({low} below {floor:.0e}, drawn on the axis bottom)'
+                ax.plot(r['t'], err, '.', ms=2, label=label, color=color[r['topic']])
             ax.set_yscale(yscale)
+            if floor:
+                ax.set_ylim(bottom=floor)
             ax.set_ylabel('attitude error |e| [rad]' if kind == 'angle'
                           else 'rate error [rad/s]')
             ax.legend(loc='best', fontsize=7, markerscale=4, framealpha=0.9)
         else:
             r = rs[0]
             t = r['t']
-            for k, (axis, color) in enumerate(zip('xyz', ('C0', 'C1', 'C2'))):
+            for k, (axis, c_axis) in enumerate(zip('xyz', _AXIS_COLORS)):
                 comp = [c[k] for c in r['components']]
                 sig = [3 * s[k] for s in r['sigma']]
-                ax.plot(t, comp, '-', lw=0.8, color=color, label=f'e_{axis}')
-                ax.fill_between(t, [-v for v in sig], sig, color=color, alpha=0.12,
+                ax.plot(t, comp, '-', lw=0.8, color=c_axis, label=f'e_{axis}')
+                ax.fill_between(t, [-v for v in sig], sig, color=c_axis, alpha=0.12,
                                 lw=0, label=f'±3σ_{axis}')
             lo, hi = r['anees_bounds_95']
             ax.set_ylabel('error e in B [rad]')
@@ -134,6 +168,17 @@ def _write_csv(results, path):
             for t, e, n in zip(r['t'], r['error'], nees):
                 w.writerow([r['topic'], r['field'], repr(t), repr(e), r['unit'],
                             '' if n is None or math.isnan(n) else repr(n)])
+
+
+def _one_bag(path):
+    """Return ``path``, or the one bag one level below a directory that holds no .mcap."""
+    if os.path.isdir(path) and not any(f.endswith('.mcap') for f in os.listdir(path)):
+        inner = bags_below(path)
+        if len(inner) == 1:
+            print(f'note: {path} holds no .mcap file: comparing the bag in it, {inner[0]}',
+                  file=sys.stderr)
+            return inner[0]
+    return path             # several bags below: read_bag says so, naming them
 
 
 def _parser():
@@ -167,7 +212,7 @@ def main(argv=None):
             raise ScoreError(f'--plot {opts.plot}: the file name must end in '
                              f'{", ".join(PLOT_SUFFIXES)} (the format is taken from it)')
         plt = _import_pyplot() if opts.plot else None
-        bag = read_bag(opts.bag)
+        bag = read_bag(_one_bag(opts.bag))
         if bag.note:
             print(f'note: {bag.path}: {bag.note}', file=sys.stderr)
         check_bag(bag)

@@ -31,9 +31,6 @@ def _parser():
     ap.add_argument('--start-ns', type=int, default=0,
                     help="clock stamp (ns) of scene time 0, the node's t_start (default 0)")
     ap.add_argument('--quiet', action='store_true', help='no progress on stderr')
-    ap.add_argument('--helper', action='store_true',
-                    help='evaluate the attitudes in a second process (a second core that is '
-                         'idle; the same bytes)')
     return ap
 
 
@@ -71,7 +68,7 @@ def main(argv=None):
     progress = None if opts.quiet else _Progress()
     try:
         path = generate_bag(values, opts.duration, opts.output, start_ns=opts.start_ns,
-                            progress=progress, helper=opts.helper)
+                            progress=progress)
     except GenerationError as exc:
         return fail(PROG, exc)
     except KeyboardInterrupt:

@@ -43,37 +43,16 @@ def main(argv=None):
     from rigidrot_ros.ros.spin import split_ros_args
     argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     opts = _parser().parse_args(argv)
-    if not opts.topics and not opts.all:
-        print('rigidrot_record: name the topics to record, or give --all', file=sys.stderr)
-        return 2
-    if opts.duration is not None and not (math.isfinite(opts.duration) and opts.duration > 0):
-        print(f'rigidrot_record: --duration must be a positive number of seconds, got '
-              f'{opts.duration!r}', file=sys.stderr)
+    problem = _check_args(opts)
+    if problem is not None:
+        print(f'rigidrot_record: {problem}', file=sys.stderr)
         return 2
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from rigidrot_ros.bag import BagWriter
-    from rigidrot_ros.ros.recorder import check_type, Recorder
+    from rigidrot_ros.bag.metadata import uninterrupted
     from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown
 
-    for t in opts.topics:
-        name, _, type_name = t.partition(':')
-        if not name:
-            print(f'rigidrot_record: {t!r}: no topic name before the type', file=sys.stderr)
-            return 2
-        if type_name:
-            try:
-                check_type(type_name)
-            except ValueError as exc:
-                print(f'rigidrot_record: {t}: {exc}', file=sys.stderr)
-                return 2
-
-    out = opts.output
-    if os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
-        print(f'rigidrot_record: {out} exists and is not an empty directory; nothing is '
-              f'overwritten: choose another output directory', file=sys.stderr)
-        return 2
     try:
         reason = init_ros('rigidrot_record', ros_args)
         if reason is not None:
@@ -82,31 +61,12 @@ def main(argv=None):
         node = rclpy.create_node('rigidrot_record')
     except (ExternalShutdownException, KeyboardInterrupt):
         return 0
-
-    def quit_with(text):
+    rec, problem = _start(node, opts)
+    if problem is not None:
         node.destroy_node()
         rclpy.try_shutdown()
-        print(f'rigidrot_record: {text}', file=sys.stderr)
+        print(f'rigidrot_record: {problem}', file=sys.stderr)
         return 2
-    try:
-        for t in opts.topics:
-            node.resolve_topic_name(t.partition(':')[0])
-    except Exception as exc:  # noqa: B902 - rclpy raises its own types for bad names
-        return quit_with(f'invalid topic name: {str(exc).splitlines()[0]}')
-    try:
-        writer = BagWriter(None, 'rigidrot_record', flush_period=0.4, path=out)
-    except OSError as exc:
-        return quit_with(f'cannot record to {out}: {exc}')
-
-    def event(level, text):
-        print(f'rigidrot_record: {text}', file=sys.stderr, flush=True)
-    try:
-        rec = Recorder(node, writer, topics=opts.topics, all_topics=opts.all,
-                       runs=not opts.no_runs, on_event=event)
-    except ValueError as exc:
-        writer.close()
-        return quit_with(str(exc))
-    print(f'rigidrot_record: recording to {writer.path}', file=sys.stderr, flush=True)
     end = time.monotonic() + opts.duration if opts.duration else None
 
     def loop(n):
@@ -120,9 +80,63 @@ def main(argv=None):
     try:
         spin_until_shutdown(node, loop)
     finally:
-        path, counts = rec.close()
+        path, counts = uninterrupted(rec.close)     # the bag whole, whatever signal arrives
         print(f'rigidrot_record: bag finished: {path} {counts}', file=sys.stderr)
     return 0
+
+
+def _check_args(opts):
+    """Return what is wrong with the command line (one line), or None."""
+    if not opts.topics and not opts.all:
+        return 'name the topics to record, or give --all'
+    if opts.duration is not None and not (math.isfinite(opts.duration) and opts.duration > 0):
+        return f'--duration must be a positive number of seconds, got {opts.duration!r}'
+    from rigidrot_ros.ros.recorder import check_type
+
+    for t in opts.topics:
+        name, _, type_name = t.partition(':')
+        if not name:
+            return f'{t!r}: no topic name before the type'
+        if type_name:
+            try:
+                check_type(type_name)
+            except ValueError as exc:
+                return f'{t}: {exc}'
+    out = opts.output
+    if os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
+        return (f'{out} exists and is not an empty directory; nothing is overwritten: '
+                f'choose another output directory')
+    return None
+
+
+def _start(node, opts):
+    """Open the bag and start recording on ``node``: ``(Recorder, None)`` or ``(None, why)``."""
+    from rigidrot_ros.bag import BagWriter
+    from rigidrot_ros.ros.recorder import Recorder
+
+    try:
+        for t in opts.topics:
+            node.resolve_topic_name(t.partition(':')[0])
+    except Exception as exc:  # noqa: B902 - rclpy raises its own types for bad names
+        return None, f'invalid topic name: {str(exc).splitlines()[0]}'
+    out = opts.output
+    try:
+        writer = BagWriter(None, 'rigidrot_record', flush_period=0.4, path=out)
+    except OSError as exc:
+        return None, f'cannot record to {out}: {exc}'
+    try:
+        rec = Recorder(node, writer, topics=opts.topics, all_topics=opts.all,
+                       runs=not opts.no_runs, on_event=_event)
+    except ValueError as exc:
+        writer.close()
+        return None, str(exc)
+    print(f'rigidrot_record: recording to {writer.path}', file=sys.stderr, flush=True)
+    return rec, None
+
+
+def _event(level, text):
+    """Print a recorder event on stderr."""
+    print(f'rigidrot_record: {text}', file=sys.stderr, flush=True)
 
 
 if __name__ == '__main__':
