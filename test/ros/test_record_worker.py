@@ -24,14 +24,19 @@ def test_a_disk_error_of_an_offloaded_chunk_stops_the_recording_with_one_event(t
     node = publishing_node('rec_offload_fail')
     events, worker = [], _Thread()
     try:
-        writer = BagWriter(str(tmp_path), 'full', flush_period=0.01, offload=worker)
+        # chunks close at the test's own flush() calls alone: with a short flush period a
+        # slow machine closed the failing chunk inside record_published, whose next call
+        # reported (and cleared) the error before the test looked for it
+        writer = BagWriter(str(tmp_path), 'full', flush_period=3600.0, offload=worker)
         rec = Recorder(node, writer, exclude_own=True,
                        on_event=lambda level, text: events.append((level, text)))
         calls = published_calls(60)
         for now_ns, items in calls[:20]:
             rec.record_published(now_ns, items)
         writer.flush()
+        deadline = time.monotonic() + 30.0
         while writer._pending:
+            assert time.monotonic() < deadline, 'the worker never wrote the chunks'
             time.sleep(0.01)
         disk = _Disk.under(writer)
         disk.full = True
@@ -39,6 +44,7 @@ def test_a_disk_error_of_an_offloaded_chunk_stops_the_recording_with_one_event(t
             rec.record_published(now_ns, items)
         writer.flush()                          # this chunk's write fails in the thread
         while writer._error is None:
+            assert time.monotonic() < deadline + 30.0, 'the failed write was never noted'
             time.sleep(0.01)
         for now_ns, items in calls[40:]:
             rec.record_published(now_ns, items)     # the error surfaces here, once
