@@ -45,7 +45,8 @@ html_title = 'rigidrot_ros'
 
 # The public API: packages whose __all__ is their API, and packages whose every module is.
 API_PACKAGES = ('rigidrot_ros.core', 'rigidrot_ros.sensors')
-API_MODULES_OF = ('rigidrot_ros.bag', 'rigidrot_ros.msgs', 'rigidrot_ros.scoring', 'rigidrot_ros.tools')
+API_MODULES_OF = ('rigidrot_ros.bag', 'rigidrot_ros.msgs', 'rigidrot_ros.scoring',
+                  'rigidrot_ros.campaign', 'rigidrot_ros.estimators', 'rigidrot_ros.tools')
 API_MODULES = ('rigidrot_ros.run.settings',)
 API_MARKER = '% api-modules'
 

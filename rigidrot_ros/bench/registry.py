@@ -47,6 +47,7 @@ PARTS = (
     'node_khz',
     'view_live',
     'leaderboard',
+    'campaign_ros',
 )
 
 

@@ -399,8 +399,13 @@ def run_campaign(spec, out_dir, workers=None, scheduler=None, dask_local=False,
     if todo:
         gen = _dask(spec, todo, bag_root, workers, client) \
             if (scheduler or dask_local) else _pool(spec, todo, bag_root, workers)
+        ok = False
         try:
             for result in gen:
+                if result.get('fatal') and not ok:   # the estimator cannot start: stop
+                    gen.close()
+                    raise SpecError(result['fatal'])
+                ok = ok or result['row']['status'] == 'ok'
                 _save_run(out_dir, result)
                 bar.add(result['row']['status'] != 'ok')
         finally:

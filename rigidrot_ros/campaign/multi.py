@@ -158,12 +158,14 @@ def _feed(spec, values, work):
     if sinks:
         from rclpy.serialization import serialize_message
         deadline = time.monotonic() + spec['timeout']
+        from rigidrot_ros.campaign.session import SENSORS
         for k, (name, ns, msg, data) in enumerate(_messages(spec, values, bag)):
             if name == RUN_TOPIC:
                 raw = data if data is not None else serialize_message(msg)
                 for s in sinks.values():
                     s.run_message(msg, raw, ns)
-                continue
+            elif name.rsplit('/', 1)[-1] not in SENSORS:
+                continue            # the truth's topics: not given (as with one estimator)
             for s in sinks.values():
                 s.receive(name, msg, ns)
             if k % 256 == 0 and time.monotonic() > deadline:

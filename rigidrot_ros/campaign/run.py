@@ -6,10 +6,13 @@ shared disk (bags go to ``bag_root`` if given, else to a temporary directory tha
 removed). The result holds no wall time (that goes in ``timing``, kept apart by the
 client), so the same spec and seed give the same result bytes on any engine.
 
-Scoring is the project's scorer, on a bag: the estimator's messages (in process) or the
-recorder's bag (ROS) with the run's description (``~/run``), read back by
+Scoring is the project's scorer, on a bag: the estimator's messages (in process,
+:mod:`rigidrot_ros.campaign.inproc`), its answers to the paced feed (a ROS program,
+:mod:`rigidrot_ros.campaign.session`) or the recorder's bag (a ROS program fed by a replay
+at ``rate``), with the run's description (``~/run``), read back by
 :func:`rigidrot_ros.bag.read_bag` and scored by
-:func:`rigidrot_ros.scoring.score.score_against_runs`.
+:func:`rigidrot_ros.scoring.score.score_against_runs`. ``timing`` also holds each path's
+phases (seconds) and counts.
 """
 
 import contextlib
@@ -23,21 +26,13 @@ import tempfile
 import time
 import traceback
 
-from rigidrot_ros.campaign.spec import draw_run, load_factory, run_values
+from rigidrot_ros.campaign.failure import RunFailed
+from rigidrot_ros.campaign.spec import draw_run, run_values
 from rigidrot_ros.campaign.workdir import claim_work_dir
 
 __all__ = ['run_one', 'RunFailed', 'score_bag']
 
 _SEC = 1_000_000_000
-
-
-class RunFailed(Exception):
-    """A run that produced no score; ``reason`` one line, ``log`` the details."""
-
-    def __init__(self, reason, log=''):
-        super().__init__(reason)
-        self.reason = reason
-        self.log = log
 
 
 def score_bag(path, topic, runs=None):
@@ -74,57 +69,10 @@ def score_bag(path, topic, runs=None):
     return row, series
 
 
-def _inproc(spec, values, work):
+def _inproc(spec, values, work, timing):
     """Feed the run's messages to the factory's object; bag its answers; score them."""
-    from rclpy.serialization import serialize_message
-
-    from rigidrot_ros.bag import BagWriter
-    from rigidrot_ros.run.generate import iter_run, RUN_TOPIC
-    from rigidrot_ros.ros.recorder import type_name_of
-    est = spec['estimator']
-    topic = est['topic']
-    deadline = time.monotonic() + spec['timeout']
-    try:
-        filt = load_factory(est['factory'])(dict(est['params']))
-    except Exception as exc:  # noqa: B902 - the estimator's own failure
-        raise RunFailed(f'the factory failed: {type(exc).__name__}: {exc}',
-                        traceback.format_exc()) from None
-    writer = BagWriter(None, 'campaign', flush_period=60.0,
-                       path=os.path.join(work, 'estimate'), split_seconds=0.0)
-    n_out = 0
-    try:
-        def put(msgs):
-            nonlocal n_out
-            for m in msgs:
-                if not writer.has_topic(topic):
-                    writer.add_topic(topic, type_name_of(m))
-                ns = m.header.stamp.sec * _SEC + m.header.stamp.nanosec
-                writer.write(topic, serialize_message(m), ns)
-                n_out += 1
-        for k, (name, ns, msg) in enumerate(iter_run(values, spec['duration'])):
-            if name == RUN_TOPIC:
-                import json
-                writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String')
-                writer.add_run(json.loads(msg.data))
-                writer.write(RUN_TOPIC, serialize_message(msg), ns)
-                continue
-            try:
-                put(filt.receive(name, msg))
-            except Exception as exc:  # noqa: B902 - the estimator crashed
-                raise RunFailed(f'the estimator crashed on {name} at stamp {ns} ns: '
-                                f'{type(exc).__name__}: {exc}', traceback.format_exc()) from None
-            if k % 256 == 0 and time.monotonic() > deadline:
-                raise RunFailed(f'timeout: the run took longer than {spec["timeout"]:g} s')
-        try:
-            put(filt.finish())
-        except Exception as exc:  # noqa: B902
-            raise RunFailed(f'the estimator crashed in finish(): {type(exc).__name__}: {exc}',
-                            traceback.format_exc()) from None
-    finally:
-        writer.close()
-    if not n_out:
-        raise RunFailed(f'the estimator published nothing on {topic}')
-    return score_bag(writer.path, topic)
+    from rigidrot_ros.campaign.inproc import run_inproc
+    return score_bag(run_inproc(spec, values, work, timing), spec['estimator']['topic'])
 
 
 @contextlib.contextmanager
@@ -176,10 +124,19 @@ def _tail(path, lines=40):
         return ''
 
 
-def _ros(spec, values, work, bag=None):
-    """Replay the run's bag (generated unless given) into the command; record, score it."""
+def _ros(spec, values, work, timing=None, bag=None):
+    """Feed the run (its bag if given) to the command, paced or replayed at ``rate``; score."""
     from rigidrot_ros.run.generate import generate_bag
     est = spec['estimator']
+    if est.get('rate') is None:
+        from rigidrot_ros.campaign.session import run_paced
+        timing = {} if timing is None else timing
+        path, runs = run_paced(spec, values, work, timing, bag=bag)
+        t0 = time.perf_counter()
+        try:
+            return score_bag(path, est['topics'][0], runs)
+        finally:
+            timing['score_s'] = time.perf_counter() - t0
     if bag is None:
         bag = generate_bag(values, spec['duration'], os.path.join(work, 'input'))
     from rigidrot_ros.bag import read_bag
@@ -228,7 +185,7 @@ def _ros(spec, values, work, bag=None):
                 said = _tail(os.path.join(work, 'replay.log'), 5).strip().splitlines()
                 raise RunFailed(f'the replay failed with status {procs["replay"].returncode}'
                                 + (f': {said[-1]}' if said else ''))
-            time.sleep(est['settle'])
+            time.sleep(1.0 if est.get('settle') is None else est['settle'])
             if procs['estimator'].poll() is not None:
                 raise RunFailed(f'the estimator exited with status '
                                 f'{procs["estimator"].returncode} during the replay')
@@ -275,6 +232,7 @@ def run_one(spec, index, bag_root=None):
     row = {'run': int(index), 'status': 'ok', 'reason': '', 'redraws': redraws}
     row.update({k: v for k, v in draws.items()})
     out = {'row': row, 'series': None, 'log': ''}
+    timing = {}
     owned = None if bag_root else claim_work_dir(index)   # removed even if we are killed
     work = os.path.join(bag_root, f'run_{index:06d}') if bag_root else owned.path
     if bag_root:
@@ -283,13 +241,18 @@ def run_one(spec, index, bag_root=None):
     try:
         values = run_values(spec, draws)
         if spec['estimator']['kind'] == 'inproc':
-            score, series = _inproc(spec, values, work)
+            score, series = _inproc(spec, values, work, timing)
         else:
-            score, series = _ros(spec, values, work)
+            score, series = _ros(spec, values, work, timing)
         row.update(score)
         out['series'] = series
     except RunFailed as exc:
         row.update(status='failed', reason=exc.reason)
+        if exc.startup:
+            est = spec['estimator']
+            what = (f'factory {est["factory"]}' if est['kind'] == 'inproc' else
+                    f'command {" ".join(est["command"])}')
+            out['fatal'] = f'estimator {what}: cannot start: {exc.reason}'
         out['log'] = exc.log + ''.join(
             f'--- {n}.log\n{_tail(os.path.join(work, n + ".log"))}'
             for n in ('estimator', 'recorder', 'replay')
@@ -301,5 +264,5 @@ def run_one(spec, index, bag_root=None):
     finally:
         if owned is not None:
             owned.release()
-    out['timing'] = {'wall_s': time.perf_counter() - t0}
+    out['timing'] = dict(timing, wall_s=time.perf_counter() - t0)
     return out

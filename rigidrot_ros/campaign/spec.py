@@ -25,8 +25,14 @@ A spec is a YAML mapping (every key is checked; an unknown one is an error)::
     #   topics: [/estimator/odom]    # recorded; the first is scored
     #   inputs: [/imu, /star_tracker]  # replayed once these have subscribers (default:
     #                                # every sensor topic of the run)
-    #   rate: 5.0                    # replay speed, multiple of real time
-    #   settle: 1.0                  # s to wait after the replay before stopping it
+    #   settle: 0.2                  # s without an answer before it is stopped
+    #   window: 64                   # messages in flight at most (default: from its
+    #                                # subscriptions' depth, at most 64)
+    #   reset: /estimator/reset      # optional: one process per worker, reset between
+    #                                # runs by this std_srvs/srv/Trigger service
+    #   clock_step: 0.05             # s of sim time between two /clock (0: every message)
+    #   rate: 5.0                    # optional: a replay at this multiple of real time
+    #                                # instead (then settle: 1.0 after the replay)
     #   domain_base: 100             # each run claims a free ROS_DOMAIN_ID in
     #   domain_span: 100             # [base, base + span) on this machine
 
@@ -66,7 +72,8 @@ TOP_KEYS = ('name', 'seed', 'runs', 'duration', 'timeout', 'base', 'dispersions'
 BASE_KEYS = ('params_file', 'overrides')
 DISPERSIONS = ('attitude0', 'omega0', 'imu.gyro_bias', 'inertia', 'torque')
 INPROC_KEYS = ('factory', 'params', 'topic')
-ROS_KEYS = ('command', 'topics', 'inputs', 'rate', 'settle', 'domain_base', 'domain_span')
+ROS_KEYS = ('command', 'topics', 'inputs', 'rate', 'settle', 'domain_base', 'domain_span',
+            'window', 'reset', 'clock_step')
 
 
 class SpecError(ValueError):
@@ -273,6 +280,17 @@ def _estimator(est):
             raise SpecError(f'estimator.inputs must be a list of topic names, got '
                             f'{_short(inputs)}')
         inputs = [t if t.startswith('/') else '/' + t for t in inputs]
+    keys = ('rate', 'settle', 'window', 'reset', 'clock_step')
+    rate, settle, window, reset, step = (est.get(k) for k in keys)
+    for name, value in (('window', window), ('clock_step', step)):
+        if value is not None and rate is not None:
+            raise SpecError(f'estimator.{name} is for the feed paced by the answers: it does '
+                            f'not go with rate: (a replay at a fixed speed)')
+    if reset is not None:
+        if not isinstance(reset, str) or not reset.strip('/') or rate is not None:
+            raise SpecError(f'estimator.reset must be the name of a std_srvs/srv/Trigger '
+                            f'service, without rate: (a replay), got {_short(reset)}')
+        reset = reset if reset.startswith('/') else '/' + reset
     base = _num('estimator.domain_base', est.get('domain_base', 100), 0, MAX_DOMAIN_ID,
                 integer=True)
     span = _num('estimator.domain_span', est.get('domain_span', 100), 1, MAX_DOMAIN_ID + 1,
@@ -282,9 +300,15 @@ def _estimator(est):
                         f'[{base}, {base + span - 1}] go past the last ROS domain ID, '
                         f'{MAX_DOMAIN_ID}; make domain_span at most {MAX_DOMAIN_ID + 1 - base}')
     return {'kind': 'ros', 'command': cmd, 'topics': topics, 'inputs': inputs,
-            'rate': float(_num('estimator.rate', est.get('rate', 1.0), 0, 1e3,
-                               strict_lo=True)),
-            'settle': float(_num('estimator.settle', est.get('settle', 1.0), 0, 600)),
+            'rate': None if rate is None else float(_num('estimator.rate', rate, 0, 1e3,
+                                                         strict_lo=True)),
+            'settle': None if settle is None else float(_num('estimator.settle', settle, 0,
+                                                             600)),
+            'window': None if window is None else _num('estimator.window', window, 1,
+                                                       1_000_000, integer=True),
+            'reset': reset,
+            'clock_step': None if step is None else float(_num('estimator.clock_step', step,
+                                                               0, 10)),
             'domain_base': base, 'domain_span': span}
 
 

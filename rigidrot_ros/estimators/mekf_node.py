@@ -6,24 +6,84 @@ Subscribes ``imu`` (sensor_msgs/Imu) and ``star_tracker``
 reliable and transient-local (depth 10000), so a recorder that joins late still gets every
 estimate. The two topics arrive on separate subscriptions, so messages are held until the
 other topic has reached their stamp (or for 0.5 s at most) and fed to the filter in stamp
-order; at shutdown
-(SIGINT/SIGTERM) what is held is fed and the last estimates are published. Estimates carry
-the sensors' stamps, so the node runs the same on wall or sim time (``use_sim_time``).
+order. Each callback also takes every message already waiting on either subscription (one
+executor round for a burst, not one per message: a campaign's paced feed sends bursts).
+The subscriptions are raw: the fields the filter reads are unpacked from the CDR bytes
+(:func:`cdr_view`; rclpy's message objects cost more than the filter itself here), the
+same doubles as rclpy's; a message of another layout goes through rclpy's deserializer.
+
+At SIGINT/SIGTERM it takes what has been delivered, feeds what is held, publishes the last
+estimates and waits (1 s at most) until its subscribers have acknowledged them, then
+exits. Service ``~/reset`` (std_srvs/Trigger; ``/mekf/reset`` by default) does the same
+without exiting, then starts a new filter: the contract of a campaign's long-lived
+estimator (``reset: /mekf/reset``). Estimates carry the sensors' stamps, so the node runs
+the same on wall or sim time (``use_sim_time``).
 """
 
 import heapq
+import struct
 import sys
 import time
+from types import SimpleNamespace
 
 from rigidrot_ros.estimators.mekf import MekfParams, PARAMS
 from rigidrot_ros.tools.cli import fail, OneLineParser
 
-__all__ = ['main']
+__all__ = ['main', 'cdr_view', 'StampOrder']
+
+
+#: What ``--help`` says about the node's topics and services.
+TOPICS = '''topics (relative names: -r __ns:=/sat1 moves them all):
+  subscribes  imu             sensor_msgs/msg/Imu (angular_velocity and its covariance)
+              star_tracker    geometry_msgs/msg/PoseWithCovarianceStamped (rotation block)
+  publishes   estimator/odom  nav_msgs/msg/Odometry at every --output-every-th gyro stamp:
+                              orientation q_NB with the covariance of the body error in
+                              the rotation block of pose.covariance; reliable,
+                              transient-local, depth 10000
+  service     ~/reset         std_srvs/srv/Trigger: publish what is held, start over
+
+ROS arguments go after --ros-args (e.g. --ros-args -p use_sim_time:=true).'''
+
+
+#: Doubles after the header: sensor_msgs/Imu (orientation, its covariance, angular_velocity,
+#: its covariance, linear_acceleration, its covariance) and
+#: geometry_msgs/PoseWithCovarianceStamped (position, orientation, covariance).
+_DOUBLES = {'imu': 37, 'star_tracker': 43}
+
+
+def cdr_view(kind, data):
+    """Return the fields the MEKF reads from a CDR message, or None for another layout.
+
+    ``kind`` is ``'imu'`` (sensor_msgs/Imu: ``header.stamp``, ``angular_velocity``,
+    ``angular_velocity_covariance``) or ``'star_tracker'``
+    (geometry_msgs/PoseWithCovarianceStamped: ``header.stamp``, ``pose.pose.orientation``,
+    ``pose.covariance``), as attributes of the same names. XCDR1 little endian (what rmw
+    writes): the encapsulation ``00 01 00 00``, the stamp, the frame id (length, bytes),
+    then the doubles aligned to 8 from after the encapsulation.
+    """
+    from builtin_interfaces.msg import Time
+    count = _DOUBLES[kind]
+    if len(data) < 16 or data[0] != 0 or data[1] != 1:
+        return None
+    sec, nsec, n = struct.unpack_from('<iII', data, 4)
+    start = 4 + ((12 + n + 7) & ~7)
+    if len(data) != start + 8 * count:
+        return None
+    v = struct.unpack_from(f'<{count}d', data, start)
+    header = SimpleNamespace(stamp=Time(sec=sec, nanosec=nsec))
+    if kind == 'imu':
+        return SimpleNamespace(header=header,
+                               angular_velocity=SimpleNamespace(x=v[13], y=v[14], z=v[15]),
+                               angular_velocity_covariance=v[16:25])
+    q = SimpleNamespace(x=v[3], y=v[4], z=v[5], w=v[6])
+    return SimpleNamespace(header=header, pose=SimpleNamespace(
+        pose=SimpleNamespace(orientation=q), covariance=v[7:43]))
 
 
 def _parser():
+    import argparse
     ap = OneLineParser(prog='rigidrot_mekf', description=__doc__.splitlines()[0],
-                       epilog='ROS arguments go after --ros-args (e.g. -r __ns:=/sat1).')
+                       epilog=TOPICS, formatter_class=argparse.RawDescriptionHelpFormatter)
     for name in ('sigma_v', 'sigma_u', 'bias_sigma'):
         ap.add_argument('--' + name.replace('_', '-'), type=float,
                         default=PARAMS[name][0], help=PARAMS[name][1])
@@ -96,56 +156,113 @@ def main(argv=None):
 
 
 def _run(params, ros_args):
+    import signal
+
     from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Odometry
     import rclpy
+    from rclpy.duration import Duration
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu
+    from std_srvs.srv import Trigger
 
     from rigidrot_ros.estimators.mekf import MEKF
-    from rigidrot_ros.ros.spin import init_ros, spin_until_shutdown
+    from rigidrot_ros.ros.spin import init_ros
 
     reason = init_ros('rigidrot_mekf', ros_args)
     if reason is not None:
         return fail('rigidrot_mekf', reason)
+    stop = []
+
+    def on_signal(signum, frame):
+        if stop:
+            raise KeyboardInterrupt      # a second signal: give up on the last estimates
+        stop.append(signum)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)   # in place of rclpy's: ROS stays up to publish
     node = rclpy.create_node('mekf')
     qos = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
     pub = node.create_publisher(Odometry, 'estimator/odom', qos)
-    filt = MEKF(params)
+    state = {}
 
     def feed(topic, msg):
-        for out in filt.receive(topic, msg):
+        for out in state['filter'].receive(topic, msg):
             pub.publish(out)
-    order = StampOrder(feed, (params.imu_topic, params.star_tracker_topic))
 
-    def on(topic):
-        def cb(msg):
-            order.push(topic, msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
-                       msg)
+    def start():
+        state['filter'] = MEKF(params)
+        state['order'] = StampOrder(feed, (params.imu_topic, params.star_tracker_topic))
+    start()
+    subs = []
+
+    from rclpy.serialization import deserialize_message
+
+    def push(topic, data, kind, msg_type):
+        msg = cdr_view(kind, data)
+        if msg is None:
+            msg = deserialize_message(data, msg_type)
+        state['order'].push(topic, msg.header.stamp.sec * 1_000_000_000
+                            + msg.header.stamp.nanosec, msg)
+
+    def take_waiting():
+        """Take every message already delivered to the subscriptions."""
+        more = True
+        while more:
+            more = False
+            for topic, kind, sub in subs:
+                with sub.handle:
+                    got = sub.handle.take_message(sub.msg_type, sub.raw)
+                if got is not None:
+                    push(topic, got[0], kind, sub.msg_type)
+                    more = True
+
+    def on(topic, kind, msg_type):
+        def cb(data):
+            push(topic, data, kind, msg_type)
+            take_waiting()
         return cb
+
+    def flush():
+        """Feed everything delivered and held; publish the last estimates; wait for acks."""
+        take_waiting()
+        state['order'].drain()
+        n = 0
+        for out in state['filter'].finish():
+            pub.publish(out)
+            n += 1
+        pub.wait_for_all_acked(Duration(seconds=1.0))
+        return n
+
+    def on_reset(request, response):
+        n, updates = flush(), state['filter'].updates
+        start()
+        response.success = True
+        response.message = f'reset ({updates} star tracker updates, {n} last estimates)'
+        return response
+
     in_qos = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE)
-    node.create_subscription(Imu, 'imu', on(params.imu_topic), in_qos)
-    node.create_subscription(PoseWithCovarianceStamped, 'star_tracker',
-                             on(params.star_tracker_topic), in_qos)
-
-    node.create_timer(0.2, order.release_old)
-
-    def loop(n):
-        while rclpy.ok():
-            try:
-                rclpy.spin_once(n, timeout_sec=0.1)
-            except Exception:  # noqa: B902 - a take racing the shutdown
-                if rclpy.ok():
-                    raise
-                break
-        order.drain()
-        for out in filt.finish():
-            try:
-                pub.publish(out)
-            except Exception:  # noqa: B902 - the context is already gone
-                pass
-    spin_until_shutdown(node, loop)
+    for topic, kind, msg_type in ((params.imu_topic, 'imu', Imu),
+                                  (params.star_tracker_topic, 'star_tracker',
+                                   PoseWithCovarianceStamped)):
+        subs.append((topic, kind, node.create_subscription(
+            msg_type, kind, on(topic, kind, msg_type), in_qos, raw=True)))
+    node.create_service(Trigger, '~/reset', on_reset)
+    node.create_timer(0.2, lambda: state['order'].release_old())
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while not stop and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+        if rclpy.ok():
+            flush()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        executor.shutdown(0)
+        node.destroy_node()
+        rclpy.try_shutdown()
     return 0
 
 

@@ -49,8 +49,8 @@ from rigidrot_ros.run.output import scene_time
 from rigidrot_ros.run.scheduler import timing_of, Track
 from rigidrot_ros.run.truth_outputs import read_truth
 
-__all__ = ['iter_run', 'generate_bag', 'load_values', 'prepare_run', 'parse_override',
-           'GenerationError', 'NODE_NAME', 'RUN_TOPIC', 'run_arrays']
+__all__ = ['iter_run', 'iter_serialized', 'generate_bag', 'load_values', 'prepare_run',
+           'parse_override', 'GenerationError', 'NODE_NAME', 'RUN_TOPIC', 'run_arrays']
 
 #: The node whose recording is reproduced (its fully qualified name).
 NODE_NAME = '/attitude_node'
@@ -401,6 +401,28 @@ def _iter(run):
         built = [_messages(run, p) for p in parts]
         for i, j in zip(*_order(parts)):
             yield parts[i].topic, int(parts[i].log[j]), built[i][j]
+
+
+def iter_serialized(values, duration_s, names=None, start_ns=0):
+    """Yield ``(topic, log_ns, cdr_bytes)`` of the run in log-time order: the bag, unwritten.
+
+    The messages :func:`generate_bag` writes, in its order, serialized the same way, without
+    the file (no compression, no index): for a program that plays the run at once.
+    ``names`` keeps only the topics whose last name component is one of them (``('imu',
+    'star_tracker', 'run')``: the sensors and the run description); the other parts are
+    neither serialized nor merged. Arguments and errors as :func:`iter_run`.
+    """
+    run = _Run(values, duration_s, start_ns)
+    keep = None if names is None else set(names)
+    return _iter_serialized(run, keep)
+
+
+def _iter_serialized(run, keep):
+    for _, _, parts in run.blocks():
+        if keep is not None:
+            parts = [p for p in parts if p.topic.rsplit('/', 1)[-1] in keep]
+        topics, datas, logs = _merged(parts, [_serialized(run, p) for p in parts])
+        yield from zip(topics, logs, datas)
 
 
 def _qos_yamls(p):

@@ -219,9 +219,28 @@ def _turned(q_xyzw, degrees):
     return np.array([qx, qy, qz, qw])
 
 
+#: What ``--help`` says about the node's topics.
+TOPICS = '''topics (relative names: -r __ns:=/sat1 moves them all):
+  subscribes  attitude            geometry_msgs/msg/QuaternionStamped: the truth, its first
+                                  message only (the start), and its stamps (gyro filter)
+              imu                 sensor_msgs/msg/Imu: the gyro (and the accelerometer for
+                                  madgwick, mahony, ekf)
+              mag                 sensor_msgs/msg/MagneticField (--mag only)
+  publishes   estimator/odom      nav_msgs/msg/Odometry: q_NB, the covariance of the body
+                                  error in the rotation block of pose.covariance (zero,
+                                  unknown, for madgwick and mahony)
+              estimator/pose      geometry_msgs/msg/PoseWithCovarianceStamped: the same
+              estimator/attitude  geometry_msgs/msg/QuaternionStamped: the same, no covariance
+  all three reliable, transient-local, depth 1000; the gyro filter publishes at each
+  attitude stamp, the others at each imu stamp
+
+ROS arguments go after --ros-args (e.g. -r __ns:=/sat1).'''
+
+
 def _parser():
+    import argparse
     ap = OneLineParser(prog='rigidrot_demo_estimator', description=__doc__.splitlines()[0],
-                       epilog='ROS arguments go after --ros-args (e.g. -r __ns:=/sat1).')
+                       epilog=TOPICS, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--filter', choices=('gyro',) + FILTERS, default='gyro',
                     help='gyro: integrate the gyro alone (default); madgwick, mahony, ekf: '
                          "ahrs' filters on imu (gyro + accelerometer), with --mag also on mag")

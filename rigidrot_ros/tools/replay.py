@@ -3,8 +3,14 @@
 Messages are published as the recorded CDR bytes, on publishers created with each
 channel's recorded QoS (offered_qos_profiles). With --clock, /clock
 (rosgraph_msgs/Clock) follows the log time so that nodes on use_sim_time run with it.
+
+With ``--paced-by TOPIC``, the bag is played as fast as the subscriber answers on TOPIC
+(:class:`rigidrot_ros.ros.paced.PacedPlayer`: reliable keep-all publishers, a window of
+messages in flight, every message acknowledged at the end); ``-o DIR`` writes the answers
+with the bag's run descriptions, for ``rigidrot_compare``.
 """
 
+import os
 import sys
 import time
 
@@ -58,7 +64,22 @@ def main(argv=None):
     argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     ap = OneLineParser(prog='rigidrot_replay', description=__doc__.splitlines()[0])
     ap.add_argument('bag', help='bag directory or .mcap file')
-    ap.add_argument('--rate', type=float, default=1.0, help='speed factor (2: twice as fast)')
+    ap.add_argument('--rate', type=float,
+                    help='speed factor (2: twice as fast; default 1); with --paced-by, the '
+                         'fastest it may go (default: no limit)')
+    ap.add_argument('--paced-by', nargs='+', metavar='TOPIC',
+                    help="play as fast as the subscriber's answers on these topics show it "
+                         'keeps up (their header stamps say how far it has read); at the end '
+                         'every message must be acknowledged (exit 1 if not)')
+    ap.add_argument('--window', type=int,
+                    help='with --paced-by: messages in flight at most (default: the depth '
+                         'of the subscriptions to the played topics, at most 64)')
+    ap.add_argument('--clock-step', type=float, default=0.05, metavar='S',
+                    help='with --paced-by --clock: seconds of log time between two /clock '
+                         'at least (default 0.05; 0: one before every message)')
+    ap.add_argument('-o', '--output',
+                    help='with --paced-by: write the answers and the run descriptions to '
+                         'this bag directory (for rigidrot_compare)')
     ap.add_argument('--loop', action='store_true', help='start again at the end')
     ap.add_argument('--topics', nargs='+', help='replay only these topics')
     ap.add_argument('--start', type=float, default=0.0, help='skip this many seconds')
@@ -73,7 +94,27 @@ def main(argv=None):
                     help='do not play before each of these replayed topics (or /clock) has '
                          'a matched subscriber; exit 2 if one has none within --wait')
     opts = ap.parse_args(argv)
-    if not (opts.rate > 0 and opts.rate < float('inf')):
+    if opts.paced_by is None and (opts.window is not None or opts.output):
+        print('rigidrot_replay: --window and -o go with --paced-by', file=sys.stderr)
+        return 2
+    if opts.paced_by is not None and opts.loop:
+        print('rigidrot_replay: --loop does not go with --paced-by', file=sys.stderr)
+        return 2
+    if not 0 <= opts.clock_step <= 10:
+        print('rigidrot_replay: --clock-step must lie in [0, 10] s', file=sys.stderr)
+        return 2
+    if opts.window is not None and not 1 <= opts.window <= 1_000_000:
+        print('rigidrot_replay: --window must lie in [1, 1000000]', file=sys.stderr)
+        return 2
+    taken = opts.output and os.path.exists(opts.output) and (
+        not os.path.isdir(opts.output) or os.listdir(opts.output))
+    if taken:
+        print(f'rigidrot_replay: -o {opts.output}: exists and is not an empty directory',
+              file=sys.stderr)
+        return 2
+    if opts.rate is None and opts.paced_by is None:
+        opts.rate = 1.0
+    if opts.rate is not None and not (opts.rate > 0 and opts.rate < float('inf')):
         print('rigidrot_replay: --rate must be a positive finite number', file=sys.stderr)
         return 2
     if not 0 <= opts.wait < 3600:
@@ -116,11 +157,16 @@ def main(argv=None):
         print(f'rigidrot_replay: {bag.path}: nothing to replay: --start {opts.start:g} s is '
               f'past the end of the log ({length:.3f} s long)', file=sys.stderr)
         return 2
+    if opts.paced_by is not None:
+        from rigidrot_ros.ros.paced import fast_dds
+        fast_dds()                  # before the first ROS context of this process
     reason = init_ros('rigidrot_replay', ros_args)
     if reason is not None:
         print(f'rigidrot_replay: {reason}', file=sys.stderr)
         return 2
     node = rclpy.create_node('rigidrot_replay')
+    if opts.paced_by is not None:
+        return _paced(node, opts, bag, classes, msgs)
     pubs = {t: node.create_publisher(classes[t], t, qos_from_yaml(bag.topics[t][1]))
             for t in classes}
     clock_pub = node.create_publisher(Clock, '/clock', 10) if opts.clock else None
@@ -166,6 +212,80 @@ def main(argv=None):
     if not opts.quiet:
         print(file=sys.stderr)
     return 0
+
+
+def _paced(node, opts, bag, classes, msgs):
+    """Play ``msgs`` at the pace of the answers on ``--paced-by``; exit status."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    from rigidrot_ros.ros.paced import PacedPlayer, PlayError, write_answers
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    qos = {t: qos_from_yaml(bag.topics[t][1]) for t in classes
+           if 'transient_local' in bag.topics[t][1]}       # a run description stays latched
+    player = PacedPlayer(node, executor, classes, opts.paced_by, clock=opts.clock,
+                         window=opts.window, qos=qos, clock_step=opts.clock_step)
+    required = [player.pubs[t] for t in opts.wait_for if t in player.pubs]
+    if opts.clock and '/clock' in opts.wait_for:
+        required.append(player.clock_pub)
+    end = time.monotonic() + opts.wait
+    while time.monotonic() < end and (player.poll_outputs() or not player.outputs_matched()
+                                      or not all(p.get_subscription_count() for p in required)):
+        player.spin(0.02)
+    missing = [t for t in player.output_topics if t not in player.output_types]
+    alone = [t for t in opts.wait_for if t in player.pubs and player.missing([t])]
+    if missing or alone:
+        what = (f'no publisher of {", ".join(missing)}' if missing else
+                f'no subscriber of {", ".join(alone)}')
+        print(f'rigidrot_replay: {what} matched within --wait {opts.wait:g} s; nothing was '
+              f'played', file=sys.stderr)
+        executor.shutdown(0)
+        node.destroy_node()
+        rclpy.try_shutdown()
+        return 2
+    played = [(t, log_ns, data) for t, _, log_ns, _, data in msgs]
+    status = 0
+
+    def check():
+        if not rclpy.ok():
+            raise ExternalShutdownException()
+
+    t0 = time.monotonic()
+    try:
+        player.play(played, check=check, rate=opts.rate)
+        took = time.monotonic() - t0
+        player.confirm()
+        player.settle(0.5, check=check)
+    except PlayError as exc:
+        print(f'rigidrot_replay: {exc}', file=sys.stderr)
+        status = 1
+        took = time.monotonic() - t0
+    except (KeyboardInterrupt, ExternalShutdownException):
+        status, took = 130, time.monotonic() - t0
+    finally:
+        answers, types = list(player.answers), dict(player.output_types)
+        executor.shutdown(0)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    sent = sum(player.sent.values())
+    if not opts.quiet:
+        note = (f'; {", ".join(player.unconfirmed)}: best-effort subscription, delivery not '
+                f'confirmed' if player.unconfirmed else '')
+        print(f'[replay] {sent} messages sent{" and acknowledged" if status == 0 else ""} in '
+              f'{took:.2f} s ({sent / max(took, 1e-9):.0f} a second, window '
+              f'{player.used_window}, {player.stalls} stalls); {len(answers)} '
+              f'answers{note}', file=sys.stderr)
+    if opts.output:
+        described = {t: d for t, _, _, _, d in bag.messages
+                     if t.endswith('/run') and bag.topics[t][0] == 'std_msgs/msg/String'}
+        try:
+            path = write_answers(opts.output, answers, types, bag.runs, described)
+        except (BagError, OSError) as exc:
+            print(f'rigidrot_replay: -o {opts.output}: {exc}', file=sys.stderr)
+            return 2
+        if not opts.quiet:
+            print(f'[replay] answers: {path}', file=sys.stderr)
+    return status
 
 
 if __name__ == '__main__':

@@ -94,3 +94,49 @@ def _write(tmp_path, doc, name='spec.yaml'):
     p = tmp_path / name
     p.write_text(yaml.safe_dump(doc))
     return str(p)
+
+
+class _Misbehaving(Silent):
+    """Receives everything; on the first gyro sample does what ``how`` says."""
+
+    def __init__(self, how):
+        self.how = how
+
+    def receive(self, topic, msg):
+        """Misbehave at the first gyro sample."""
+        if not topic.endswith('/imu'):
+            return []
+        if self.how == 'wrong_type':
+            from std_msgs.msg import String
+            return [String(data='not an estimate')]
+        if self.how == 'not_a_list':
+            from nav_msgs.msg import Odometry
+            return Odometry()
+        if self.how == 'sleep':
+            import time
+            time.sleep(1e6)
+        if self.how == 'busy':
+            while True:
+                pass
+        return None
+
+
+def misbehaving(params):
+    """Make a :class:`_Misbehaving` (``params['how']``)."""
+    return _Misbehaving(params['how'])
+
+
+def no_receive(params):
+    """Return an object that is not an estimator."""
+    return object()
+
+
+_CALLS = [0]
+
+
+def fails_after_the_check(params):
+    """Pass the spec check (the first call), then raise as a factory that cannot start."""
+    _CALLS[0] += 1
+    if _CALLS[0] > 1:
+        raise OSError('no licence for this filter')
+    return Silent()
