@@ -42,6 +42,7 @@ setup(
         'test': [
             'pytest>=7',
             'pytest-xdist>=3.5',
+            'pytest-timeout>=2.2',
             'rosbags>=0.10',
             'ahrs>=0.3',
             'imufusion>=1.3',
