@@ -1,6 +1,8 @@
 """Shared test helpers: seeded scenes per model, an independent DOP853 reference, a ROS domain."""
 
+import faulthandler
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -9,6 +11,21 @@ from scipy.integrate import solve_ivp
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene
 from ros_helpers import next_domain_id, ros_env
+
+# pytest-timeout (setup.cfg: 600 s) fails a hung test by name, but its timer is Python code:
+# a thread stuck in C holding the interpreter lock would stop it too. This one is not: 60 s
+# later the process prints every thread's stack and exits (xdist reports the crashed test).
+# A test given more time (``@pytest.mark.timeout(s)``) gets it here too.
+HARD_TIMEOUT_S = 660
+
+
+@pytest.fixture(autouse=True)
+def _hard_timeout(request):
+    mark = request.node.get_closest_marker('timeout')
+    hard = mark.args[0] + 60 if mark is not None and mark.args else HARD_TIMEOUT_S
+    faulthandler.dump_traceback_later(hard, exit=True, file=sys.__stderr__)
+    yield
+    faulthandler.cancel_dump_traceback_later()
 
 
 def _sym_axis(inertia):

@@ -434,6 +434,7 @@ def test_core_fuzz_10000_scenes(monkeypatch):
 
 
 @pytest.mark.fuzz
+@pytest.mark.timeout(3600)
 @pytest.mark.filterwarnings('error::RuntimeWarning')
 @pytest.mark.parametrize('seed', [1, 2, 3, 4, 5])
 def test_core_fuzz_more_seeds(seed, monkeypatch, request):

@@ -28,8 +28,9 @@ LONG = os.environ.get('RIGIDROT_LONG_TESTS') == '1'
 
 @pytest.mark.parametrize('seed, n', [
     (2026, 400),
-    pytest.param(7, 1000, marks=[pytest.mark.long, pytest.mark.skipif(
-        not LONG, reason='long test: set RIGIDROT_LONG_TESTS=1')]),
+    pytest.param(7, 1000, marks=[
+        pytest.mark.long, pytest.mark.timeout(3600),
+        pytest.mark.skipif(not LONG, reason='long test: set RIGIDROT_LONG_TESTS=1')]),
 ])
 def test_node_survives_random_parameter_sets(seed, n):
     n = int(os.environ.get('RIGIDROT_NODE_FUZZ_N', n))
