@@ -10,7 +10,7 @@ preset scene (wall clock, ``perf_counter``):
    first call after 10 ms costs about 10x the second, and every step of it is slower, the
    pure-Python float arithmetic as much as numpy), so a 100 Hz timer pays it every tick;
 3. one 256-sample batch ``Solution.at(array)`` after a 10 ms gap, per sample: what the
-   node's look-ahead (:mod:`rigidrot_ros.runtime.lookahead`) pays instead;
+   node's look-ahead (:mod:`rigidrot_ros.runtime.ahead`) pays instead;
 4. the real ``AttitudeNode`` on that scene at 100 Hz with a subscriber to its two topics
    in the same process, as its own ``/diagnostics`` report it (1 s windows): evaluation
    (a tick's sample from the look-ahead buffer), the whole tick up to publication, the
