@@ -102,11 +102,12 @@ def in_node(scene, seconds, lookahead=True):
     from rclpy.parameter import Parameter
 
     from rigidrot_ros.ros import attitude_node as an
+    from rigidrot_ros.run import truth_ahead    # where the node's truth builds its look-ahead
 
     rclpy.init()
-    saved = an.Lookahead
+    saved = truth_ahead.Lookahead
     if not lookahead:
-        an.Lookahead = _no_lookahead(saved)
+        truth_ahead.Lookahead = _no_lookahead(saved)
     try:
         params = dict(scene.as_dict(), publish_rate=100.0)
         node = an.AttitudeNode(
@@ -129,7 +130,7 @@ def in_node(scene, seconds, lookahead=True):
         sub.destroy_node()
         return diags[1:], got[0]              # the first window holds the start-up
     finally:
-        an.Lookahead = saved
+        truth_ahead.Lookahead = saved
         rclpy.try_shutdown()
 
 
