@@ -38,8 +38,54 @@ else:
 faulthandler.register(signal.SIGTERM, file=_LAST_WORDS, all_threads=True, chain=True)
 
 
+# The process controlling ``-n 2`` adopts what a test process leaves running when it dies
+# (a node, a probe): the kernel reparents such orphans to it rather than to init, and it
+# ends them when the run ends, so that none holds the run's output open after it.
+_PR_SET_CHILD_SUBREAPER = 36                    # <linux/prctl.h>
+
+
+def _controls_workers(config):
+    return (not os.environ.get('PYTEST_XDIST_WORKER')
+            and bool(getattr(config.option, 'numprocesses', None)))
+
+
+def pytest_configure(config):
+    """Make the controlling process of ``-n`` the reaper of its test processes' orphans."""
+    if _controls_workers(config) and sys.platform.startswith('linux'):
+        import ctypes
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)
+
+
+def _children(pid):
+    """The pids of ``pid``'s children, from /proc (name, pid)."""
+    out = []
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f'/proc/{entry}/stat', encoding='utf-8', errors='replace') as fh:
+                stat = fh.read()
+        except OSError:
+            continue
+        name, rest = stat[stat.index('(') + 1:stat.rindex(')')], stat[stat.rindex(')') + 2:]
+        if int(rest.split()[1]) == pid:
+            out.append((name, int(entry)))
+    return out
+
+
 def pytest_unconfigure(config):
-    """Remove this worker's file of last words: it ended normally."""
+    """End the orphans adopted (controller); remove this worker's file of last words."""
+    if _controls_workers(config) and os.path.isdir('/proc'):
+        left = _children(os.getpid())
+        for _, pid in left:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+            with contextlib.suppress(OSError):
+                os.waitpid(pid, 0)
+        if left:
+            sys.__stderr__.write(f'ended {len(left)} processes left running by test processes: '
+                                 f'{", ".join(sorted({n for n, _ in left}))}\n')
     if _LAST_WORDS is not sys.__stderr__:
         faulthandler.unregister(signal.SIGTERM)
         _LAST_WORDS.close()
