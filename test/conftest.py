@@ -58,7 +58,7 @@ def pytest_configure(config):
 
 
 def _children(pid):
-    """The pids of ``pid``'s children, from /proc (name, pid)."""
+    """List the children of ``pid`` from /proc: (name, pid) pairs."""
     out = []
     for entry in os.listdir('/proc'):
         if not entry.isdigit():
