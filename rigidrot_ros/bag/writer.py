@@ -11,6 +11,7 @@ import contextlib
 import datetime
 import json
 import os
+import struct
 import threading
 import time
 import zlib
@@ -76,6 +77,59 @@ class _PackedIndex(MessageIndex):
         stream.finish_record()
 
 
+class _RawIndex:
+    """A chunk's message index for one channel, as its finished record bytes."""
+
+    __slots__ = ('data',)
+
+    def __init__(self, data):
+        self.data = data
+
+    def write(self, stream):
+        stream.write(self.data)
+
+
+#: An MCAP Message record's head: opcode, record length, channel, sequence, log and
+#: publish times (31 bytes, packed, little endian); the payload follows.
+MESSAGE_HEAD = np.dtype([('op', 'u1'), ('len', '<u8'), ('cid', '<u2'), ('seq', '<u4'),
+                         ('log', '<u8'), ('pub', '<u8')])
+
+
+def record_dtype(sizes):
+    """Return the packed dtype of one row of message records, one per payload size.
+
+    Row field ``m<j>`` is message j's record: a :data:`MESSAGE_HEAD` then ``data``
+    (``sizes[j]`` bytes), the records back to back (an MCAP chunk's layout). An array of
+    such rows laid out in memory is the records of its rows' messages in row order.
+    """
+    fields, offset = {}, 0
+    for j, size in enumerate(sizes):
+        one = np.dtype(MESSAGE_HEAD.descr + [('data', 'u1', (int(size),))])
+        fields[f'm{j}'] = (one, offset)
+        offset += one.itemsize
+    return np.dtype({'names': list(fields), 'formats': [f[0] for f in fields.values()],
+                     'offsets': [f[1] for f in fields.values()], 'itemsize': offset})
+
+
+def fill_records(rows, j, cid, seq0, log_ns, payloads):
+    """Fill message j of each row of ``rows`` (a :func:`record_dtype` array) in place.
+
+    ``cid`` the channel, ``seq0`` the sequence number of the first row's message (the next
+    rows count up), ``log_ns`` (n,) the log times (the publish times too), ``payloads``
+    ``(n, size)`` uint8: the serialized messages.
+    """
+    rec = rows[f'm{j}']
+    n = len(rows)
+    size = payloads.shape[1]
+    rec['op'] = 0x05                                # MCAP Message record
+    rec['len'] = 22 + size
+    rec['cid'] = cid
+    rec['seq'] = np.arange(seq0, seq0 + n, dtype=np.int64)
+    rec['log'] = log_ns
+    rec['pub'] = log_ns
+    rec['data'] = payloads
+
+
 def _message_heads(cids, seq, log, sizes):
     """Return each MCAP Message record's head (opcode to publish time) as bytes."""
     head = np.zeros(len(cids), dtype=np.dtype([('op', 'u1'), ('len', '<u8'), ('cid', '<u2'),
@@ -115,10 +169,10 @@ class BagWriter:
         The file is byte for byte what the inline writer writes: a detached chunk is
         written before anything written to the file after it (:meth:`add_metadata`, a
         split, :meth:`close` first write the chunks still queued, on the caller's thread).
-        At most :data:`MAX_PENDING_CHUNKS` detached chunks wait; past that the caller
-        writes them itself (a stalled disk makes it wait; memory stays bounded by about
-        that many chunks). An ``offload`` that raises (a stopped worker raises
-        RuntimeError) is bypassed: the chunk is written inline, never dropped. An error
+        At most ``max_pending`` detached chunks wait; past that the caller writes them
+        itself (a stalled disk makes it wait; memory stays bounded by about that many
+        chunks). An ``offload`` that raises (a stopped worker raises RuntimeError) is
+        bypassed: the chunk is written inline, never dropped. An error
         of an offloaded write (OSError: disk full) is raised by the caller's next
         :meth:`write`, :meth:`write_many`, :meth:`maybe_flush`, :meth:`flush`,
         :meth:`add_metadata` or :meth:`close`; what was written before it stays in the
@@ -127,6 +181,9 @@ class BagWriter:
         Called on the caller's thread before it waits for an offloaded write in progress
         (e.g. a :class:`rigidrot_ros.runtime.lookahead.SlackGate`'s ``open``, so that a worker
         held by the gate finishes it).
+    max_pending : int
+        With ``offload``: detached chunks that may wait (default
+        :data:`MAX_PENDING_CHUNKS`); past that the caller writes them itself.
 
     Notes
     -----
@@ -140,7 +197,7 @@ class BagWriter:
     """
 
     def __init__(self, root, name, flush_period=0.5, path=None, split_seconds=3600.0,
-                 offload=None, on_wait=None):
+                 offload=None, on_wait=None, max_pending=MAX_PENDING_CHUNKS):
         if path is not None:
             self.path = _exact_dir(os.path.abspath(path))
         else:
@@ -164,6 +221,7 @@ class BagWriter:
         self._roll_due = False
         self._offload = offload
         self._on_wait = on_wait
+        self._max_pending = int(max_pending)
         self._lock = threading.Lock()         # the file's records and stream (offload)
         self._pending = collections.deque()   # detached chunks, oldest first (offload)
         self._error = None                    # an offloaded write's error, not yet raised
@@ -297,6 +355,80 @@ class BagWriter:
             writer._Writer__maybe_finalize_chunk()
             lo = hi
         self._note_times(int(log.min()), int(log.max()), n)
+
+    @property
+    def chunk_size(self):
+        """Bytes of message records past which :meth:`write_many` closes a chunk."""
+        return self._writer._Writer__chunk_size
+
+    def channel_id(self, topic):
+        """Return the channel id of ``topic`` (added by :meth:`add_topic`) in this file."""
+        return self._channels[topic]
+
+    def sequence(self, topic):
+        """Return the sequence number of ``topic``'s next message (its messages so far)."""
+        return self._counts[topic]
+
+    def write_chunk(self, records, cids, log_times_ns, offsets):
+        """Write message records built by the caller as one whole chunk.
+
+        The bulk path of :meth:`write_many`: ``records`` (bytes-like) are MCAP Message
+        records back to back, as a chunk holds them (:func:`record_dtype`,
+        :func:`fill_records`); ``cids`` (n,) their channel ids (:meth:`channel_id`),
+        ``log_times_ns`` (n,) their log times and ``offsets`` (n,) where each starts in
+        ``records``. Their sequence numbers are the caller's: each channel's run on from
+        :meth:`sequence`, in order. The chunk is closed at once (with its message index per
+        channel, in order of first appearance, and the statistics), as :meth:`flush` after
+        :meth:`write_many` of the same messages would close it; a chunk left open by
+        :meth:`write` or :meth:`write_many` is closed first. The caller keeps the chunk
+        size (``write_many`` closes a chunk past 1 MiB); with ``offload`` the compression
+        and the write go there.
+        """
+        cids = np.asarray(cids, dtype=np.int64)
+        log = np.asarray(log_times_ns, dtype=np.int64)
+        offsets = np.asarray(offsets, dtype=np.int64)
+        n = len(cids)
+        if not (len(log) == n == len(offsets)):
+            raise ValueError('write_chunk needs one channel, one stamp and one offset per '
+                             'record')
+        if self._error is not None:
+            self._raise_error()
+        if n == 0:
+            return
+        if self._roll_due:
+            self._roll()
+        writer = self._writer
+        if writer._Writer__chunk_builder.num_messages:
+            self.flush()                        # the open chunk first: its own chunk
+        data = bytes(records)
+        t_lo, t_hi = int(log.min()), int(log.max())
+        indices = {}
+        first = np.unique(cids, return_index=True)
+        pairs = np.empty((n, 2), dtype='<u8')
+        pairs[:, 0] = log
+        pairs[:, 1] = offsets
+        stats = writer._Writer__statistics
+        by_cid = {cid: topic for topic, cid in self._channels.items()}
+        for cid in first[0][np.argsort(first[1], kind='stable')].tolist():
+            rows = np.flatnonzero(cids == cid)
+            indices[cid] = _RawIndex(struct.pack('<BQHI', 0x04, 6 + 16 * len(rows), cid,
+                                                 16 * len(rows)) + pairs[rows].tobytes())
+            stats.channel_message_counts[cid] += len(rows)
+            self._counts[by_cid[cid]] += len(rows)
+        if stats.message_count == 0:
+            stats.message_start_time = t_lo
+        else:
+            stats.message_start_time = min(stats.message_start_time, t_lo)
+        stats.message_end_time = max(stats.message_end_time, t_hi)
+        stats.message_count += n
+        stats.chunk_count += 1
+        item = (writer, data, t_lo, t_hi, indices)
+        if self._offload is None:
+            _write_chunk(*item)
+        else:
+            self._pending.append(item)
+            self._hand_over()
+        self._note_times(t_lo, t_hi, n)
 
     def _sequence_numbers(self, topics, cids):
         """Return each message's sequence number on its channel, and count them."""
@@ -475,7 +607,11 @@ class BagWriter:
         chunk.message_indices = {}
         chunk.message_start_time = chunk.message_end_time = 0
         chunk.num_messages = 0
-        if len(self._pending) > MAX_PENDING_CHUNKS:
+        self._hand_over()
+
+    def _hand_over(self):
+        """Give the detached chunks to ``offload`` (past the bound: write them here)."""
+        if len(self._pending) > self._max_pending:
             with self._exclusive():                 # a stalled disk: the caller waits
                 pass
             return

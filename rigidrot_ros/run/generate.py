@@ -56,8 +56,13 @@ __all__ = ['iter_run', 'iter_serialized', 'generate_bag', 'load_values', 'prepar
 NODE_NAME = '/attitude_node'
 #: Where the node publishes its run description.
 RUN_TOPIC = table.resolve('~/run', NODE_NAME)
-#: Clock seconds of samples handled together (evaluated, serialized, written).
+#: Clock seconds of samples handled together (evaluated, serialized, written); the bag's
+#: chunks are cut at these blocks (and at 1 MiB of records).
 BLOCK_S = 1.0
+#: Clock seconds :func:`generate_bag` evaluates at once (a whole number of blocks): the same
+#: samples, bit for bit, as block by block (each kind's reading is independent of how its
+#: samples are batched, as the node's look-ahead batches rely on); fewer calls per sample.
+EVAL_BLOCKS = 10
 _SEC = 1_000_000_000
 
 
@@ -228,11 +233,14 @@ class _Run:
         return [Part(t.rank, table.resolve(t.name, NODE_NAME), stamps, cols, log, true, t.name,
                      output) for t in output.active]
 
-    def block(self, lo_ns, hi_ns):
+    def block(self, lo_ns, hi_ns, failures=None):
         """Return the :class:`Part` list of the messages logged in ``[lo_ns, hi_ns)``.
 
         Relative to the start; the order of the parts is free (:func:`_order` merges them
-        as the node publishes).
+        as the node publishes). A sample that cannot be evaluated raises
+        :class:`GenerationError`; with a ``failures`` list it is appended there instead, as
+        ``(log time relative to the start, ns, the error)``, and its sensor's parts stop
+        before it.
         """
         parts = []
         ks = _sub(self.truth_k, self.rate, lo_ns, hi_ns)
@@ -246,10 +254,10 @@ class _Run:
                     parts += self._parts(o, stamps[:1], {'info': [self.description()]},
                                          stamps[:1], stamps[:1])
         for output, track, krange in self.sensors:
-            parts += self._sensor(output, track, krange, lo_ns, hi_ns)
+            parts += self._sensor(output, track, krange, lo_ns, hi_ns, failures)
         return parts
 
-    def _sensor(self, output, track, krange, lo_ns, hi_ns):
+    def _sensor(self, output, track, krange, lo_ns, hi_ns, failures=None):
         """Read a sensor's samples logged in ``[lo, hi)`` (grid time + latency): its parts.
 
         :meth:`SensorOutput.sample` reads them and draws their stamps and drops (every
@@ -260,30 +268,41 @@ class _Run:
         if not len(ks):
             return []
         b = output.sample(track, ks, self.time_scale)
+        keep = b.keep
         bad = next((i for i, e in enumerate(b.errors) if e is not None), None)
         if bad is not None:
             t = scene_time(int(b.true_ns[bad]), self.start_ns, self.time_scale)
-            raise GenerationError(f'{output.name} sample {ks[bad]} (t = {t:.9g} s) cannot be '
-                                  f'evaluated: {" ".join(str(b.errors[bad]).split())}')
-        if b.keep.all():
+            error = GenerationError(f'{output.name} sample {ks[bad]} (t = {t:.9g} s) cannot '
+                                    f'be evaluated: {" ".join(str(b.errors[bad]).split())}')
+            if failures is None:
+                raise error
+            failures.append((int(b.true_ns[bad]) + lat - self.start_ns, error))
+            keep = keep & (np.arange(len(keep)) < bad)
+        if keep.all():
             stamps, cols, true = b.stamps_ns, b.cols, b.true_ns
         else:
-            stamps, cols = b.rows(b.keep)
-            true = b.true_ns[b.keep]
+            stamps, cols = b.rows(keep)
+            true = b.true_ns[keep]
         return self._parts(output, stamps, cols, true + lat, true)
 
-    def blocks(self):
-        """Yield ``(lo_ns, hi_ns, parts)`` over the run, :data:`BLOCK_S` of clock each.
+    @property
+    def end_ns(self):
+        """Where the blocks end (from the start, ns): the span and the latest latency."""
+        return self.span_ns + self.tail_ns
+
+    def blocks(self, blocks=1, failures=None):
+        """Yield ``(lo_ns, hi_ns, parts)`` over the run, ``blocks`` x :data:`BLOCK_S` each.
 
         Blocks cut the log time; past the span they run on until the last sample's
-        latency has passed (a sample of the span is published, however late).
+        latency has passed (a sample of the span is published, however late). ``failures``
+        as :meth:`block`.
         """
-        step = round(BLOCK_S * _SEC)
+        step = round(BLOCK_S * _SEC) * int(blocks)
         lo = 0
-        end = self.span_ns + self.tail_ns
+        end = self.end_ns
         while lo < end:
             hi = min(end, lo + step)
-            yield lo, hi, self.block(lo, hi)
+            yield lo, hi, self.block(lo, hi, failures)
             lo = hi
 
 
@@ -431,21 +450,152 @@ def _qos_yamls(p):
             qos_yaml(depth=1, durability='transient_local'))
 
 
+class _Span(NamedTuple):
+    """A span's messages in the order the node publishes them, as slices of their records.
+
+    Message i is ``sources[src[i]][off[i]:off[i] + size[i]]``, an MCAP Message record
+    (head and CDR) of channel ``cid[i]`` logged at ``log[i]`` (ns, from the start);
+    ``cont[i]``: its record follows message i - 1's in the same source; ``run_at``: the
+    place of the run description (-1: none).
+    """
+
+    log: np.ndarray
+    cid: np.ndarray
+    src: np.ndarray
+    off: np.ndarray
+    size: np.ndarray
+    cont: np.ndarray
+    sources: list
+    run_at: int
+
+
+def _records(run, parts, cids, seq):
+    """Build the MCAP Message records of a span's parts: ``(sources, src, off, size)`` per part.
+
+    The parts of one output share rows: where each topic's CDR is a fixed-size
+    :class:`~rigidrot_ros.msgs.cdr.Batch`, a row's records lie back to back in one array
+    (:func:`rigidrot_ros.bag.writer.record_dtype`), so the records of a sample's topics
+    and of consecutive samples are consecutive bytes. Other parts (the run description)
+    are joined message by message. ``seq`` (topic -> next sequence number) counts on.
+    """
+    from rigidrot_ros.bag.writer import MESSAGE_HEAD, fill_records, record_dtype
+    from rigidrot_ros.msgs.cdr import Batch
+    groups = {}
+    for i, p in enumerate(parts):
+        groups.setdefault(id(p.output), []).append(i)
+    sources, where = [], [None] * len(parts)
+    for idx in groups.values():
+        raws = [parts[i].output.encode_batch(parts[i].name, parts[i].stamps, parts[i].cols,
+                                             run.frames) for i in idx]
+        n = len(parts[idx[0]].stamps)
+        if all(isinstance(r, Batch) for r in raws):
+            rows = np.empty(n, dtype=record_dtype([r.size for r in raws]))
+            step = rows.dtype.itemsize
+            for j, (i, r) in enumerate(zip(idx, raws)):
+                p = parts[i]
+                fill_records(rows, j, cids[p.topic], seq[p.topic], p.log, r.data)
+                seq[p.topic] += n
+                at = rows.dtype.fields[f'm{j}'][1]
+                where[i] = (len(sources), np.arange(n, dtype=np.int64) * step + at,
+                            np.full(n, 31 + r.size, dtype=np.int64))
+            sources.append(memoryview(rows.view(np.uint8)) if n else b'')
+            continue
+        for i, r in zip(idx, raws):
+            p = parts[i]
+            datas = r.tolist() if isinstance(r, Batch) else list(r)
+            heads = np.zeros(n, dtype=MESSAGE_HEAD)
+            size = np.array([len(d) for d in datas], dtype=np.int64)
+            heads['op'], heads['len'], heads['cid'] = 0x05, 22 + size, cids[p.topic]
+            heads['seq'] = np.arange(seq[p.topic], seq[p.topic] + n)
+            heads['log'] = heads['pub'] = p.log
+            seq[p.topic] += n
+            flat = heads.tobytes()
+            sources.append(b''.join(b for k, d in enumerate(datas)
+                                    for b in (flat[31 * k:31 * k + 31], d)))
+            where[i] = (len(sources) - 1, np.concatenate([[0], np.cumsum(31 + size)[:-1]]),
+                        31 + size)
+    return sources, where
+
+
+def _span(run, parts, cids, seq):
+    """Return a span's :class:`_Span`: its parts' records, merged as :func:`_order` merges."""
+    sources, where = _records(run, parts, cids, seq)
+    which, rows = _order(parts)
+    if not len(which):
+        empty = np.empty(0, dtype=np.int64)
+        return _Span(empty, empty, empty, empty, empty, np.empty(0, dtype=bool), sources, -1)
+    first = np.cumsum([0] + [len(p.stamps) for p in parts])[:-1]
+    pick = first[which] + rows
+    src = np.concatenate([np.full(len(p.stamps), w[0]) for p, w in zip(parts, where)])[pick]
+    off = np.concatenate([w[1] for w in where])[pick]
+    size = np.concatenate([w[2] for w in where])[pick]
+    cid = np.concatenate([np.full(len(p.stamps), cids[p.topic]) for p in parts])[pick]
+    log = np.concatenate([p.log for p in parts])[pick] - run.start_ns
+    cont = np.zeros(len(pick), dtype=bool)
+    cont[1:] = (src[1:] == src[:-1]) & (off[1:] == off[:-1] + size[:-1])
+    at = np.flatnonzero(cid == cids[RUN_TOPIC])
+    return _Span(log, cid, src, off, size, cont, sources, int(at[0]) if len(at) else -1)
+
+
+def _pieces(span, a, b, limit):
+    """Cut messages ``a:b`` of ``span`` into chunks as :meth:`BagWriter.write_many` does.
+
+    A chunk is closed right after the record that takes it past ``limit`` bytes; returns
+    ``[(lo, hi, closed), ...]``, ``closed`` False for a last piece left open (``flush``
+    closes it).
+    """
+    out = []
+    while a < b:
+        ends = np.cumsum(span.size[a:b])
+        over = np.flatnonzero(ends > limit)
+        c = a + int(over[0]) + 1 if len(over) else b
+        out.append((a, c, bool(len(over))))
+        a = c
+    return out
+
+
+def _write_piece(writer, span, a, b, start_ns):
+    """Write messages ``a:b`` of ``span`` as one chunk (their records joined run by run)."""
+    new = ~span.cont[a:b]
+    new[0] = True                           # the chunk's first record starts a run
+    starts = np.flatnonzero(new) + a
+    last = np.append(starts[1:], b) - 1
+    lo = span.off[starts].tolist()
+    hi = (span.off[last] + span.size[last]).tolist()
+    src = [span.sources[k] for k in span.src[starts].tolist()]
+    data = b''.join([s[x:y] for s, x, y in zip(src, lo, hi)])
+    offsets = np.concatenate([[0], np.cumsum(span.size[a:b - 1])])
+    writer.write_chunk(data, span.cid[a:b], span.log[a:b] + start_ns, offsets)
+
+
 def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
     """Write the run's bag to ``out_dir`` (created; must not exist or be empty); its path.
 
     ``progress(done_s, total_s)`` (scene seconds), if given, is called after each block.
     A KeyboardInterrupt finishes the bag (summary, index, metadata.yaml) with what was
-    written so far, then propagates.
+    written so far, then propagates. A sample that cannot be evaluated raises
+    :class:`GenerationError` after the blocks before its own are written.
+
+    The samples are evaluated :data:`EVAL_BLOCKS` blocks at a time, their records built
+    in arrays (:func:`_records`), and each block written as one chunk (a chunk closes at
+    its block's end or past 1 MiB of records) by :meth:`BagWriter.write_chunk`, which
+    compresses and writes it on a thread of its own (zstd and the file write release the
+    interpreter) while the next blocks are evaluated: the file of the block-by-block
+    writer, byte for byte.
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     from rigidrot_ros.bag import BagWriter
     run = _Run(values, duration_s, start_ns)
     qos, latched = _qos_yamls(run.p)
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix='rigidrot_generate_chunks')
     try:
         # chunks cut by blocks, never by the wall clock: the same run gives the same file
         writer = BagWriter(None, 'attitude_node', flush_period=math.inf, path=out_dir,
-                           split_seconds=0.0)
+                           split_seconds=0.0, offload=pool.submit,
+                           max_pending=2 * EVAL_BLOCKS)
     except OSError as exc:
+        pool.shutdown()
         raise GenerationError(f'cannot write the bag to {out_dir}: '
                               f'{" ".join(str(exc).split())}') from None
     stop = []
@@ -454,25 +604,47 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         # SIGINT between blocks, never inside a write: the bag is always finished whole
         previous = signal.signal(signal.SIGINT, lambda *_: stop.append(True))
     try:
-        for topic, type_name, is_latched, _ in run.topics:
-            writer.add_topic(topic, type_name, latched if is_latched else qos)
+        cids = {topic: writer.add_topic(topic, type_name, latched if is_latched else qos)
+                for topic, type_name, is_latched, _ in run.topics}
+        seq = dict.fromkeys(cids, 0)
         total = run.span_ns * 1e-9 * run.time_scale
-        for lo, hi, parts in run.blocks():
-            topics, datas, stamps = _merged(parts, [_serialized(run, p) for p in parts])
-            cut = topics.index(RUN_TOPIC) if RUN_TOPIC in topics else len(topics)
-            writer.write_many(topics[:cut], datas[:cut], stamps[:cut])
-            if cut < len(topics):               # as the node's recorder: a metadata record
-                writer.add_run(run.description())
-                writer.write_many(topics[cut:], datas[cut:], stamps[cut:])
-            writer.flush()
-            if progress is not None:
-                progress(min(hi, run.span_ns) * 1e-9 * run.time_scale, total)
+        step = round(BLOCK_S * _SEC)
+        failures = []
+        for elo, ehi, parts in run.blocks(EVAL_BLOCKS, failures):
+            span = _span(run, parts, cids, seq)
+            for lo in range(elo, ehi, step):
+                hi = min(ehi, lo + step)
+                failed = [e for at, e in failures if at < hi]
+                if failed:                      # a sample of this block cannot be evaluated
+                    raise failed[0]
+                a, b = np.searchsorted(span.log, [lo, hi]).tolist()
+                pieces = _pieces(span, a, b, writer.chunk_size)
+                if a <= span.run_at < b:
+                    # as the node's recorder: a metadata record, written at once; the
+                    # chunk open before the run description is closed after it
+                    pieces = (_pieces(span, a, span.run_at, writer.chunk_size) + [None]
+                              + _pieces(span, span.run_at, b, writer.chunk_size))
+                    at = pieces.index(None)
+                    if at and not pieces[at - 1][2]:
+                        pieces[at - 1:at + 1] = [None, pieces[at - 1]]
+                for piece in pieces:
+                    if piece is None:
+                        writer.add_run(run.description())
+                    else:
+                        _write_piece(writer, span, piece[0], piece[1], run.start_ns)
+                if progress is not None:
+                    progress(min(hi, run.span_ns) * 1e-9 * run.time_scale, total)
+                if stop:
+                    break
             if stop:
                 break
     finally:
-        writer.close()
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
+        try:
+            writer.close()
+        finally:
+            pool.shutdown()
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
     if stop:
         raise KeyboardInterrupt
     return writer.path

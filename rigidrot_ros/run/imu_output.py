@@ -118,12 +118,16 @@ class ImuOutput(SensorOutput):
 
     def encode(self, topic, stamps, cols, frames):
         """Return the CDR of ``topic`` for each row."""
+        return self.encode_batch(topic, stamps, cols, frames).tolist()
+
+    def encode_batch(self, topic, stamps, cols, frames):
+        """Return the CDR of ``topic`` for each row: a Batch."""
         body = frames[1]
         if topic != 'imu':
-            return cdr.vector(stamps, cols[_INCREMENTS[topic]], body).tolist()
+            return cdr.vector(stamps, cols[_INCREMENTS[topic]], body)
         if self.accel is None:
-            return cdr.imu(stamps, cols['w'], cols['var'], body).tolist()
-        return cdr.imu(stamps, cols['w'], cols['var'], body, cols['f'], cols['avar']).tolist()
+            return cdr.imu(stamps, cols['w'], cols['var'], body)
+        return cdr.imu(stamps, cols['w'], cols['var'], body, cols['f'], cols['avar'])
 
     def messages(self, topic, stamps, cols, frames):
         """Return the messages of ``topic`` for each row."""

@@ -35,7 +35,11 @@ class MagOutput(SensorOutput):
 
     def encode(self, topic, stamps, cols, frames):
         """Return the CDR of each row."""
-        return cdr.magnetic_field(stamps, cols['m'], cols['cov'], frames[1]).tolist()
+        return self.encode_batch(topic, stamps, cols, frames).tolist()
+
+    def encode_batch(self, topic, stamps, cols, frames):
+        """Return the CDR of each row: a Batch."""
+        return cdr.magnetic_field(stamps, cols['m'], cols['cov'], frames[1])
 
     def messages(self, topic, stamps, cols, frames):
         """Return the message of each row."""

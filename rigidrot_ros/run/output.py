@@ -126,6 +126,14 @@ class Output(abc.ABC):
     def encode(self, topic, stamps, cols, frames):
         """Return the CDR bytes of ``topic`` for each row of ``cols`` (a list)."""
 
+    def encode_batch(self, topic, stamps, cols, frames):
+        """Return the CDR of ``topic`` for each row: a :class:`rigidrot_ros.msgs.cdr.Batch`.
+
+        One ``(n, size)`` byte array where the kind's messages have one size (the bulk
+        writer takes it as is), else the list of :meth:`encode`.
+        """
+        return self.encode(topic, stamps, cols, frames)
+
     @abc.abstractmethod
     def messages(self, topic, stamps, cols, frames):
         """Return the ROS messages of ``topic`` for each row of ``cols`` (a list)."""

@@ -34,7 +34,11 @@ class StarTrackerOutput(SensorOutput):
 
     def encode(self, topic, stamps, cols, frames):
         """Return the CDR of each row."""
-        return cdr.star_tracker(stamps, cols['q'], cols['cov'], frames[0]).tolist()
+        return self.encode_batch(topic, stamps, cols, frames).tolist()
+
+    def encode_batch(self, topic, stamps, cols, frames):
+        """Return the CDR of each row: a Batch."""
+        return cdr.star_tracker(stamps, cols['q'], cols['cov'], frames[0])
 
     def messages(self, topic, stamps, cols, frames):
         """Return the message of each row."""

@@ -37,9 +37,13 @@ class TruthOutput(Output):
 
     def encode(self, topic, stamps, cols, frames):
         """Return the CDR of ``attitude`` or ``angular_velocity`` for each row."""
+        return self.encode_batch(topic, stamps, cols, frames).tolist()
+
+    def encode_batch(self, topic, stamps, cols, frames):
+        """Return the CDR of ``attitude`` or ``angular_velocity`` for each row: a Batch."""
         if topic == 'attitude':
-            return cdr.attitude(stamps, cols['q'], frames[0]).tolist()
-        return cdr.vector(stamps, cols['w'], frames[1]).tolist()
+            return cdr.attitude(stamps, cols['q'], frames[0])
+        return cdr.vector(stamps, cols['w'], frames[1])
 
     def messages(self, topic, stamps, cols, frames):
         """Return the messages of ``attitude`` or ``angular_velocity`` for each row."""
@@ -58,7 +62,11 @@ class TransformOutput(Output):
 
     def encode(self, topic, stamps, cols, frames):
         """Return the CDR of the transform for each row."""
-        return cdr.transform(stamps, cols['q'], frames[0], frames[1]).tolist()
+        return self.encode_batch(topic, stamps, cols, frames).tolist()
+
+    def encode_batch(self, topic, stamps, cols, frames):
+        """Return the CDR of the transform for each row: a Batch."""
+        return cdr.transform(stamps, cols['q'], frames[0], frames[1])
 
     def messages(self, topic, stamps, cols, frames):
         """Return the transform messages for each row."""
@@ -85,8 +93,12 @@ class OdomOutput(Output):
 
     def encode(self, topic, stamps, cols, frames):
         """Return the CDR of the odometry for each row."""
+        return self.encode_batch(topic, stamps, cols, frames).tolist()
+
+    def encode_batch(self, topic, stamps, cols, frames):
+        """Return the CDR of the odometry for each row: a Batch."""
         av, rv = self.variances(cols)
-        return cdr.odometry(stamps, cols['q'], cols['w'], av, rv, frames[0], frames[1]).tolist()
+        return cdr.odometry(stamps, cols['q'], cols['w'], av, rv, frames[0], frames[1])
 
     def messages(self, topic, stamps, cols, frames):
         """Return the odometry messages for each row."""
@@ -106,8 +118,11 @@ class MarkersOutput(Output):
 
     def encode(self, topic, stamps, cols, frames):
         """Return the CDR of the markers for each row."""
-        return template.markers(stamps, cols['q'], frames[0],
-                                self.setup.solution.scene.inertia).tolist()
+        return self.encode_batch(topic, stamps, cols, frames).tolist()
+
+    def encode_batch(self, topic, stamps, cols, frames):
+        """Return the CDR of the markers for each row: a Batch."""
+        return template.markers(stamps, cols['q'], frames[0], self.setup.solution.scene.inertia)
 
     def messages(self, topic, stamps, cols, frames):
         """Return the marker arrays for each row."""
