@@ -121,7 +121,7 @@ def fill_records(rows, j, cid, seq0, log_ns, payloads):
     rec = rows[f'm{j}']
     n = len(rows)
     size = payloads.shape[1]
-    rec['op'] = 0x05                                # MCAP Message record
+    rec['op'] = Opcode.MESSAGE
     rec['len'] = 22 + size
     rec['cid'] = cid
     rec['seq'] = np.arange(seq0, seq0 + n, dtype=np.int64)
@@ -369,20 +369,28 @@ class BagWriter:
         """Return the sequence number of ``topic``'s next message (its messages so far)."""
         return self._counts[topic]
 
-    def write_chunk(self, records, cids, log_times_ns, offsets):
-        """Write message records built by the caller as one whole chunk.
+    @property
+    def open_bytes(self):
+        """Bytes in the open chunk: records written and not yet closed into a chunk.
 
-        The bulk path of :meth:`write_many`: ``records`` (bytes-like) are MCAP Message
-        records back to back, as a chunk holds them (:func:`record_dtype`,
-        :func:`fill_records`); ``cids`` (n,) their channel ids (:meth:`channel_id`),
-        ``log_times_ns`` (n,) their log times and ``offsets`` (n,) where each starts in
-        ``records``. Their sequence numbers are the caller's: each channel's run on from
-        :meth:`sequence`, in order. The chunk is closed at once (with its message index per
-        channel, in order of first appearance, and the statistics), as :meth:`flush` after
-        :meth:`write_many` of the same messages would close it; a chunk left open by
-        :meth:`write` or :meth:`write_many` is closed first. The caller keeps the chunk
-        size (``write_many`` closes a chunk past 1 MiB); with ``offload`` the compression
-        and the write go there.
+        Schema and channel records count too (mcap puts them in the next chunk).
+        """
+        return self._writer._Writer__chunk_builder.count
+
+    def write_chunk(self, records, cids, log_times_ns, offsets):
+        """Append message records built by the caller to the open chunk, and close it.
+
+        The bulk path of :meth:`write_many` then :meth:`flush`, with the same bytes:
+        ``records`` (bytes-like) are MCAP Message records back to back, as a chunk holds
+        them (:func:`record_dtype`, :func:`fill_records`); ``cids`` (n,) their channel ids
+        (:meth:`channel_id`), ``log_times_ns`` (n,) their log times and ``offsets`` (n,)
+        where each starts in ``records``. Their sequence numbers are the caller's: each
+        channel's run on from :meth:`sequence`, in order. The chunk holds what was open
+        before them (schema and channel records, messages of :meth:`write`), their
+        message index per channel in order of first appearance, the statistics. The
+        caller keeps the chunk size (:meth:`write_many` closes a chunk right after the
+        record that takes it past :attr:`chunk_size`, counting :attr:`open_bytes`); with
+        ``offload`` the compression and the file write go there.
         """
         cids = np.asarray(cids, dtype=np.int64)
         log = np.asarray(log_times_ns, dtype=np.int64)
@@ -398,23 +406,34 @@ class BagWriter:
         if self._roll_due:
             self._roll()
         writer = self._writer
-        if writer._Writer__chunk_builder.num_messages:
-            self.flush()                        # the open chunk first: its own chunk
-        data = bytes(records)
+        chunk = writer._Writer__chunk_builder
+        base = chunk.count
         t_lo, t_hi = int(log.min()), int(log.max())
-        indices = {}
+        held = chunk.num_messages
+        if held:
+            t_lo = min(t_lo, chunk.message_start_time)
+            t_hi = max(t_hi, chunk.message_end_time)
+        data = chunk.end() + bytes(records) if base else bytes(records)
+        indices = {cid: index.records for cid, index in chunk.message_indices.items()}
+        chunk.message_indices = {}
+        chunk.message_start_time = chunk.message_end_time = 0
+        chunk.num_messages = 0
         first = np.unique(cids, return_index=True)
         pairs = np.empty((n, 2), dtype='<u8')
         pairs[:, 0] = log
-        pairs[:, 1] = offsets
+        pairs[:, 1] = offsets + base
         stats = writer._Writer__statistics
         by_cid = {cid: topic for topic, cid in self._channels.items()}
         for cid in first[0][np.argsort(first[1], kind='stable')].tolist():
             rows = np.flatnonzero(cids == cid)
-            indices[cid] = _RawIndex(struct.pack('<BQHI', 0x04, 6 + 16 * len(rows), cid,
-                                                 16 * len(rows)) + pairs[rows].tobytes())
-            stats.channel_message_counts[cid] += len(rows)
-            self._counts[by_cid[cid]] += len(rows)
+            indices[cid] = (indices.get(cid) or []) + [pairs[rows].tobytes()]
+        for cid, count in zip(*np.unique(cids, return_counts=True)):    # write_many's order
+            stats.channel_message_counts[int(cid)] += int(count)
+            self._counts[by_cid[int(cid)]] += int(count)
+        for cid, got in indices.items():
+            raw = b''.join(x if isinstance(x, bytes) else struct.pack('<QQ', *x) for x in got)
+            indices[cid] = _RawIndex(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 6 + len(raw),
+                                                 cid, len(raw)) + raw)
         if stats.message_count == 0:
             stats.message_start_time = t_lo
         else:
@@ -429,6 +448,7 @@ class BagWriter:
             self._pending.append(item)
             self._hand_over()
         self._note_times(t_lo, t_hi, n)
+        self._closed_chunk()
 
     def _sequence_numbers(self, topics, cids):
         """Return each message's sequence number on its channel, and count them."""
@@ -504,6 +524,10 @@ class BagWriter:
             _pack_indexes(self._chunk_list)
         else:
             self._detach()
+        self._closed_chunk()
+
+    def _closed_chunk(self):
+        """Note a flush: the clock of ``flush_period``, and a split that is due."""
         self._dirty = False
         self._last_flush = time.monotonic()
         if (self._split > 0 and self._last_flush - self._file_started >= self._split

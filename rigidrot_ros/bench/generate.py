@@ -63,68 +63,80 @@ def _generate(duration, log):
 
 
 def _stages(duration, log):
-    """Wall time per stage of :func:`io.generate.generate_bag`'s loop, in this process.
+    """Wall time per stage of :func:`run.generate.generate_bag`'s loop, in this process.
 
-    The same blocks as the command, timed stage by stage: the truth ticks (``solution.at``
-    in the node's look-ahead batches), the gyro (the imu kind's read: ``Gyro.read_many``,
-    quadrature, the attitudes at the ends, the error model), the star tracker, the kinds'
-    serialization (:mod:`rigidrot_ros.msgs.cdr`), merge order and the MCAP writer
-    (``BagWriter.write_many``).
+    The same spans and chunks as the command, timed stage by stage, every stage on this
+    thread (the command compresses and writes on a thread of its own): the truth ticks
+    (``solution.at``), the gyro (the imu kind's read: ``Gyro.read_many``, quadrature, the
+    attitudes at the ends, the error model), the star tracker, ``pack`` (the kinds' CDR,
+    the MCAP records built in arrays, the merge order), ``chunk`` (records joined, message
+    indexes, statistics) and ``compress + write`` (zstd, crc, the file).
     """
-    from rigidrot_ros.run import generate as gen
     from rigidrot_ros.bag import BagWriter
+    from rigidrot_ros.bag import writer as bag_writer
+    from rigidrot_ros.run import generate as gen
     values = dict(gen.parse_override(s) for s in SCENE)
-    spent = dict.fromkeys(('set-up', 'truth', 'gyro', 'star tracker', 'serialize',
-                           'order', 'write'), 0.0)
-    with tempfile.TemporaryDirectory(prefix='rigidrot_bench_stages_') as tmp:
-        t0 = time.perf_counter()
-        run = gen._Run(values, duration, 0)
-        writer = BagWriter(None, 'attitude_node', flush_period=0.5,
-                           path=os.path.join(tmp, 'bag'), split_seconds=0.0)
-        for topic, type_name, _, _ in run.topics:
-            writer.add_topic(topic, type_name)
-        clock = {'gyro': 0.0, 'star tracker': 0.0}
-        keys = {'imu': 'gyro', 'star_tracker': 'star tracker'}
+    spent = dict.fromkeys(('set-up', 'truth', 'gyro', 'star tracker', 'pack', 'chunk',
+                           'compress + write'), 0.0)
+    clock = {'gyro': 0.0, 'star tracker': 0.0, 'compress + write': 0.0}
+    keys = {'imu': 'gyro', 'star_tracker': 'star tracker'}
 
-        def timed(fn, key):
-            def call(*args, **kw):
-                c = time.perf_counter()
-                out = fn(*args, **kw)
-                clock[key] += time.perf_counter() - c
-                return out
-            return call
-        for output, _, _ in run.sensors:        # each sensor kind's reading, timed apart
-            output.sample = timed(output.sample, keys[output.name])
-        spent['set-up'] = time.perf_counter() - t0
-        step = round(gen.BLOCK_S * 1e9)
-        lo = 0
-        while lo < run.span_ns:
-            hi = min(run.span_ns, lo + step)
-            c0 = time.perf_counter()
-            streams = run.block(lo, hi)
-            c1 = time.perf_counter()
-            raws = [gen._serialized(run, p) for p in streams]
-            c2 = time.perf_counter()
-            topics, datas, stamps = gen._merged(streams, raws)
-            c3 = time.perf_counter()
-            writer.write_many(topics, datas, stamps)
-            c4 = time.perf_counter()
-            spent['truth'] += c1 - c0
-            spent['serialize'] += c2 - c1
-            spent['order'] += c3 - c2
-            spent['write'] += c4 - c3
-            lo = hi
-        c = time.perf_counter()
-        writer.close()
-        spent['write'] += time.perf_counter() - c
+    def timed(fn, key):
+        def call(*args, **kw):
+            c = time.perf_counter()
+            out = fn(*args, **kw)
+            clock[key] += time.perf_counter() - c
+            return out
+        return call
+    write_chunk = bag_writer._write_chunk
+    bag_writer._write_chunk = timed(write_chunk, 'compress + write')
+    try:
+        with tempfile.TemporaryDirectory(prefix='rigidrot_bench_stages_') as tmp:
+            t0 = time.perf_counter()
+            run = gen._Run(values, duration, 0)
+            writer = BagWriter(None, 'attitude_node', flush_period=float('inf'),
+                               path=os.path.join(tmp, 'bag'), split_seconds=0.0)
+            cids = {topic: writer.add_topic(topic, type_name)
+                    for topic, type_name, _, _ in run.topics}
+            seq = dict.fromkeys(cids, 0)
+            for output, _, _ in run.sensors:    # each sensor kind's reading, timed apart
+                output.sample = timed(output.sample, keys[output.name])
+            spent['set-up'] = time.perf_counter() - t0
+            step = round(gen.BLOCK_S * 1e9)
+            blocks = run.blocks(gen.EVAL_BLOCKS)
+            while True:
+                c0 = time.perf_counter()
+                got = next(blocks, None)
+                if got is None:
+                    break
+                elo, ehi, parts = got
+                c1 = time.perf_counter()
+                span = gen._span(run, parts, cids, seq)
+                c2 = time.perf_counter()
+                for lo in range(elo, ehi, step):
+                    a, b = np.searchsorted(span.log, [lo, min(ehi, lo + step)]).tolist()
+                    pieces = gen._pieces(span, a, b, writer.chunk_size, writer.open_bytes)
+                    for x, y, _ in pieces:
+                        gen._write_piece(writer, span, x, y, run.start_ns)
+                c3 = time.perf_counter()
+                spent['truth'] += c1 - c0
+                spent['pack'] += c2 - c1
+                spent['chunk'] += c3 - c2
+            c = time.perf_counter()
+            writer.close()
+            spent['chunk'] += time.perf_counter() - c
+    finally:
+        bag_writer._write_chunk = write_chunk
     spent['truth'] -= clock['gyro'] + clock['star tracker']
+    spent['chunk'] -= clock['compress + write']
     spent.update(clock)
     total = sum(spent.values())
     ms = {k: v / duration * 1e3 for k, v in spent.items()}
     log(f'stages over {duration:g} scene s ({total:.3g} s wall, {duration / total:.3g}x; '
         'ms per scene second): '
         + ', '.join(f'{k} {v:.3g}' for k, v in ms.items()))
-    return {'scene_s': duration, 'wall_s': total, 'ms_per_scene_s': ms}
+    return {'scene_s': duration, 'wall_s': total, 'ms_per_scene_s': ms,
+            'load_average': os.getloadavg()[0]}
 
 
 def _serialize_costs(n, log):

@@ -537,20 +537,21 @@ def _span(run, parts, cids, seq):
     return _Span(log, cid, src, off, size, cont, sources, int(at[0]) if len(at) else -1)
 
 
-def _pieces(span, a, b, limit):
+def _pieces(span, a, b, limit, base=0):
     """Cut messages ``a:b`` of ``span`` into chunks as :meth:`BagWriter.write_many` does.
 
-    A chunk is closed right after the record that takes it past ``limit`` bytes; returns
+    A chunk is closed right after the record that takes it past ``limit`` bytes, the
+    first counting ``base`` bytes already open (:attr:`BagWriter.open_bytes`); returns
     ``[(lo, hi, closed), ...]``, ``closed`` False for a last piece left open (``flush``
     closes it).
     """
     out = []
     while a < b:
-        ends = np.cumsum(span.size[a:b])
+        ends = base + np.cumsum(span.size[a:b])
         over = np.flatnonzero(ends > limit)
         c = a + int(over[0]) + 1 if len(over) else b
         out.append((a, c, bool(len(over))))
-        a = c
+        a, base = c, 0
     return out
 
 
@@ -618,20 +619,21 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
                 if failed:                      # a sample of this block cannot be evaluated
                     raise failed[0]
                 a, b = np.searchsorted(span.log, [lo, hi]).tolist()
-                pieces = _pieces(span, a, b, writer.chunk_size)
                 if a <= span.run_at < b:
                     # as the node's recorder: a metadata record, written at once; the
-                    # chunk open before the run description is closed after it
-                    pieces = (_pieces(span, a, span.run_at, writer.chunk_size) + [None]
-                              + _pieces(span, span.run_at, b, writer.chunk_size))
-                    at = pieces.index(None)
-                    if at and not pieces[at - 1][2]:
-                        pieces[at - 1:at + 1] = [None, pieces[at - 1]]
-                for piece in pieces:
-                    if piece is None:
-                        writer.add_run(run.description())
-                    else:
-                        _write_piece(writer, span, piece[0], piece[1], run.start_ns)
+                    # chunk still open before the run description is closed after it
+                    before = _pieces(span, a, span.run_at, writer.chunk_size,
+                                     writer.open_bytes)
+                    for x, y, closed in before:
+                        if closed:
+                            _write_piece(writer, span, x, y, run.start_ns)
+                    writer.add_run(run.description())
+                    for x, y, closed in before:
+                        if not closed:
+                            _write_piece(writer, span, x, y, run.start_ns)
+                    a = span.run_at
+                for x, y, _ in _pieces(span, a, b, writer.chunk_size, writer.open_bytes):
+                    _write_piece(writer, span, x, y, run.start_ns)
                 if progress is not None:
                     progress(min(hi, run.span_ns) * 1e-9 * run.time_scale, total)
                 if stop:
