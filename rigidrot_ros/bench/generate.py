@@ -13,7 +13,7 @@ at a time and in a block. :func:`render_md` turns the results into ``OUT/generat
 """
 
 import os
-import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -34,32 +34,98 @@ SCENE = ['imu.enable:=true', 'imu.rate:=1000.0', 'star_tracker.enable:=true',
          'star_tracker.rate:=10.0', 'publish_rate:=100.0']
 
 
-def _generate(duration, log):
+def _child(duration, root, out):
+    """Run ``rigidrot_generate`` on the scene in a child process: wall, CPU, peak RSS, bag.
+
+    ``root``: a checkout whose code runs (its directory first on the path), else this one.
+    The child's peak RSS is its own (``/usr/bin/time``'s ``ru_maxrss`` of one process).
+    """
+    cmd = [sys.executable, '-c', 'import resource, sys; from rigidrot_ros.tools.generate '
+           'import main; code = main(sys.argv[1:]); sys.stderr.write("\\nmaxrss_kb %d\\n" '
+           '% resource.getrusage(resource.RUSAGE_SELF).ru_maxrss); sys.exit(code)',
+           '-o', out, '--duration', str(duration), '--quiet']
+    for s in SCENE:
+        cmd += ['-p', s]
+    env, cwd = dict(os.environ), None
+    if root is not None:
+        env['PYTHONPATH'] = os.pathsep.join([root] + [p for p in env.get(
+            'PYTHONPATH', '').split(os.pathsep) if p])
+        cwd = root
+    t0 = time.perf_counter()
+    c0 = os.times()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=cwd)
+    wall = time.perf_counter() - t0
+    c1 = os.times()
+    if proc.returncode != 0:
+        raise RuntimeError(f'rigidrot_generate failed: {proc.stderr.strip()}')
+    rss = [ln for ln in proc.stderr.splitlines() if ln.startswith('maxrss_kb ')]
+    size = sum(os.path.getsize(os.path.join(out, f)) for f in os.listdir(out))
+    cpu = (c1.children_user + c1.children_system) - (c0.children_user + c0.children_system)
+    return wall, cpu, int(rss[-1].split()[1]) / 1024.0, size
+
+
+def _generate(duration, log, baseline=None, repeats=1):
+    """The scene generated in a child process, ``repeats`` times; the fastest run's figures.
+
+    ``baseline``: a checkout of the previous code, run alternately with this one in the same
+    benchmark run (same machine, same load): its figures go under ``'baseline'``.
+    """
+    runs = {'now': [], 'baseline': []}
     with tempfile.TemporaryDirectory(prefix='rigidrot_bench_gen_') as tmp:
-        out = os.path.join(tmp, 'bag')
-        cmd = [sys.executable, '-m', 'rigidrot_ros.tools.generate', '-o', out, '--duration',
-               str(duration), '--quiet']
-        for s in SCENE:
-            cmd += ['-p', s]
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        t0 = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        wall = time.perf_counter() - t0
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)
-        if proc.returncode != 0:
-            raise RuntimeError(f'rigidrot_generate failed: {proc.stderr.strip()}')
-        size = sum(os.path.getsize(os.path.join(out, f)) for f in os.listdir(out))
-    rss_mb = after.ru_maxrss / 1024.0       # kB on Linux: the largest child so far
-    cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
-    load = os.getloadavg()[0]
-    res = {'scene_s': duration, 'wall_s': wall, 'cpu_s': cpu, 'speedup': duration / wall,
-           'peak_rss_mb': rss_mb, 'bag_mb': size / 1e6, 'load_average': load,
-           'cores': os.cpu_count()}
-    log(f'generate: {duration:g} scene s (100 Hz truth, 1 kHz gyro + increments, 10 Hz star '
-        f'tracker) in {wall:.3g} s wall ({cpu:.3g} s CPU): {res["speedup"]:.3g}x real time, '
-        f'peak RSS {rss_mb:.0f} MB, bag {size / 1e6:.3g} MB (load average '
-        f'{load:.2f} on {os.cpu_count()} cores)')
-    return res
+        for i in range(repeats):
+            for key, root in (('baseline', baseline), ('now', None)):
+                if key == 'baseline' and baseline is None:
+                    continue
+                out = os.path.join(tmp, f'{key}_{i}', 'bag')
+                runs[key].append(_child(duration, root, out) + (os.getloadavg()[0],))
+                if i:
+                    shutil.rmtree(out)
+        if baseline is not None:                # the same bag, byte for byte
+            same = _same_bag(os.path.join(tmp, 'now_0', 'bag'),
+                             os.path.join(tmp, 'baseline_0', 'bag'))
+    res = {}
+    for key, got in runs.items():
+        if not got:
+            continue
+        wall, cpu, rss_mb, size, load = min(got)
+        res[key] = {'scene_s': duration, 'wall_s': wall, 'cpu_s': cpu,
+                    'speedup': duration / wall, 'peak_rss_mb': max(g[2] for g in got),
+                    'bag_mb': size / 1e6, 'load_average': load, 'cores': os.cpu_count(),
+                    'runs': len(got)}
+        log(f'generate ({key}): {duration:g} scene s (100 Hz truth, 1 kHz gyro + increments, '
+            f'10 Hz star tracker) in {wall:.3g} s wall ({cpu:.3g} s CPU; best of '
+            f'{len(got)}): {duration / wall:.3g}x real time, peak RSS '
+            f'{res[key]["peak_rss_mb"]:.0f} MB, bag {size / 1e6:.3g} MB (load average '
+            f'{load:.2f} on {os.cpu_count()} cores)')
+    out = res['now']
+    if baseline is not None:
+        out['baseline'] = dict(res['baseline'], commit=_head(baseline), same_bag=same)
+        log(f'generate: the bag of the previous code ({out["baseline"]["commit"][:12]}) is '
+            f'{"byte for byte" if same else "NOT"} the same; '
+            f'{out["speedup"] / out["baseline"]["speedup"]:.3g}x its speed')
+    return out
+
+
+def _same_bag(a, b):
+    """Whether two bag directories of one name hold the same files, byte for byte."""
+    names = sorted(os.listdir(a))
+    if names != sorted(os.listdir(b)):
+        return False
+    for name in names:
+        with open(os.path.join(a, name), 'rb') as fa, open(os.path.join(b, name), 'rb') as fb:
+            while True:
+                x, y = fa.read(1 << 20), fb.read(1 << 20)
+                if x != y:
+                    return False
+                if not x:
+                    break
+    return True
+
+
+def _head(root):
+    proc = subprocess.run(['git', '-C', root, 'rev-parse', 'HEAD'], capture_output=True,
+                          text=True)
+    return proc.stdout.strip() if proc.returncode == 0 else '?'
 
 
 def _stages(duration, log):
@@ -210,23 +276,33 @@ def _sensor_costs(quick, log):
     return out
 
 
-def run(quick=False, log=print, generate_seconds=None):
+def run(quick=False, log=print, generate_seconds=None, generate_baseline=None,
+        generate_repeats=None):
     """Measure and return the figures (JSON-serialisable); ``quick``: 20 scene seconds.
 
-    ``generate_seconds`` (option ``--generate-seconds``) sets the generated span instead.
+    ``generate_seconds`` (option ``--generate-seconds``) sets the generated span instead;
+    ``generate_baseline`` (``--generate-baseline DIR``) a checkout of the previous code,
+    generated alternately with this one (``generate_repeats`` times each, default 1).
     """
     duration = generate_seconds or (20.0 if quick else 3600.0)
     return {'quick': bool(quick),
-            'generation': _generate(float(duration), log),
+            'generation': _generate(float(duration), log, generate_baseline,
+                                    int(generate_repeats or 1)),
             'stages': _stages(10.0 if quick else 120.0, log),
             'serialize': _serialize_costs(2000 if quick else 20000, log),
             'sensors': _sensor_costs(quick, log)}
 
 
 def add_arguments(ap):
-    """Add ``--generate-seconds`` to the parser ``ap``."""
+    """Add ``--generate-seconds``, ``--generate-baseline``, ``--generate-repeats`` to ``ap``."""
     ap.add_argument('--generate-seconds', type=common.positive_number, metavar='S',
                     help='generate: scene seconds to generate (default 3600, 20 with --quick)')
+    ap.add_argument('--generate-baseline', metavar='DIR',
+                    help='generate: a checkout of the previous code, generated alternately '
+                         'with this one in the same run (its figures beside; the bags '
+                         'compared byte for byte)')
+    ap.add_argument('--generate-repeats', type=int, metavar='N',
+                    help='generate: child runs of each code, the fastest kept (default 1)')
 
 
 _SCENE_TEXT = '100 Hz truth, 1 kHz gyro + both increments, 10 Hz star tracker'
@@ -246,11 +322,22 @@ def render_md(results):
     rows = []
     gen = res.get('generation')
     if gen:
+        best = f' (best of {gen["runs"]})' if gen.get('runs', 1) > 1 else ''
         rows.append((f'benchmark scene ({_SCENE_TEXT}), {gen["scene_s"]:g} scene s, '
-                     '`rigidrot_generate` in a child process',
+                     f'`rigidrot_generate` in a child process{best}',
                      f'{fmt(gen["wall_s"])} s wall, {fmt(gen["cpu_s"])} s CPU: '
                      f'**{fmt(gen["speedup"])}× real time**, peak RSS '
                      f'{fmt(gen["peak_rss_mb"])} MB, bag {fmt(gen["bag_mb"])} MB'))
+        base = gen.get('baseline')
+        if base:
+            rows.append((f'the same, the previous code (commit {base["commit"][:12]}), '
+                         'run alternately in this run',
+                         f'{fmt(base["wall_s"])} s wall, {fmt(base["cpu_s"])} s CPU: '
+                         f'{fmt(base["speedup"])}× real time, peak RSS '
+                         f'{fmt(base["peak_rss_mb"])} MB; now '
+                         f'**{fmt(gen["speedup"] / base["speedup"])}×** its speed; the bag '
+                         + ('byte for byte the same' if base['same_bag'] else
+                            '**not** the same')))
     st = res.get('stages')
     if st:
         ms = sorted(st['ms_per_scene_s'].items(), key=lambda kv: -kv[1])

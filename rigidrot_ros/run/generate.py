@@ -395,12 +395,13 @@ def run_arrays(values, duration_s, start_ns=0):
     (``'/attitude'``: ``q`` (x, y, z, w) ``q_NB``; ``'/imu'``: ``w`` rad/s, ``var`` its
     per-axis variance, with the accelerometer ``f`` m/s^2 and ``avar``; ``'/mag'``: ``m``
     tesla and ``cov``; ``'/star_tracker'``: ``q`` and ``cov``); and ``'run'``, the run
-    description. The same samples, bit for bit, as the messages (the same blocks), without
-    building a message: for estimators fed in memory.
+    description. The same samples, bit for bit, as the messages (read :data:`EVAL_BLOCKS`
+    blocks at a time, as :func:`generate_bag` reads them), without building a message: for
+    estimators fed in memory.
     """
     run = _Run(values, duration_s, start_ns)
     parts = {}
-    for _, _, block in run.blocks():
+    for _, _, block in run.blocks(EVAL_BLOCKS):
         for p in block:
             if p.topic != RUN_TOPIC:
                 parts.setdefault(p.topic, []).append((p.stamps, p.true, p.cols))
