@@ -65,13 +65,18 @@ def _child(duration, root, out):
 
 
 def _generate(duration, log, baseline=None, repeats=1):
-    """The scene generated in a child process, ``repeats`` times; the fastest run's figures.
+    """Generate the scene in a child process ``repeats`` times; the fastest run's figures.
 
     ``baseline``: a checkout of the previous code, run alternately with this one in the same
-    benchmark run (same machine, same load): its figures go under ``'baseline'``.
+    benchmark run (same machine, same load): its figures go under ``'baseline'``. Each code
+    first generates one scene second untimed (numba's compiled kernels cached on disk, as
+    after any first run).
     """
     runs = {'now': [], 'baseline': []}
     with tempfile.TemporaryDirectory(prefix='rigidrot_bench_gen_') as tmp:
+        for key, root in (('baseline', baseline), ('now', None)):
+            if key == 'now' or baseline is not None:     # compiled code cached, not timed
+                _child(1.0, root, os.path.join(tmp, f'warm_{key}', 'bag'))
         for i in range(repeats):
             for key, root in (('baseline', baseline), ('now', None)):
                 if key == 'baseline' and baseline is None:
