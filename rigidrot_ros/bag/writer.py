@@ -669,6 +669,21 @@ class BagWriter:
                             {f: tuple(v) for f, v in self._per_file.items()})
 
 
+_ZSTD = threading.local()
+
+
+def _compress(data):
+    """Return ``zstandard.compress(data)`` (level 3, mcap's): the same bytes, a kept context.
+
+    A compression context per thread, made once (``zstandard.compress`` makes one per
+    call, about a fifth of the time of a 0.5 MB chunk).
+    """
+    cctx = getattr(_ZSTD, 'cctx', None)
+    if cctx is None:
+        cctx = _ZSTD.cctx = zstandard.ZstdCompressor(level=3)
+    return cctx.compress(data)
+
+
 def _pack_indexes(chunk_list):
     """Pack the mcap writer's new chunk indexes (``_Writer__chunk_indices``) into bytes."""
     if chunk_list is None:
@@ -689,7 +704,7 @@ def _write_chunk(writer, data, start, end, indices):
     for the summary (then packed), and the stream flushed to the operating system. zstd
     only: the compression :meth:`BagWriter._open_file` gives every file.
     """
-    compressed = zstandard.compress(data)
+    compressed = _compress(data)
     chunk = Chunk(compression='zstd', data=compressed, message_start_time=start,
                   message_end_time=end,
                   uncompressed_crc=zlib.crc32(data) if writer._Writer__enable_crcs else 0,
