@@ -97,7 +97,8 @@ def _generate(duration, log, baseline=None, repeats=1):
                     'speedup': duration / wall, 'peak_rss_mb': max(g[2] for g in got),
                     'bag_mb': size / 1e6, 'load_average': load, 'cores': os.cpu_count(),
                     'runs': len(got)}
-        log(f'generate ({key}): {duration:g} scene s (100 Hz truth, 1 kHz gyro + increments, '
+        label = ' (previous code)' if key == 'baseline' else ''
+        log(f'generate{label}: {duration:g} scene s (100 Hz truth, 1 kHz gyro + increments, '
             f'10 Hz star tracker) in {wall:.3g} s wall ({cpu:.3g} s CPU; best of '
             f'{len(got)}): {duration / wall:.3g}x real time, peak RSS '
             f'{res[key]["peak_rss_mb"]:.0f} MB, bag {size / 1e6:.3g} MB (load average '
@@ -107,7 +108,8 @@ def _generate(duration, log, baseline=None, repeats=1):
         out['baseline'] = dict(res['baseline'], commit=_head(baseline), same_bag=same)
         log(f'generate: the bag of the previous code ({out["baseline"]["commit"][:12]}) is '
             f'{"byte for byte" if same else "NOT"} the same; '
-            f'{out["speedup"] / out["baseline"]["speedup"]:.3g}x its speed')
+            f'{out["speedup"] / out["baseline"]["speedup"]:.3g}x its speed, '
+            f'{out["baseline"]["cpu_s"] / out["cpu_s"]:.3g}x less CPU')
     return out
 
 
@@ -313,6 +315,15 @@ def add_arguments(ap):
 _SCENE_TEXT = '100 Hz truth, 1 kHz gyro + both increments, 10 Hz star tracker'
 
 
+def failed(results):
+    """Return a line if the previous code's bag (``--generate-baseline``) was not the same."""
+    base = ((results.get('generate') or {}).get('generation') or {}).get('baseline')
+    if base and not base['same_bag']:
+        return [f'GENERATE: the bag of the previous code ({base["commit"][:12]}) differs from '
+                'the bag of this code for the same parameters']
+    return []
+
+
 def render_md(results):
     """Return the part's table from merged results (``'generate'``), or None without them.
 
@@ -340,7 +351,8 @@ def render_md(results):
                          f'{fmt(base["wall_s"])} s wall, {fmt(base["cpu_s"])} s CPU: '
                          f'{fmt(base["speedup"])}× real time, peak RSS '
                          f'{fmt(base["peak_rss_mb"])} MB; now '
-                         f'**{fmt(gen["speedup"] / base["speedup"])}×** its speed; the bag '
+                         f'**{fmt(gen["speedup"] / base["speedup"])}×** its speed and '
+                         f'{fmt(base["cpu_s"] / gen["cpu_s"])}× less CPU; the bag '
                          + ('byte for byte the same' if base['same_bag'] else
                             '**not** the same')))
     st = res.get('stages')

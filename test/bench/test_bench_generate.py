@@ -1,8 +1,11 @@
 """The benchmark part ``generate``: run alone it writes its table from its results."""
 
 import json
+from pathlib import Path
 
 from rigidrot_ros.bench import generate
+
+ROOT = str(Path(generate.__file__).resolve().parents[2])
 
 
 def test_quick_run_alone_writes_its_table_from_its_results(tmp_path, capsys):
@@ -33,3 +36,19 @@ def test_render_md_takes_the_sections_present():
     md = generate.render_md(results)
     assert 'serialize `Imu` | io.cdr 0.5 µs/message' in md and '28×' in md
     assert 'quick run' not in md and 'load average' not in md and 'child process' not in md
+
+
+def test_a_baseline_checkout_runs_beside_and_its_bag_is_compared(capsys):
+    """--generate-baseline: the previous code's figures beside, its bag compared bytes."""
+    gen = generate._generate(1.0, print, baseline=ROOT, repeats=1)
+    base = gen['baseline']
+    assert base['same_bag'] is True and base['scene_s'] == 1.0 and base['cpu_s'] > 0
+    assert len(base['commit']) == 40 and gen['peak_rss_mb'] > 0
+    results = {'footer': {}, 'generate': {'generation': gen}}
+    md = generate.render_md(results)
+    assert f'the previous code (commit {base["commit"][:12]})' in md
+    assert 'byte for byte the same' in md and generate.failed(results) == []
+    base['same_bag'] = False
+    assert '**not** the same' in generate.render_md(results)
+    assert 'differs' in generate.failed(results)[0]
+    assert 'generate (previous code): 1 scene s' in capsys.readouterr().out
