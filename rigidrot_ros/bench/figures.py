@@ -284,6 +284,20 @@ def _gen_rss(res):
     return f'{number(_generation(res)["peak_rss_mb"])} MB'
 
 
+@figure('generate.load', RESULTS)
+def _gen_load(res):
+    return f'{_generation(res)["load_average"]:.1f}'
+
+
+@figure('generate.vs_previous', RESULTS)
+def _gen_vs_previous(res):
+    gen = _generation(res)
+    base = gen['baseline']
+    return (f'{number(gen["speedup"] / base["speedup"])}× the speed of the previous code '
+            f'(commit {base["commit"][:12]}, {number(base["speedup"])}× real time) run '
+            f'alternately in the same run, {number(base["cpu_s"] / gen["cpu_s"])}× less CPU')
+
+
 for _sensor in ('gyro', 'accel'):
     for _how, _key in (('single', 'single_us'), ('block', 'block_us')):
         figure(f'generate.{_sensor}_{_how}_us', RESULTS)(
