@@ -418,18 +418,18 @@ class BagWriter:
         chunk.message_indices = {}
         chunk.message_start_time = chunk.message_end_time = 0
         chunk.num_messages = 0
-        first = np.unique(cids, return_index=True)
         pairs = np.empty((n, 2), dtype='<u8')
         pairs[:, 0] = log
         pairs[:, 1] = offsets + base
         stats = writer._Writer__statistics
         by_cid = {cid: topic for topic, cid in self._channels.items()}
-        for cid in first[0][np.argsort(first[1], kind='stable')].tolist():
-            rows = np.flatnonzero(cids == cid)
-            indices[cid] = (indices.get(cid) or []) + [pairs[rows].tobytes()]
-        for cid, count in zip(*np.unique(cids, return_counts=True)):    # write_many's order
-            stats.channel_message_counts[int(cid)] += int(count)
-            self._counts[by_cid[int(cid)]] += int(count)
+        rows_of = {}
+        for cid in np.flatnonzero(np.bincount(cids)).tolist():    # ascending: write_many's
+            rows_of[cid] = rows = np.flatnonzero(cids == cid)
+            stats.channel_message_counts[cid] += len(rows)
+            self._counts[by_cid[cid]] += len(rows)
+        for cid in sorted(rows_of, key=lambda c: rows_of[c][0]):   # in order of appearance
+            indices[cid] = (indices.get(cid) or []) + [pairs[rows_of[cid]].tobytes()]
         for cid, got in indices.items():
             raw = b''.join(x if isinstance(x, bytes) else struct.pack('<QQ', *x) for x in got)
             indices[cid] = _RawIndex(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 6 + len(raw),
