@@ -61,9 +61,9 @@ RUN_TOPIC = table.resolve('~/run', NODE_NAME)
 BLOCK_S = 1.0
 #: Blocks :func:`generate_bag` evaluates at once: the same samples, bit for bit, as block by
 #: block (each kind's reading is independent of how its samples are batched, as the node's
-#: look-ahead batches rely on), with fewer calls per sample. 4: the per-call costs mostly
-#: paid (the truth's 0.44 ms per scene second at 1 block is 0.14 at 10), about 13 MB more
-#: peak memory than 1 block on the benchmark scene (36 MB at 10).
+#: look-ahead batches rely on), with fewer calls per sample. 4: the per-call costs paid a
+#: quarter as often, about 13 MB more peak memory than 1 block on the benchmark scene
+#: (36 MB at 10).
 EVAL_BLOCKS = 4
 _SEC = 1_000_000_000
 
