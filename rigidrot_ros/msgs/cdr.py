@@ -181,6 +181,57 @@ def serialize_batch(kind, stamps_ns, values, frame_id, child_frame_id=None):
     return Batch(out)
 
 
+_ROWS = {}
+
+
+def _serialize_columns(kind, stamps_ns, n, fixed, columns, frame_id, child_frame_id=None):
+    """Serialize ``n`` messages whose doubles are ``fixed`` but for ``columns``: a Batch.
+
+    The bytes :func:`serialize_batch` gives for the ``(n, doubles)`` values that repeat the
+    row ``fixed`` (a tuple of floats) with ``columns`` (``[(first double, (n, k) or (n,)
+    array), ...]``) written over it; the constant doubles are in the row template once,
+    so a batch writes its stamps and those columns only. ``n``: the rows the columns
+    hold (a count other than the stamps' raises as :func:`serialize_batch` does).
+    """
+    layout = KINDS[kind]
+    stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+    m = len(stamps)
+    if n != m:
+        raise ValueError(f'{kind} needs values shaped ({m}, {layout.doubles}), '
+                         f'got ({n}, {layout.doubles})')
+    sec, nsec = np.divmod(stamps, _SEC)
+    if m and not (_INT32[0] <= sec.min() and sec.max() <= _INT32[1]):
+        raise ValueError('a stamp lies beyond the int32 seconds of builtin_interfaces/Time')
+    key = (kind, frame_id, child_frame_id, fixed)
+    got = _ROWS.get(key)
+    if got is None:
+        tpl, offset = _template(kind, frame_id, child_frame_id)
+        row = tpl.copy()
+        row[offset:] = np.array(fixed, dtype='<f8').view(np.uint8)
+        if len(_ROWS) > 256:            # a bounded cache (frame ids may change at run time)
+            _ROWS.clear()
+        _ROWS[key] = got = (row, offset)
+    row, offset = got
+    out = np.empty((m, len(row)), dtype=np.uint8)
+    out[:] = row
+    out[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(m, 4)
+    out[:, 8:12] = nsec.astype('<u4').view(np.uint8).reshape(m, 4)
+    for first, values in columns:
+        v = np.ascontiguousarray(np.broadcast_to(values, (m,) + np.shape(values)[1:]),
+                                 dtype='<f8').reshape(m, -1)
+        at = offset + 8 * first
+        out[:, at:at + 8 * v.shape[1]] = v.view(np.uint8)
+    return Batch(out)
+
+
+#: The Imu doubles without an accelerometer: orientation (0, 0, 0, 1) and
+#: ``orientation_covariance[0] = -1`` (not provided), ``linear_acceleration_covariance[0]
+#: = -1``, the rest 0 until written.
+_IMU_GYRO = tuple(1.0 if i == 3 else -1.0 if i in (4, 28) else 0.0 for i in range(37))
+#: The same with an accelerometer (its covariance written).
+_IMU_ACCEL = tuple(1.0 if i == 3 else -1.0 if i == 4 else 0.0 for i in range(37))
+
+
 # -- builders: the values of rigidrot_ros.msgs.messages, a batch at a time --------------------
 def _rows(a, width, name):
     a = np.asarray(a, dtype=float)
@@ -208,21 +259,20 @@ def imu(stamps_ns, omega, variance, frame_id, linear_acceleration=None,
     ``accel_variance`` ``(n,)`` goes on that covariance's diagonal.
     """
     w = _rows(omega, 3, 'omega')
-    var = np.asarray(variance, dtype=float).reshape(-1)
-    vals = np.zeros((len(w), 37))
-    vals[:, 3] = 1.0                    # orientation (0, 0, 0, 1): the type's default
-    vals[:, 4] = -1.0                   # orientation_covariance[0]: not provided
-    vals[:, 13:16] = w
-    vals[:, 16] = vals[:, 20] = vals[:, 24] = var
-    if linear_acceleration is None:
-        vals[:, 28] = -1.0              # linear_acceleration_covariance[0]: not provided
-    else:
-        if accel_variance is None:
-            raise ValueError('imu: linear_acceleration needs accel_variance (its covariance)')
-        vals[:, 25:28] = _rows(linear_acceleration, 3, 'linear_acceleration')
-        avar = np.asarray(accel_variance, dtype=float).reshape(-1)
-        vals[:, 28] = vals[:, 32] = vals[:, 36] = avar
-    return serialize_batch('Imu', stamps_ns, vals, frame_id)
+    n = len(w)
+    var = np.broadcast_to(np.asarray(variance, dtype=float).reshape(-1), (n,))
+    # orientation (0, 0, 0, 1): the type's default; orientation_covariance[0] = -1
+    columns = [(13, w), (16, var), (20, var), (24, var)]
+    if linear_acceleration is None:     # linear_acceleration_covariance[0] = -1 too
+        return _serialize_columns('Imu', stamps_ns, n, _IMU_GYRO, columns, frame_id)
+    if accel_variance is None:
+        raise ValueError('imu: linear_acceleration needs accel_variance (its covariance)')
+    f = _rows(linear_acceleration, 3, 'linear_acceleration')
+    avar = np.broadcast_to(np.asarray(accel_variance, dtype=float).reshape(-1), (n,))
+    if len(f) != n:
+        raise ValueError(f'imu: linear_acceleration has {len(f)} rows, omega {n}')
+    columns += [(25, f), (28, avar), (32, avar), (36, avar)]
+    return _serialize_columns('Imu', stamps_ns, n, _IMU_ACCEL, columns, frame_id)
 
 
 def magnetic_field(stamps_ns, field, covariance, frame_id):
