@@ -342,14 +342,16 @@ def render_md(results):
         rows.append((f'benchmark scene ({_SCENE_TEXT}), {gen["scene_s"]:g} scene s, '
                      f'`rigidrot_generate` in a child process{best}',
                      f'{fmt(gen["wall_s"])} s wall, {fmt(gen["cpu_s"])} s CPU: '
-                     f'**{fmt(gen["speedup"])}× real time**, peak RSS '
+                     f'**{fmt(gen["speedup"])}× real time** '
+                     f'({fmt(gen["scene_s"] / gen["cpu_s"])} scene s per CPU s), peak RSS '
                      f'{fmt(gen["peak_rss_mb"])} MB, bag {fmt(gen["bag_mb"])} MB'))
         base = gen.get('baseline')
         if base:
             rows.append((f'the same, the previous code (commit {base["commit"][:12]}), '
                          'run alternately in this run',
                          f'{fmt(base["wall_s"])} s wall, {fmt(base["cpu_s"])} s CPU: '
-                         f'{fmt(base["speedup"])}× real time, peak RSS '
+                         f'{fmt(base["speedup"])}× real time '
+                         f'({fmt(base["scene_s"] / base["cpu_s"])} scene s per CPU s), peak RSS '
                          f'{fmt(base["peak_rss_mb"])} MB; now '
                          f'**{fmt(gen["speedup"] / base["speedup"])}×** its speed and '
                          f'{fmt(base["cpu_s"] / gen["cpu_s"])}× less CPU; the bag '
