@@ -536,7 +536,7 @@ def _span(run, parts, cids, seq):
     log = np.concatenate([p.log for p in parts])[pick] - run.start_ns
     cont = np.zeros(len(pick), dtype=bool)
     cont[1:] = (src[1:] == src[:-1]) & (off[1:] == off[:-1] + size[:-1])
-    at = np.flatnonzero(cid == cids[RUN_TOPIC])
+    at = np.flatnonzero(cid == cids.get(RUN_TOPIC, -1))
     return _Span(log, cid, src, off, size, cont, sources, int(at[0]) if len(at) else -1)
 
 
