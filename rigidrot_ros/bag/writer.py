@@ -161,7 +161,7 @@ class BagWriter:
         rosbag2's ``--max-bag-duration`` writes it; 0 = never).
     offload : callable, optional
         ``offload(fn)`` runs ``fn()`` later on another thread (e.g. a
-        :class:`rigidrot_ros.runtime.lookahead.BatchWorker`'s ``call``). Then closing a chunk
+        :class:`rigidrot_ros.runtime.worker.BatchWorker`'s ``call``). Then closing a chunk
         (:meth:`flush`, :meth:`maybe_flush`, a chunk past its size) only detaches it on the
         caller's thread (its bytes, times and message indexes; the next messages go into a
         fresh chunk) and ``fn`` does the rest: zstd (which releases the interpreter), crc,
@@ -179,7 +179,7 @@ class BagWriter:
         file. None (the default): every chunk is written inline, as always.
     on_wait : callable, optional
         Called on the caller's thread before it waits for an offloaded write in progress
-        (e.g. a :class:`rigidrot_ros.runtime.lookahead.SlackGate`'s ``open``, so that a worker
+        (e.g. a :class:`rigidrot_ros.runtime.gate.SlackGate`'s ``open``, so that a worker
         held by the gate finishes it).
     max_pending : int
         With ``offload``: detached chunks that may wait (default
