@@ -34,7 +34,8 @@ from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 
-__all__ = ['Stream', 'decode_bag', 'SUPPORTED', 'ORIENTATION', 'RATE']
+__all__ = ['Stream', 'decode_bag', 'SUPPORTED', 'ORIENTATION', 'RATE', 'message_rows',
+           'stream_of_rows']
 
 ORIENTATION = 'orientation'
 RATE = 'angular_velocity'
@@ -258,3 +259,30 @@ def _stream(topic, type_name, fld, items):
                 s.cov_unusable += 1
         s.cov = cov if s.cov_unknown < n else None
     return s
+
+
+def message_rows(type_name, msg):
+    """Return ``(stamp_ns, [(field, value, covariance or None, frame), ...])`` of a message.
+
+    What :func:`decode_bag` reads of one message of a supported type, taken from a
+    message object in memory (an rclpy message, or one decoded from a bag) and copied, so
+    a message changed after this call does not change what is scored. KeyError for a type
+    that is not supported.
+    """
+    fields = [(fld, tuple(float(x) for x in value),
+               None if cov is None else np.array(cov, dtype=float), frame)
+              for fld, value, cov, frame in _fields(type_name, msg)]
+    return _stamp(msg), fields
+
+
+def stream_of_rows(topic, type_name, fld, rows):
+    """Return the :class:`Stream` of field ``fld`` of ``rows`` (:func:`message_rows`), or None.
+
+    The stream :func:`decode_bag` makes of the same messages in a bag, which reads them in
+    log-time order (the campaign logs an estimate at its stamp): the rows are taken in
+    stamp order, rows of one stamp in the order given. None when no row has the field.
+    """
+    order = sorted(range(len(rows)), key=lambda k: rows[k][0])
+    items = [(rows[k][0], value, cov, frame) for k in order
+             for f, value, cov, frame in rows[k][1] if f == fld]
+    return _stream(topic, type_name, fld, items) if items else None
