@@ -13,10 +13,7 @@ import json
 import math
 import os
 import platform
-import shutil
-import signal
 import subprocess
-import sys
 import time
 import tracemalloc
 
@@ -26,6 +23,7 @@ import numpy as np
 from rigidrot_ros import __version__
 from rigidrot_ros.core import PrecisionError, Scene, solve
 from rigidrot_ros.core import quaternion as quat
+from rigidrot_ros.runtime.processes import script, stop  # noqa: F401 - the parts' names
 
 #: The reference's tol, rad: far tighter than anything measured (certified by Arb).
 REF_TOL = 2e-14
@@ -317,28 +315,6 @@ def ratio_scenes():
 
 
 # -- processes ---------------------------------------------------------------------------
-
-def script(name):
-    """Return the path of console script ``name``: beside this Python first, else on PATH."""
-    path = os.path.join(os.path.dirname(sys.executable), name)
-    if os.path.exists(path):
-        return path
-    found = shutil.which(name)
-    if found is None:
-        raise FileNotFoundError(f'{name} is not installed (pip install -e . in this checkout)')
-    return found
-
-
-def stop(proc, timeout):
-    """SIGINT ``proc`` if it runs, wait ``timeout`` s for it, else kill it; its status."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        return proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return proc.wait()
-
 
 def positive_number(text):
     """Parse a positive finite number for an option (argparse ``type``)."""

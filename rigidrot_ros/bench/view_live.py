@@ -98,17 +98,6 @@ def _wait_for(proc, text, timeout, sink):
     return False
 
 
-def _stop(proc, timeout=60.0):
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-    return proc.returncode
-
-
 def measure(seconds, max_rate, domain, log, warmup=5.0, browser=False):
     """Run node, MEKF and view for ``warmup + seconds``; return the figures (a dict)."""
     env = _env(domain)
@@ -159,7 +148,7 @@ def measure(seconds, max_rate, domain, log, warmup=5.0, browser=False):
         if drain is not None:
             drain.join(10)          # it reads the view's stderr to its end
         for k in ('mekf', 'node'):
-            _stop(procs[k])
+            common.stop(procs[k], 60.0)
     if 'thread' in shot:
         shot['thread'].join(30)
     summary = next((json.loads(ln.split('live summary: ', 1)[1]) for ln in lines

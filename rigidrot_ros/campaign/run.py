@@ -21,7 +21,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import tempfile
 import time
 import traceback
@@ -29,6 +28,7 @@ import traceback
 from rigidrot_ros.campaign.failure import RunFailed
 from rigidrot_ros.campaign.spec import draw_run, run_values
 from rigidrot_ros.campaign.workdir import claim_work_dir
+from rigidrot_ros.runtime.processes import script, stop
 
 __all__ = ['run_one', 'RunFailed', 'score_bag', 'score_estimates', 'claim_domain',
            'DOMAIN_WAIT_S']
@@ -146,22 +146,6 @@ def _domain(base, span):
         fh.close()
 
 
-def _script(name):
-    path = os.path.join(os.path.dirname(sys.executable), name)
-    return [path] if os.path.exists(path) else [name]
-
-
-def _stop(proc, timeout=10.0):
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    return proc.returncode
-
-
 def _tail(path, lines=40):
     try:
         with open(path, encoding='utf-8', errors='replace') as fh:
@@ -201,7 +185,7 @@ def _ros(spec, values, work, timing=None, bag=None):
         procs = {}
         try:
             procs['recorder'] = subprocess.Popen(
-                _script('rigidrot_record') + ['-o', rec_dir] + est['topics']
+                [script('rigidrot_record')] + ['-o', rec_dir] + est['topics']
                 + [f'{t}:std_msgs/msg/String' for t in names if t.endswith('/run')], env=env,
                 stdout=logs['recorder'], stderr=subprocess.STDOUT)
             try:
@@ -216,8 +200,8 @@ def _ros(spec, values, work, timing=None, bag=None):
                            min(30.0, spec['timeout']))
             inputs = est.get('inputs') or [t for t in names if not t.endswith('/run')]
             procs['replay'] = subprocess.Popen(
-                _script('rigidrot_replay') + [bag, '--clock', '--rate', repr(est['rate']),
-                                              '--quiet', '--wait', '10', '--topics'] + names
+                [script('rigidrot_replay'), bag, '--clock', '--rate', repr(est['rate']),
+                 '--quiet', '--wait', '10', '--topics'] + names
                 + ['--wait-for'] + inputs,
                 env=env, stdout=logs['replay'], stderr=subprocess.STDOUT)
             while procs['replay'].poll() is None:
@@ -235,14 +219,14 @@ def _ros(spec, values, work, timing=None, bag=None):
             if procs['estimator'].poll() is not None:
                 raise RunFailed(f'the estimator exited with status '
                                 f'{procs["estimator"].returncode} during the replay')
-            code = _stop(procs['estimator'])
+            code = stop(procs['estimator'], 10.0)
             time.sleep(0.3)
             if code not in (0, -signal.SIGINT):
                 raise RunFailed(f'the estimator exited with status {code} when stopped')
         finally:
             for name in ('replay', 'estimator', 'recorder'):
                 if name in procs:
-                    _stop(procs[name])
+                    stop(procs[name], 10.0)
             for fh in logs.values():
                 fh.close()
     if not os.path.isdir(rec_dir):

@@ -292,76 +292,89 @@ def trial(sol, values, cfg=None, timed=True):
     evaluated and judged, but neither :data:`TRIAL_LIMIT_S` nor :data:`SAMPLE_BUDGET_S`
     applies, so the answer does not depend on how fast or loaded the machine is.
     """
-    budget = SAMPLE_BUDGET_S if timed else None
-
-    def _timed(*args):
-        return _trial_sample(*args, limit=timed)
     time_scale = float(values['time_scale'])
     t1 = time_scale / float(values['publish_rate'])
     for t in (0.0, t1):
-        _, reason = _timed(
+        _, reason = _trial_sample(
             lambda: sol.at(t), f'the scene cannot be evaluated at t = {t:g} s (the first '
             'ticks)', f'one sample of this scene takes {{cost:.3g}} s to evaluate ({sol.model}, '
-            f'{sol.method})', "; try backend 'auto' or a larger tol")
+            f'{sol.method})', "; try backend 'auto' or a larger tol", limit=timed)
         if reason:
             return reason
     if cfg is None:
         return None
-    if cfg.imu:
-        dt = time_scale / cfg.imu_rate
-
-        def gyro():                 # an ideal gyro: the run's own noise stream stays fresh
-            with np.errstate(over='ignore', invalid='ignore'):  # judged below, not warned
-                return Gyro(sol).read(0.0, dt, budget=budget)
-        r, reason = _timed(
-            gyro, f'the first gyro sample (imu.rate {cfg.imu_rate:g} Hz, time_scale '
-            f'{time_scale:g}: {dt:g} s of scene time) cannot be evaluated',
-            f'the first gyro sample ({dt:g} s of scene time) takes {{cost:.3g}} s',
-            '; lower time_scale or raise imu.rate')
-        if reason:
-            return reason
-        bound = float(max(r.delta_angle_bound, r.delta_rotation_bound))
-        if not math.isfinite(bound):
-            return (f'the gyro increments of this scene have no finite error bound '
-                    f'({bound!r} rad over the first {dt:g} s; omega0 or torque too large '
-                    'for float64); turn imu.enable off or choose a smaller scene')
-    if cfg.imu and cfg.accel:
-        dt = time_scale / cfg.imu_rate
-
-        def accel():
-            with np.errstate(over='ignore', invalid='ignore'):
-                return Accelerometer(sol, lever_arm=cfg.lever_arm, gravity=cfg.gravity) \
-                    .read(0.0, dt, budget=budget)
-        r, reason = _timed(
-            accel, f'the first accelerometer sample (imu.rate {cfg.imu_rate:g} Hz: {dt:g} s '
-            'of scene time) cannot be evaluated',
-            f'the first accelerometer sample ({dt:g} s of scene time) takes {{cost:.3g}} s',
-            '; check accel.lever_arm and accel.gravity, lower time_scale or raise imu.rate')
-        if reason:
-            return reason
-        if not (math.isfinite(r.delta_velocity_bound) and np.all(np.isfinite(r.specific_force))):
-            return (f'the accelerometer of this scene has no finite value or error bound '
-                    f'({r.delta_velocity_bound!r} m/s over the first {dt:g} s); check '
-                    'accel.lever_arm and accel.gravity, or choose a smaller scene')
-    if cfg.mag:
-        dt = time_scale / cfg.mag_rate
-        r, reason = _timed(
-            lambda: Magnetometer(sol, **cfg.mag_options).read(0.0, dt),
-            'the first magnetometer sample (t = 0) cannot be evaluated',
-            'the first magnetometer sample takes {cost:.3g} s', '')
-        if reason:
-            return reason
-        if not np.all(np.isfinite(r.field)):
-            return 'the first magnetometer sample is not finite; check mag.field and mag.soft_iron'
-    if cfg.star_tracker:
-        t = time_scale / cfg.star_tracker_rate
-        _, reason = _timed(
-            lambda: StarTracker(sol).read(t),
-            f'the first star tracker sample (t = {t:g} s) cannot be evaluated',
-            'the first star tracker sample takes {cost:.3g} s', '')
+    checks = [(cfg.imu, _trial_gyro), (cfg.imu and cfg.accel, _trial_accel),
+              (cfg.mag, _trial_mag), (cfg.star_tracker, _trial_star)]
+    for wanted, check in checks:
+        reason = check(sol, cfg, time_scale, timed) if wanted else None
         if reason:
             return reason
     return None
+
+
+def _trial_gyro(sol, cfg, time_scale, timed):
+    dt = time_scale / cfg.imu_rate
+
+    def gyro():                 # an ideal gyro: the run's own noise stream stays fresh
+        with np.errstate(over='ignore', invalid='ignore'):  # judged below, not warned
+            return Gyro(sol).read(0.0, dt, budget=SAMPLE_BUDGET_S if timed else None)
+    r, reason = _trial_sample(
+        gyro, f'the first gyro sample (imu.rate {cfg.imu_rate:g} Hz, time_scale '
+        f'{time_scale:g}: {dt:g} s of scene time) cannot be evaluated',
+        f'the first gyro sample ({dt:g} s of scene time) takes {{cost:.3g}} s',
+        '; lower time_scale or raise imu.rate', limit=timed)
+    if reason:
+        return reason
+    bound = float(max(r.delta_angle_bound, r.delta_rotation_bound))
+    if not math.isfinite(bound):
+        return (f'the gyro increments of this scene have no finite error bound '
+                f'({bound!r} rad over the first {dt:g} s; omega0 or torque too large '
+                'for float64); turn imu.enable off or choose a smaller scene')
+    return None
+
+
+def _trial_accel(sol, cfg, time_scale, timed):
+    dt = time_scale / cfg.imu_rate
+
+    def accel():
+        with np.errstate(over='ignore', invalid='ignore'):
+            return Accelerometer(sol, lever_arm=cfg.lever_arm, gravity=cfg.gravity) \
+                .read(0.0, dt, budget=SAMPLE_BUDGET_S if timed else None)
+    r, reason = _trial_sample(
+        accel, f'the first accelerometer sample (imu.rate {cfg.imu_rate:g} Hz: {dt:g} s '
+        'of scene time) cannot be evaluated',
+        f'the first accelerometer sample ({dt:g} s of scene time) takes {{cost:.3g}} s',
+        '; check accel.lever_arm and accel.gravity, lower time_scale or raise imu.rate',
+        limit=timed)
+    if reason:
+        return reason
+    if not (math.isfinite(r.delta_velocity_bound) and np.all(np.isfinite(r.specific_force))):
+        return (f'the accelerometer of this scene has no finite value or error bound '
+                f'({r.delta_velocity_bound!r} m/s over the first {dt:g} s); check '
+                'accel.lever_arm and accel.gravity, or choose a smaller scene')
+    return None
+
+
+def _trial_mag(sol, cfg, time_scale, timed):
+    dt = time_scale / cfg.mag_rate
+    r, reason = _trial_sample(
+        lambda: Magnetometer(sol, **cfg.mag_options).read(0.0, dt),
+        'the first magnetometer sample (t = 0) cannot be evaluated',
+        'the first magnetometer sample takes {cost:.3g} s', '', limit=timed)
+    if reason:
+        return reason
+    if not np.all(np.isfinite(r.field)):
+        return 'the first magnetometer sample is not finite; check mag.field and mag.soft_iron'
+    return None
+
+
+def _trial_star(sol, cfg, time_scale, timed):
+    t = time_scale / cfg.star_tracker_rate
+    _, reason = _trial_sample(
+        lambda: StarTracker(sol).read(t),
+        f'the first star tracker sample (t = {t:g} s) cannot be evaluated',
+        'the first star tracker sample takes {cost:.3g} s', '', limit=timed)
+    return reason
 
 
 @dataclass(frozen=True)

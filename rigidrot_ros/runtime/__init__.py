@@ -3,6 +3,7 @@
 ``lookahead`` (the batch worker that evaluates ahead of the publishing thread, and its
 slack gate), ``collector`` (the garbage collector held out of the hot path),
 ``realtime`` (real-time scheduling policy where permitted), ``diagnostics`` (timing
-windows reported on ``/diagnostics``) and ``switches`` (every environment variable the
-package reads, read there alone).
+windows reported on ``/diagnostics``), ``switches`` (every environment variable the
+package reads, read there alone) and ``processes`` (a console script found and a child
+process stopped as Ctrl-C would, for the tools that start nodes).
 """

@@ -304,7 +304,6 @@ def _run(opts, ros_args):
     from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped
     from nav_msgs.msg import Odometry
     import rclpy
-    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu
 
@@ -324,71 +323,85 @@ def _run(opts, ros_args):
         _wire_ahrs(node, opts, (pub_odom, pub_pose, pub_att))
         spin_until_shutdown(node, _spin_quietly_to_shutdown)
         return 0
-    # state on the gyro's time grid: f (filter), t (ns) of its state, the last gyro
-    # sample, and the output stamps waiting for the gyro sample that covers them
-    st = {'f': None, 't': None, 'frame': 'inertial', 'body': 'body', 'omega': None,
-          'cov': np.zeros(9), 'pending': []}
+    loop = _GyroLoop(node, opts, (pub_odom, pub_pose, pub_att))
+    node.create_subscription(Imu, 'imu', loop.on_imu, 1000)
+    node.create_subscription(QuaternionStamped, 'attitude', loop.on_attitude, 1000)
+    spin_until_shutdown(node, _spin_quietly_to_shutdown)
+    return 0
 
-    def stamp_of(msg):
-        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
-    def publish(header_stamp, t_ns):
+def _stamp_ns(msg):
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+class _GyroLoop:
+    """The gyro integrator on the gyro's time grid, answering each attitude stamp.
+
+    State: the filter (None until the first attitude fixes it), the time (ns) of its
+    state, the last gyro sample and its covariance, and the output stamps waiting for the
+    gyro sample that covers them.
+    """
+
+    def __init__(self, node, opts, pubs):
+        import rclpy
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+        self.node, self.opts, self.pubs = node, opts, pubs
+        self._ros_ok, self._rcl_error = rclpy.ok, _rclpy.RCLError
+        self.f, self.t, self.omega, self.cov = None, None, None, np.zeros(9)
+        self.frame, self.body, self.pending = 'inertial', 'body', []
+
+    def publish(self, header_stamp, t_ns):
         """Publish the estimate at ``t_ns`` from the state and the sample covering it."""
-        f = st['f']
-        q_xyzw, p = f.predicted(st['omega'], st['cov'], (t_ns - st['t']) * 1e-9)
-        odom, pose, att = _estimate_messages(
-            header_stamp, st['frame'], st['body'], q_xyzw, p[:3, :3], st['omega'],
-            np.asarray(st['cov']).reshape(3, 3) + p[3:, 3:])
+        q_xyzw, p = self.f.predicted(self.omega, self.cov, (t_ns - self.t) * 1e-9)
+        msgs = _estimate_messages(
+            header_stamp, self.frame, self.body, q_xyzw, p[:3, :3], self.omega,
+            np.asarray(self.cov).reshape(3, 3) + p[3:, 3:])
         try:
-            pub_odom.publish(odom)
-            pub_pose.publish(pose)
-            pub_att.publish(att)
-        except _rclpy.RCLError:
-            if rclpy.ok():
+            for pub, msg in zip(self.pubs, msgs):
+                pub.publish(msg)
+        except self._rcl_error:
+            if self._ros_ok():
                 raise               # a real failure; after a shutdown it is only the race
 
-    def on_imu(msg):
-        if st['f'] is None:
+    def on_imu(self, msg):
+        """Carry the state to the sample's stamp, publishing every output stamp on the way."""
+        if self.f is None:
             return                                  # not initialised yet (no fix)
-        t_k = stamp_of(msg)
-        if t_k <= st['t']:
+        t_k = _stamp_ns(msg)
+        if t_k <= self.t:
             return                                  # a repeated or out-of-order sample
         v = msg.angular_velocity
         # the sample is the mean rate over (t_k-1, t_k]: it carries the state to t_k, and
         # every output stamp on the way is published from it
-        st['omega'] = np.array([v.x, v.y, v.z])
-        st['cov'] = np.asarray(msg.angular_velocity_covariance, dtype=float)
-        st['body'] = msg.header.frame_id or st['body']
-        st['pending'].sort(key=lambda item: item[0])
-        while st['pending'] and st['pending'][0][0] <= t_k:
-            t_out, header_stamp = st['pending'].pop(0)
-            publish(header_stamp, t_out)
-        st['f'].update(st['omega'], st['cov'], (t_k - st['t']) * 1e-9)
-        st['t'] = t_k
+        self.omega = np.array([v.x, v.y, v.z])
+        self.cov = np.asarray(msg.angular_velocity_covariance, dtype=float)
+        self.body = msg.header.frame_id or self.body
+        self.pending.sort(key=lambda item: item[0])
+        while self.pending and self.pending[0][0] <= t_k:
+            t_out, header_stamp = self.pending.pop(0)
+            self.publish(header_stamp, t_out)
+        self.f.update(self.omega, self.cov, (t_k - self.t) * 1e-9)
+        self.t = t_k
 
-    def on_attitude(msg):
-        t = stamp_of(msg)
-        if st['f'] is None:
-            q = msg.quaternion
-            st['f'] = GyroIntegrator((q.x, q.y, q.z, q.w), opts.initial_sigma,
-                                     opts.bias_sigma, opts.bias_random_walk)
-            st['t'] = t
-            st['frame'] = msg.header.frame_id or 'inertial'
-            node.get_logger().info(f'initialised from the attitude at stamp {t} ns')
-        if t < st['t'] and st['omega'] is not None:
-            publish(msg.header.stamp, t)            # late: back from the last sample
-        elif t >= st['t']:
-            st['pending'].append((t, msg.header.stamp))
-            if len(st['pending']) > 1000:
-                del st['pending'][0]
-                node.get_logger().warning(
+    def on_attitude(self, msg):
+        """Initialise from the first attitude; queue (or, when late, answer) its stamp."""
+        t = _stamp_ns(msg)
+        if self.f is None:
+            q, opts = msg.quaternion, self.opts
+            self.f = GyroIntegrator((q.x, q.y, q.z, q.w), opts.initial_sigma,
+                                    opts.bias_sigma, opts.bias_random_walk)
+            self.t = t
+            self.frame = msg.header.frame_id or 'inertial'
+            self.node.get_logger().info(f'initialised from the attitude at stamp {t} ns')
+        if t < self.t and self.omega is not None:
+            self.publish(msg.header.stamp, t)       # late: back from the last sample
+        elif t >= self.t:
+            self.pending.append((t, msg.header.stamp))
+            if len(self.pending) > 1000:
+                del self.pending[0]
+                self.node.get_logger().warning(
                     'no gyro sample on imu yet: start attitude_node with -p imu.enable:=true',
                     throttle_duration_sec=5.0)
-
-    node.create_subscription(Imu, 'imu', on_imu, 1000)
-    node.create_subscription(QuaternionStamped, 'attitude', on_attitude, 1000)
-    spin_until_shutdown(node, _spin_quietly_to_shutdown)
-    return 0
 
 
 def _estimate_messages(stamp, frame, body, q_xyzw, rot_cov, omega, rate_cov=None):

@@ -59,9 +59,7 @@ def _wait_for_matching(node, pubs, limit, settle=SETTLE, required=()):
     return False
 
 
-def main(argv=None):
-    """Entry point of ``rigidrot_replay``; returns the exit status."""
-    argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
+def _parser():
     ap = OneLineParser(prog='rigidrot_replay', description=__doc__.splitlines()[0])
     ap.add_argument('bag', help='bag directory or .mcap file')
     ap.add_argument('--rate', type=float,
@@ -93,69 +91,75 @@ def main(argv=None):
     ap.add_argument('--wait-for', nargs='+', default=[], metavar='TOPIC',
                     help='do not play before each of these replayed topics (or /clock) has '
                          'a matched subscriber; exit 2 if one has none within --wait')
-    opts = ap.parse_args(argv)
+    return ap
+
+
+def _refusal(opts):
+    """Say what is wrong with the options (one line), or None; sets the default rate."""
     if opts.paced_by is None and (opts.window is not None or opts.output):
-        print('rigidrot_replay: --window and -o go with --paced-by', file=sys.stderr)
-        return 2
+        return '--window and -o go with --paced-by'
     if opts.paced_by is not None and opts.loop:
-        print('rigidrot_replay: --loop does not go with --paced-by', file=sys.stderr)
-        return 2
+        return '--loop does not go with --paced-by'
     if not 0 <= opts.clock_step <= 10:
-        print('rigidrot_replay: --clock-step must lie in [0, 10] s', file=sys.stderr)
-        return 2
+        return '--clock-step must lie in [0, 10] s'
     if opts.window is not None and not 1 <= opts.window <= 1_000_000:
-        print('rigidrot_replay: --window must lie in [1, 1000000]', file=sys.stderr)
-        return 2
-    taken = opts.output and os.path.exists(opts.output) and (
-        not os.path.isdir(opts.output) or os.listdir(opts.output))
-    if taken:
-        print(f'rigidrot_replay: -o {opts.output}: exists and is not an empty directory',
-              file=sys.stderr)
-        return 2
+        return '--window must lie in [1, 1000000]'
+    if opts.output and os.path.exists(opts.output) and (
+            not os.path.isdir(opts.output) or os.listdir(opts.output)):
+        return f'-o {opts.output}: exists and is not an empty directory'
     if opts.rate is None and opts.paced_by is None:
         opts.rate = 1.0
     if opts.rate is not None and not (opts.rate > 0 and opts.rate < float('inf')):
-        print('rigidrot_replay: --rate must be a positive finite number', file=sys.stderr)
-        return 2
+        return '--rate must be a positive finite number'
     if not 0 <= opts.wait < 3600:
-        print('rigidrot_replay: --wait must lie in [0, 3600) s', file=sys.stderr)
-        return 2
+        return '--wait must lie in [0, 3600) s'
     if not 0 <= opts.start < float('inf'):
-        print('rigidrot_replay: --start must be a finite number of seconds >= 0',
-              file=sys.stderr)
-        return 2
+        return '--start must be a finite number of seconds >= 0'
     if opts.duration is not None and not 0 < opts.duration < float('inf'):
-        print('rigidrot_replay: --duration must be a positive finite number of seconds',
-              file=sys.stderr)
-        return 2
-    try:
-        bag = read_bag(opts.bag)
-        if bag.note:
-            print(f'note: {bag.path}: {bag.note}', file=sys.stderr)
-        topics = opts.topics or sorted(bag.topics)
-        missing = [t for t in topics if t not in bag.topics]
-        if missing:
-            raise BagError(f'{bag.path}: no topic(s) {missing}; it has {sorted(bag.topics)}')
-        classes = {t: msg_class(bag.topics[t][0], BagError) for t in topics}
-        unplayed = [t for t in opts.wait_for
-                    if t not in classes and not (t == '/clock' and opts.clock)]
-        if unplayed:
-            raise BagError(f'--wait-for {unplayed}: not replayed (the replayed topics are '
-                           f'{sorted(classes) + (["/clock"] if opts.clock else [])})')
-    except (BagError, OSError) as exc:
-        print(f'rigidrot_replay: {exc}', file=sys.stderr)
-        return 2
+        return '--duration must be a positive finite number of seconds'
+    return None
+
+
+def _load(opts):
+    """Read the bag and pick what to play: ``(bag, classes, msgs)``; BagError says why not."""
+    bag = read_bag(opts.bag)
+    if bag.note:
+        print(f'note: {bag.path}: {bag.note}', file=sys.stderr)
+    topics = opts.topics or sorted(bag.topics)
+    missing = [t for t in topics if t not in bag.topics]
+    if missing:
+        raise BagError(f'{bag.path}: no topic(s) {missing}; it has {sorted(bag.topics)}')
+    classes = {t: msg_class(bag.topics[t][0], BagError) for t in topics}
+    unplayed = [t for t in opts.wait_for
+                if t not in classes and not (t == '/clock' and opts.clock)]
+    if unplayed:
+        raise BagError(f'--wait-for {unplayed}: not replayed (the replayed topics are '
+                       f'{sorted(classes) + (["/clock"] if opts.clock else [])})')
     msgs = [m for m in bag.messages if m[0] in classes]
     if not msgs:
-        print(f'rigidrot_replay: {bag.path}: no messages to replay', file=sys.stderr)
-        return 2
+        raise BagError(f'{bag.path}: no messages to replay')
     t0 = msgs[0][2] + int(opts.start * 1e9)
     t1 = t0 + int(opts.duration * 1e9) if opts.duration is not None else None
     length = (msgs[-1][2] - msgs[0][2]) * 1e-9
     msgs = [m for m in msgs if m[2] >= t0 and (t1 is None or m[2] <= t1)]
     if not msgs:
-        print(f'rigidrot_replay: {bag.path}: nothing to replay: --start {opts.start:g} s is '
-              f'past the end of the log ({length:.3f} s long)', file=sys.stderr)
+        raise BagError(f'{bag.path}: nothing to replay: --start {opts.start:g} s is past the '
+                       f'end of the log ({length:.3f} s long)')
+    return bag, classes, msgs
+
+
+def main(argv=None):
+    """Entry point of ``rigidrot_replay``; returns the exit status."""
+    argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
+    opts = _parser().parse_args(argv)
+    reason = _refusal(opts)
+    if reason is not None:
+        print(f'rigidrot_replay: {reason}', file=sys.stderr)
+        return 2
+    try:
+        bag, classes, msgs = _load(opts)
+    except (BagError, OSError) as exc:
+        print(f'rigidrot_replay: {exc}', file=sys.stderr)
         return 2
     if opts.paced_by is not None:
         from rigidrot_ros.ros.paced import fast_dds
@@ -167,6 +171,11 @@ def main(argv=None):
     node = rclpy.create_node('rigidrot_replay')
     if opts.paced_by is not None:
         return _paced(node, opts, bag, classes, msgs)
+    return _timed(node, opts, bag, classes, msgs)
+
+
+def _timed(node, opts, bag, classes, msgs):
+    """Play ``msgs`` at their recorded pace times ``--rate``; exit status."""
     pubs = {t: node.create_publisher(classes[t], t, qos_from_yaml(bag.topics[t][1]))
             for t in classes}
     clock_pub = node.create_publisher(Clock, '/clock', 10) if opts.clock else None
@@ -181,7 +190,7 @@ def main(argv=None):
             node.destroy_node()
             rclpy.try_shutdown()
             return 2
-    total = (msgs[-1][2] - msgs[0][2]) * 1e-9 if msgs else 0.0
+    total = (msgs[-1][2] - msgs[0][2]) * 1e-9
 
     def play(_node):
         while True:

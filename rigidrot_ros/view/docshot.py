@@ -18,6 +18,8 @@ import time
 
 import yaml
 
+from rigidrot_ros.runtime.processes import script
+
 __all__ = ['main']
 
 SPEC = {
@@ -30,11 +32,6 @@ SPEC = {
     'estimator': {'factory': 'rigidrot_ros.estimators.mekf:make',
                   'params': {'sigma_v': 1.7e-4, 'sigma_u': 2.0e-5, 'bias_sigma': 2.0e-3}},
 }
-
-
-def _script(name):
-    path = os.path.join(os.path.dirname(sys.executable), name)
-    return path if os.path.exists(path) else name
 
 
 def _free_port():
@@ -56,8 +53,8 @@ def _campaign_drawn(img):
 def _shot(args, out, size):
     from rigidrot_ros.view.browser import screenshot
     web, grpc = _free_port(), _free_port()
-    proc = subprocess.Popen([_script('rigidrot_view')] + args + ['--port', str(web),
-                                                                 '--grpc-port', str(grpc)],
+    proc = subprocess.Popen([script('rigidrot_view')] + args + ['--port', str(web),
+                                                                '--grpc-port', str(grpc)],
                             stderr=subprocess.PIPE, text=True)
     try:
         url = None
@@ -91,7 +88,7 @@ def main(argv=None):
         with open(spec, 'w', encoding='utf-8') as fh:
             yaml.safe_dump(SPEC, fh)
         camp = os.path.join(tmp, 'camp')
-        subprocess.run([_script('rigidrot_campaign'), spec, '-o', camp, '--quiet'],
+        subprocess.run([script('rigidrot_campaign'), spec, '-o', camp, '--quiet'],
                        check=True)
         _shot([camp, '--run', str(opts.run)], os.path.join(opts.out, 'view.png'),
               (1400, 820))

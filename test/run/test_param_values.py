@@ -121,7 +121,8 @@ def _spec(tmp_path, overrides):
     path = tmp_path / 'spec.yaml'
     path.write_text('seed: 1\nruns: 2\nduration: 1e0\nbase:\n  overrides:\n' +
                     ''.join(f'    {n}: {v}\n' for n, v in overrides) +
-                    'estimator:\n  factory: campaign_helpers:silent\n')
+                    'estimator:\n  factory: rigidrot_ros.estimators.mekf:make\n'
+                    '  params: {sigma_v: 1.7e-4, sigma_u: 2.0e-5, bias_sigma: 2.0e-3}\n')
     return path
 
 
