@@ -179,7 +179,7 @@ def render_md(results):
         return None
     fmt = common.fmt
     cores = res['cores']
-    rows = [(f'before, quoted: hand-timed on the quiet machine (2026-11-24)', '100', '—',
+    rows = [('before, quoted: hand-timed on the quiet machine (2026-11-24)', '100', '—',
              f'{fmt(res["quoted_before"])}', '—', '—', '—')]
     labels = {'before': f'before (commit {res.get("baseline_commit", res["baseline"])[:12]}): '
                         'estimates bagged, read back, scored; workers spawned',

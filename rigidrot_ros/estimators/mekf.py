@@ -87,14 +87,6 @@ def _qexp(v):
     return np.array([v[0] * s, v[1] * s, v[2] * s, math.cos(0.5 * a)])
 
 
-def _qexp_floats(v):
-    """:func:`_qexp` as a tuple of floats (the same operations on the same values)."""
-    a = math.sqrt(float(v @ v))
-    s = 0.5 - a * a / 48.0 if a < 1e-6 else math.sin(0.5 * a) / a
-    vx, vy, vz = v.tolist()
-    return vx * s, vy * s, vz * s, math.cos(0.5 * a)
-
-
 def _qlog(q):
     """Rotation vector ``v`` with ``q = exp(v / 2)`` (shorter way round)."""
     if q[3] < 0:
@@ -196,6 +188,7 @@ class MEKF:
         self._phi = _I6.copy()           # Phi's buffer: its lower rows [0 I] never change
         self._noise = {}                 # Q by dt (the same dt gives the same Q)
         self._var = {}                   # the gyro covariance matrix by its variance
+        self._checked = {}               # star tracker covariances checked, by their bytes
 
     # -- the filter --------------------------------------------------------------------
     def _q_noise(self, dt):
@@ -213,15 +206,17 @@ class MEKF:
     def _propagate(self, dt):
         # The operations of the module text, element by element where they are elementwise
         # (the same IEEE operations on the same values as the matrix expressions), with
-        # numpy for every product that sums (dot, matmul): the numbers do not change.
+        # BLAS for every product that sums, as ``@`` calls it (``np.dot`` of 1-D and 2-D
+        # float arrays makes the same ddot and dgemm calls): the numbers do not change.
         if dt <= 0:
             return
+        dot = np.dot
         w = self.omega - self.beta
-        x = math.sqrt(float(w @ w))
+        x = math.sqrt(float(dot(w, w)))
         w0, w1, w2 = w.tolist()
         Wl = ((0.0, -w2, w1), (w2, 0.0, -w0), (-w1, w0, 0.0))
         W = np.array(Wl)
-        W2l = (W @ W).tolist()
+        W2l = dot(W, W).tolist()
         if x * dt < 1e-5:           # series of the coefficients below
             s1, s2, s3 = dt, dt * dt / 2, dt ** 3 / 6
         else:
@@ -238,10 +233,17 @@ class MEKF:
                         + [wr[j] * s2 - e[j] * dt - w2r[j] * s3 for j in range(3)])
         phi = self._phi
         phi[:3] = rows
-        P = phi @ self.P @ phi.T + self._q_noise(dt)
-        self.P = 0.5 * (P + P.T)
-        q = np.array(_qmul(self.q.tolist(), _qexp_floats(w * dt)))
-        q /= math.sqrt(float(q.dot(q)))                      # np.linalg.norm(q)
+        P = dot(dot(phi, self.P), phi.T)
+        P += self._q_noise(dt)
+        P = P + P.T
+        P *= 0.5
+        self.P = P
+        v = w * dt
+        a = math.sqrt(float(dot(v, v)))              # _qexp(v), as floats
+        s = 0.5 - a * a / 48.0 if a < 1e-6 else math.sin(0.5 * a) / a
+        vx, vy, vz = v.tolist()
+        q = np.array(_qmul(self.q.tolist(), (vx * s, vy * s, vz * s, math.cos(0.5 * a))))
+        q /= math.sqrt(float(dot(q, q)))             # np.linalg.norm(q)
         self.q = q
 
     def _update(self, q_m, R):
@@ -291,8 +293,8 @@ class MEKF:
         out = self._flush(t)
         q_m = np.array(q_m, dtype=float)
         R = np.asarray(cov6, dtype=float).reshape(6, 6)[3:, 3:]
-        if not (np.all(np.isfinite(q_m)) and abs(np.linalg.norm(q_m) - 1) < 1e-6
-                and np.all(np.isfinite(R)) and np.all(np.linalg.eigvalsh(0.5 * (R + R.T)) > 0)):
+        if not (_finite(*q_m.tolist()) and abs(math.sqrt(float(q_m.dot(q_m))) - 1) < 1e-6
+                and self._usable(R)):
             self.rejected += 1
             return out
         if self.q is None:
@@ -309,6 +311,16 @@ class MEKF:
         else:
             self.rejected += 1           # older than the state: not in stamp order
         return out
+
+    def _usable(self, R):
+        """Whether ``R`` is finite and positive definite (the answer kept by its bytes)."""
+        key = R.tobytes()
+        ok = self._checked.get(key)
+        if ok is None:
+            ok = bool(np.all(np.isfinite(R)) and np.all(np.linalg.eigvalsh(0.5 * (R + R.T)) > 0))
+            if len(self._checked) < 64:
+                self._checked[key] = ok
+        return ok
 
     def _on_imu(self, t, wx, wy, wz, cov9, stamp):
         out = self._flush(t)
