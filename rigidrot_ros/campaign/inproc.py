@@ -12,7 +12,9 @@ messages, :func:`rigidrot_ros.run.generate.iter_serialized`, read back as messag
 estimates are kept as what a bag of them would give the scorer
 (:func:`rigidrot_ros.scoring.decode.message_rows`) and scored from there
 (:func:`rigidrot_ros.campaign.run.score_estimates`): no file. An object that also has
-``receive_arrays(arrays, order)`` is given the whole run at once instead, as arrays
+``receive_arrays(arrays, order)`` (defined by its class or a subclass of the one that
+defines ``receive`` and ``finish``: a subclass that changes how messages are taken is fed
+messages) is given the whole run at once instead, as arrays
 (:func:`rigidrot_ros.run.generate.run_arrays`, the sensor topics and ``'run'``, the run
 description) with the order its messages would arrive in
 (:func:`rigidrot_ros.run.feed.sensor_feed`), and returns its estimates as arrays
@@ -113,6 +115,26 @@ class _Watchdog:
 
 def _is_message(obj):
     return callable(getattr(type(obj), 'get_fields_and_field_types', None))
+
+
+def _owner(cls, name):
+    return next((c for c in cls.__mro__ if name in vars(c)), None)
+
+
+def _takes_arrays(filt):
+    """Whether ``filt`` is fed arrays: its ``receive_arrays`` is its messages' own.
+
+    A class that overrides ``receive`` or ``finish`` of a class with ``receive_arrays``
+    (a filter with a twist on the messages) is fed the messages: its arrays would skip
+    the twist.
+    """
+    if not callable(getattr(filt, 'receive_arrays', None)) or \
+            any(n in getattr(filt, '__dict__', {}) for n in ('receive', 'finish')):
+        return False
+    cls = type(filt)
+    arrays = _owner(cls, 'receive_arrays')
+    return arrays is not None and all(issubclass(arrays, _owner(cls, n))
+                                      for n in ('receive', 'finish'))
 
 
 class Estimates:
@@ -225,7 +247,7 @@ def run_inproc(spec, values, work, timing):
                 raise RunFailed(f'the factory made no estimator: its {type(filt).__name__} '
                                 f'has no {" and no ".join(m + "()" for m in missing)}',
                                 startup=True)
-            if not keep and callable(getattr(filt, 'receive_arrays', None)):
+            if not keep and _takes_arrays(filt):
                 return _feed_arrays(filt, spec, values, topic, timing, t0, where)
             if keep:
                 from rigidrot_ros.bag import BagWriter

@@ -21,17 +21,15 @@ import os
 import shutil
 import signal
 import subprocess
-import tempfile
 import time
 import traceback
 
 from rigidrot_ros.campaign.failure import RunFailed
 from rigidrot_ros.campaign.spec import draw_run, run_values
-from rigidrot_ros.campaign.workdir import claim_work_dir
+from rigidrot_ros.campaign.workdir import claim_domain, claim_work_dir
 from rigidrot_ros.runtime.processes import script, stop
 
-__all__ = ['run_one', 'RunFailed', 'score_bag', 'score_estimates', 'claim_domain',
-           'DOMAIN_WAIT_S']
+__all__ = ['run_one', 'RunFailed', 'score_bag', 'score_estimates']
 
 _SEC = 1_000_000_000
 
@@ -105,34 +103,6 @@ def _inproc(spec, values, work, timing, keep):
         return score_estimates(out)
     finally:
         timing['score_s'] = time.perf_counter() - t0
-
-
-#: Seconds a run waits for a free ROS domain.
-DOMAIN_WAIT_S = 600.0
-
-
-def claim_domain(base, span):
-    """Claim a ROS_DOMAIN_ID in ``[base, base + span)``: ``(domain, locked file)``.
-
-    One lock file per id (``flock``), so no other run on this machine holds it while the
-    file is open; waits :data:`DOMAIN_WAIT_S` at most for one to be free (RunFailed).
-    """
-    root = os.path.join(tempfile.gettempdir(), f'rigidrot_campaign_domains_{os.getuid()}')
-    os.makedirs(root, exist_ok=True)
-    end = time.monotonic() + DOMAIN_WAIT_S
-    while True:
-        for d in range(base, base + span):
-            fh = open(os.path.join(root, f'{d}.lock'), 'w')
-            try:
-                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                fh.close()
-                continue
-            return d, fh
-        if time.monotonic() > end:
-            raise RunFailed(f'no free ROS domain in [{base}, {base + span}) for '
-                            f'{DOMAIN_WAIT_S:g} s')
-        time.sleep(0.2)
 
 
 @contextlib.contextmanager

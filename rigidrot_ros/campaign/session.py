@@ -47,7 +47,7 @@ import tempfile
 import time
 
 from rigidrot_ros.campaign.failure import RunFailed
-from rigidrot_ros.campaign.run import claim_domain
+from rigidrot_ros.campaign.workdir import claim_domain
 
 __all__ = ['run_paced', 'Session', 'SENSORS', 'SCORED_TYPES', 'feed_topics', 'claim_domain',
            'STARTUP_S']

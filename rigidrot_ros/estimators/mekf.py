@@ -422,7 +422,7 @@ class MEKF:
         return out
 
     def _cov9(self, v):
-        """The gyro covariance a message of variance ``v`` carries, as the node writes it."""
+        """Return the gyro covariance a message of variance ``v`` carries (the node's)."""
         c = self._var.get(v)
         if c is None:
             c = np.array([v, 0.0, 0.0, 0.0, v, 0.0, 0.0, 0.0, v])
