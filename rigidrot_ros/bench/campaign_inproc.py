@@ -73,15 +73,27 @@ def _baseline_tree(ref, tmp):
 
 
 def _campaign(code, spec, out, runs):
-    """Run ``rigidrot_campaign`` of ``code`` (a directory on PYTHONPATH) into ``out``."""
+    """Run ``rigidrot_campaign`` of ``code`` (a directory on PYTHONPATH) into ``out``.
+
+    From the directory of ``out``: ``python -m`` puts its working directory first on the
+    path, so run from a checkout it would import that checkout's code, whatever
+    ``PYTHONPATH`` says.
+    """
     env = dict(os.environ, PYTHONPATH=code + (os.pathsep + os.environ['PYTHONPATH']
                                               if os.environ.get('PYTHONPATH') else ''))
     shutil.rmtree(out, ignore_errors=True)
+    where = subprocess.run([sys.executable, '-c',
+                            'import rigidrot_ros; print(rigidrot_ros.__file__)'],
+                           env=env, capture_output=True, text=True, cwd=os.path.dirname(out))
+    if not os.path.realpath(where.stdout.strip()).startswith(os.path.realpath(code) + os.sep):
+        raise RuntimeError(f'campaign_inproc: the way of {code} imports rigidrot_ros from '
+                           f'{where.stdout.strip() or where.stderr.strip()[-200:]}')
     load0 = os.getloadavg()[0]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, '-m', 'rigidrot_ros.tools.campaign', spec, '-o', out,
-                           '--quiet'], env=env, capture_output=True, text=True, cwd=ROOT)
+                           '--quiet'], env=env, capture_output=True, text=True,
+                          cwd=os.path.dirname(out))
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
