@@ -214,25 +214,38 @@ class MEKF:
         w = self.omega - self.beta
         x = math.sqrt(float(dot(w, w)))
         w0, w1, w2 = w.tolist()
-        Wl = ((0.0, -w2, w1), (w2, 0.0, -w0), (-w1, w0, 0.0))
-        W = np.array(Wl)
-        W2l = dot(W, W).tolist()
+        n0, n1, n2 = -w0, -w1, -w2
+        W = np.array(((0.0, n2, w1), (w2, 0.0, n0), (n1, w0, 0.0)))
+        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = dot(W, W).tolist()
         if x * dt < 1e-5:           # series of the coefficients below
             s1, s2, s3 = dt, dt * dt / 2, dt ** 3 / 6
         else:
             s1 = math.sin(x * dt) / x
             s2 = (1 - math.cos(x * dt)) / (x * x)
             s3 = (x * dt - math.sin(x * dt)) / x ** 3
-        rows = []
-        for i in range(3):
-            wr, w2r = Wl[i], W2l[i]
-            e = [0.0, 0.0, 0.0]
-            e[i] = 1.0
-            # Phi11 = I - W s1 + W^2 s2, Phi12 = W s2 - I dt - W^2 s3
-            rows.append([e[j] - wr[j] * s1 + w2r[j] * s2 for j in range(3)]
-                        + [wr[j] * s2 - e[j] * dt - w2r[j] * s3 for j in range(3)])
+        # Phi11 = I - W s1 + W^2 s2, Phi12 = W s2 - I dt - W^2 s3, every element written
+        # out with its zeros (the same operations as the matrix expressions, signed zeros
+        # included)
         phi = self._phi
-        phi[:3] = rows
+        phi[:3] = (
+            (1.0 - 0.0 * s1 + a0 * s2,
+             0.0 - n2 * s1 + a1 * s2,
+             0.0 - w1 * s1 + a2 * s2,
+             0.0 * s2 - 1.0 * dt - a0 * s3,
+             n2 * s2 - 0.0 * dt - a1 * s3,
+             w1 * s2 - 0.0 * dt - a2 * s3),
+            (0.0 - w2 * s1 + b0 * s2,
+             1.0 - 0.0 * s1 + b1 * s2,
+             0.0 - n0 * s1 + b2 * s2,
+             w2 * s2 - 0.0 * dt - b0 * s3,
+             0.0 * s2 - 1.0 * dt - b1 * s3,
+             n0 * s2 - 0.0 * dt - b2 * s3),
+            (0.0 - n1 * s1 + c0 * s2,
+             0.0 - w0 * s1 + c1 * s2,
+             1.0 - 0.0 * s1 + c2 * s2,
+             n1 * s2 - 0.0 * dt - c0 * s3,
+             w0 * s2 - 0.0 * dt - c1 * s3,
+             0.0 * s2 - 1.0 * dt - c2 * s3))
         P = dot(dot(phi, self.P), phi.T)
         P += self._q_noise(dt)
         P = P + P.T
