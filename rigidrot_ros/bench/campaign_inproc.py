@@ -40,7 +40,6 @@ __all__ = ['NAME', 'NEEDS', 'run', 'main', 'render_md', 'add_arguments', 'failed
 
 NAME = 'campaign_inproc'
 NEEDS = ('rclpy', 'yaml')
-KEYS = (NAME,)
 MEASURES = ('rigidrot_ros.campaign', 'rigidrot_ros.estimators.mekf', 'rigidrot_ros.scoring',
             'rigidrot_ros.run.feed')
 

@@ -232,3 +232,23 @@ def test_a_killed_pool_worker_stops_the_campaign_in_one_line(tmp_path, capsys, m
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and 'a worker of the process pool died' in err \
         and 'run the same command again' in err, err
+
+
+def test_in_process_workers_are_forked_from_a_client_without_threads():
+    import threading
+
+    from rigidrot_ros.campaign.engine import start_method
+    inproc = {'estimator': {'kind': 'inproc'}}
+    mixed = {'estimators': [{'kind': 'inproc'}, {'kind': 'ros'}]}
+    alone = threading.active_count() == 1
+    assert start_method(inproc) == ('fork' if alone and sys.platform.startswith('linux')
+                                    else 'spawn')
+    assert start_method({'estimator': {'kind': 'ros'}}) == start_method(mixed) == 'spawn'
+    stop = threading.Event()
+    th = threading.Thread(target=stop.wait)
+    th.start()
+    try:
+        assert start_method(inproc) == 'spawn'       # a fork would copy its locks
+    finally:
+        stop.set()
+        th.join()
