@@ -26,6 +26,7 @@ import collections
 import concurrent.futures as cf
 import csv
 import ctypes
+import gc
 import io
 import json
 import multiprocessing
@@ -248,8 +249,12 @@ def _warm():
 
 def _pool(spec, todo, bag_root, workers):
     method = start_method(spec)
-    if method == 'fork':
+    frozen = method == 'fork'
+    if frozen:
         _warm()
+        sys.stdout.flush()          # nothing buffered is written again by a worker
+        sys.stderr.flush()
+        gc.freeze()                 # the client's objects: no worker's collector walks them
     ctx = multiprocessing.get_context(method)
     n = workers or os.cpu_count() or 1
     ex = cf.ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_orphan_guard,
@@ -259,6 +264,9 @@ def _pool(spec, todo, bag_root, workers):
         while queue or pending:
             while queue and len(pending) < WINDOW_PER_WORKER * n:
                 pending.add(ex.submit(_pool_run, spec, queue.popleft(), bag_root))
+            if frozen:              # the workers are forked at the first submit
+                gc.unfreeze()
+                frozen = False
             done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
             for f in done:
                 try:
@@ -268,6 +276,8 @@ def _pool(spec, todo, bag_root, workers):
                                           'or out of memory?)') from None
                 yield result
     except BaseException:
+        if frozen:
+            gc.unfreeze()
         for f in pending:
             f.cancel()
         ex.shutdown(wait=False, cancel_futures=True)
