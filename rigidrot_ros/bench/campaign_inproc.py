@@ -216,10 +216,10 @@ def render_md(results):
         rows)
     notes = []
     if 'ratio' in res:
-        best = (f' ({res["ratio_best"]:.2f}× best against best)' if 'ratio_best' in res
+        best = (f'; {res["ratio_best"]:.2f}× best against best' if 'ratio_best' in res
                 else '')
         notes.append(f'now / before, measured in the same run: **{res["ratio"]:.2f}×** runs a '
-                     f'minute (medians){best}')
+                     f'minute (medians{best})')
     notes.append('report.json: ' + ('the same bytes every way and round'
                                     if res['same_report'] else '**differs**'))
     ph = (res['now'][0].get('phases') if res['now'] else None) or {}
