@@ -1,7 +1,7 @@
 """Benchmark part ``campaign_inproc``: the in-process MEKF campaign, runs a minute, old and new.
 
-``python -m rigidrot_ros.bench.campaign_inproc [--campaign-runs M] [--campaign-baseline REF]
-[--campaign-rounds N]`` (or ``rigidrot_bench --only campaign_inproc``) runs
+``python -m rigidrot_ros.bench.campaign_inproc [--inproc-runs M] [--inproc-baseline REF]
+[--inproc-rounds N]`` (or ``rigidrot_bench --only campaign_inproc``) runs
 ``doc/campaigns/mekf_tuned.yaml`` (the MEKF demo: M runs of 30 s, default the spec's 100,
 20 with ``--quick``) as the command ``rigidrot_campaign SPEC -o DIR --quiet`` in a child
 process on the default pool (one worker per core), start-up included (the interpreter,
@@ -114,15 +114,15 @@ def _phases(out, runs):
             if any(k in r for r in rows)}
 
 
-def run(quick=False, log=print, campaign_runs=None, campaign_baseline=None,
-        campaign_rounds=None):
+def run(quick=False, log=print, inproc_runs=None, inproc_baseline=None,
+        inproc_rounds=None):
     """Measure and return the figures (JSON-serialisable); ``quick``: 20 runs, one round."""
     import yaml
     with open(SPEC, encoding='utf-8') as fh:
         doc = yaml.safe_load(fh)
-    runs = int(campaign_runs or (20 if quick else doc['runs']))
-    rounds = int(campaign_rounds or (1 if quick else 3))
-    ref = campaign_baseline or BASELINE
+    runs = int(inproc_runs or (20 if quick else doc['runs']))
+    rounds = int(inproc_rounds or (1 if quick else 3))
+    ref = inproc_baseline or BASELINE
     res = {'quick': bool(quick), 'cores': os.cpu_count(), 'runs': runs, 'rounds': rounds,
            'spec': os.path.relpath(SPEC, ROOT), 'baseline': ref, 'quoted_before': QUOTED_BEFORE,
            'before': [], 'now': []}
@@ -162,14 +162,14 @@ def run(quick=False, log=print, campaign_runs=None, campaign_baseline=None,
 
 
 def add_arguments(ap):
-    """Add ``--campaign-runs``, ``--campaign-baseline`` and ``--campaign-rounds``."""
-    ap.add_argument('--campaign-runs', type=int, metavar='M',
+    """Add ``--inproc-runs``, ``--inproc-baseline`` and ``--inproc-rounds``."""
+    ap.add_argument('--inproc-runs', type=int, metavar='M',
                     help="campaign_inproc: runs a campaign (default: the spec's 100, 20 with "
                          '--quick)')
-    ap.add_argument('--campaign-baseline', metavar='REF',
+    ap.add_argument('--inproc-baseline', metavar='REF',
                     help=f'campaign_inproc: the commit measured as "before" (default '
                          f'{BASELINE})')
-    ap.add_argument('--campaign-rounds', type=int, metavar='N',
+    ap.add_argument('--inproc-rounds', type=int, metavar='N',
                     help='campaign_inproc: times each way runs, alternated (default 3, 1 '
                          'with --quick)')
 
