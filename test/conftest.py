@@ -1,8 +1,12 @@
 """Shared test helpers: seeded scenes per model, an independent DOP853 reference, a ROS domain."""
 
+import contextlib
 import faulthandler
 import math
+import os
+import signal
 import sys
+import tempfile
 
 import numpy as np
 import pytest
@@ -14,16 +18,110 @@ from ros_helpers import next_domain_id, ros_env
 
 # pytest-timeout (setup.cfg: 600 s) fails a hung test by name, but its timer is Python code:
 # a thread stuck in C holding the interpreter lock would stop it too. This one is not: 60 s
-# later the process prints every thread's stack and exits (xdist reports the crashed test).
-# A test given more time (``@pytest.mark.timeout(s)``) gets it here too.
+# later the process writes every thread's stack and exits (xdist reports the crashed test).
+# A test given more time (``@pytest.mark.timeout(s)``) gets it here too. A test process sent
+# SIGTERM writes its stacks first. Both go to a file of the worker's (a test's stderr is
+# captured, and lost with the process), which the controlling process prints when the
+# worker goes down.
 HARD_TIMEOUT_S = 660
+
+
+def _last_words_path(uid, worker):
+    return os.path.join(tempfile.gettempdir(), f'rigidrot-tests-{uid}-{worker}.txt')
+
+
+if os.environ.get('PYTEST_XDIST_WORKER'):
+    _LAST_WORDS = open(_last_words_path(os.environ.get('PYTEST_XDIST_TESTRUNUID', 'run'),
+                                        os.environ['PYTEST_XDIST_WORKER']), 'w')
+else:
+    _LAST_WORDS = sys.__stderr__
+faulthandler.register(signal.SIGTERM, file=_LAST_WORDS, all_threads=True, chain=True)
+
+
+# The process controlling ``-n 2`` adopts what a test process leaves running when it dies
+# (a node, a probe): the kernel reparents such orphans to it rather than to init, and it
+# ends them when the run ends, so that none holds the run's output open after it.
+_PR_SET_CHILD_SUBREAPER = 36                    # <linux/prctl.h>
+
+
+def _controls_workers(config):
+    return (not os.environ.get('PYTEST_XDIST_WORKER')
+            and bool(getattr(config.option, 'numprocesses', None)))
+
+
+def pytest_configure(config):
+    """Make the controlling process of ``-n`` the reaper of its test processes' orphans."""
+    if _controls_workers(config) and sys.platform.startswith('linux'):
+        import ctypes
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)
+
+
+def _children(pid):
+    """List the children of ``pid`` from /proc: (name, pid) pairs."""
+    out = []
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f'/proc/{entry}/stat', encoding='utf-8', errors='replace') as fh:
+                stat = fh.read()
+        except OSError:
+            continue
+        name, rest = stat[stat.index('(') + 1:stat.rindex(')')], stat[stat.rindex(')') + 2:]
+        if int(rest.split()[1]) == pid:
+            out.append((name, int(entry)))
+    return out
+
+
+def pytest_unconfigure(config):
+    """End the orphans adopted (controller); remove this worker's file of last words."""
+    if _controls_workers(config) and os.path.isdir('/proc'):
+        left = _children(os.getpid())
+        for _, pid in left:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+            with contextlib.suppress(OSError):
+                os.waitpid(pid, 0)
+        if left:
+            sys.__stderr__.write(f'ended {len(left)} processes left running by test processes: '
+                                 f'{", ".join(sorted({n for n, _ in left}))}\n')
+    if _LAST_WORDS is not sys.__stderr__:
+        faulthandler.unregister(signal.SIGTERM)
+        _LAST_WORDS.close()
+        with contextlib.suppress(OSError):
+            os.unlink(_LAST_WORDS.name)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """Say how a crashed xdist worker ended: its exit status and its last words."""
+    if not error:
+        return
+    popen = getattr(getattr(getattr(node, 'gateway', None), '_io', None), 'popen', None)
+    status = None
+    if popen is not None:
+        try:
+            status = popen.wait(timeout=5)
+        except Exception:   # noqa: B902 - a report only
+            status = popen.poll()
+    info = getattr(node, 'workerinput', {})
+    path = _last_words_path(info.get('testrunuid', 'run'), info.get('workerid', '?'))
+    try:
+        with open(path, encoding='utf-8', errors='replace') as fh:
+            words = fh.read()
+        os.unlink(path)
+    except OSError:
+        words = ''
+    sys.__stderr__.write(f'\n[{info.get("workerid", "?")}] worker process ended with status '
+                         f'{status} (negative: the signal)\n{words}')
 
 
 @pytest.fixture(autouse=True)
 def _hard_timeout(request):
     mark = request.node.get_closest_marker('timeout')
     hard = mark.args[0] + 60 if mark is not None and mark.args else HARD_TIMEOUT_S
-    faulthandler.dump_traceback_later(hard, exit=True, file=sys.__stderr__)
+    faulthandler.dump_traceback_later(hard, exit=True, file=_LAST_WORDS)
     yield
     faulthandler.cancel_dump_traceback_later()
 

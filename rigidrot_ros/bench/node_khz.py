@@ -1,4 +1,4 @@
-"""The node at IMU rates: truth and gyro at 1, 2 and 4 kHz, recording, as users run it.
+"""The node at IMU rates: truth and gyro at 1, 2, 4 and 8 kHz, recording, as users run it.
 
 Per rate R the installed ``attitude_node`` runs in its own process (the console script) on
 the default scene with ``imu.enable:=true``, ``publish_rate`` = ``imu.rate`` = R and
@@ -31,9 +31,10 @@ scheduling policy (``scheduling``: ``SCHED_FIFO <priority>`` where the system le
 one, else ``SCHED_OTHER``; see :mod:`rigidrot_ros.runtime.realtime`). A key the installed node
 does not report reads "n/a".
 
-Targets (issue 20): at 1 kHz 0 missed ticks and 0 late gyro samples after warm-up with
-the look-ahead on throughout; at 2 kHz at least 99 % of the ticks delivered; 4 kHz
-reported (moonshot: 99 %).
+Targets (issues 20 and 26): at 1 kHz 0 missed ticks and 0 late gyro samples after warm-up
+with the look-ahead on throughout; at 2 and 4 kHz at most :data:`LATE_SHARE_MAX` of the
+gyro samples late outside the machine's stalls, and 0 missed ticks; 8 kHz reported
+(moonshot: :data:`ON_TIME_MOONSHOT` of the gyro samples on time).
 """
 
 import json
@@ -59,7 +60,12 @@ MEASURES = ('rigidrot_ros.ros.cli', 'rigidrot_ros.ros.attitude_node')
 KEYS = ('node_khz',)
 
 #: The rates measured, Hz (truth and gyro alike).
-RATES = (1000, 2000, 4000)
+RATES = (1000, 2000, 4000, 8000)
+#: At 2 and 4 kHz at most this share of the gyro samples may be late outside the
+#: machine's own stalls (issue 26).
+LATE_SHARE_MAX = 1e-3
+#: At 8 kHz, the share of the gyro samples on time the moonshot asks for (issue 26).
+ON_TIME_MOONSHOT = 0.99
 #: Seconds after the first tick that do not count.
 WARMUP_S = 2.0
 #: Keys of a per-sensor wake-up latency p99 in the diagnostics.
@@ -72,7 +78,8 @@ def add_arguments(ap):
                     help='node_khz: measured seconds per rate after the 2 s warm-up '
                          '(default 60, 5 with --quick)')
     ap.add_argument('--khz-rate', type=common.positive_number, action='append', metavar='HZ',
-                    help='node_khz: a rate to measure (repeatable; default 1000 2000 4000)')
+                    help='node_khz: a rate to measure (repeatable; default 1000 2000 4000 '
+                         '8000)')
     ap.add_argument('--khz-domain', type=int, metavar='ID',
                     help='node_khz: ROS_DOMAIN_ID of the node and the diagnostics '
                          'subscriber (default: $ROS_DOMAIN_ID, else 0)')
@@ -378,11 +385,23 @@ def _verdict(rate, bag, diag):
                 and not diag.get('ticks_missed'):
             return target, f'not met (all {late} late in machine stalls)'
         return target, 'not met'
-    pct = bag.get('delivered_pct', math.nan)
-    target = '≥ 99 % delivered' if rate <= 2000 else '≥ 99 % delivered (moonshot)'
-    if not math.isfinite(pct):
+    missed = bag.get('ticks_missed')
+    if rate <= 4000:
+        # issue 26: lateness the node causes, told apart from the machine's stalls
+        target = f'≤ {LATE_SHARE_MAX:.1%} late gyro outside machine stalls, 0 missed'
+        late, asked = bag.get('gyro_late'), bag.get('gyro_asked')
+        if missed is None or late is None or not asked:
+            return target, 'n/a'
+        outside = late - (bag.get('gyro_late_machine') or 0)
+        ok = outside <= LATE_SHARE_MAX * asked and missed == 0 and \
+            diag.get('ticks_missed') in (0, None)
+        return target, 'met' if ok else f'not met ({100.0 * outside / asked:.3g} %)'
+    target = f'reported (moonshot: ≥ {ON_TIME_MOONSHOT:.0%} of the gyro samples on time)'
+    asked = bag.get('gyro_asked')
+    if not asked or bag.get('gyro_late') is None:
         return target, 'n/a'
-    return target, 'met' if pct >= 99.0 else 'not met'
+    on_time = (asked - bag.get('gyro_absent', 0) - bag['gyro_late']) / asked
+    return target, f'{"met" if on_time >= ON_TIME_MOONSHOT else "not met"} ({on_time:.3%} on time)'
 
 
 def _na(x, digits=3, unit=''):

@@ -10,7 +10,7 @@ preset scene (wall clock, ``perf_counter``):
    first call after 10 ms costs about 10x the second, and every step of it is slower, the
    pure-Python float arithmetic as much as numpy), so a 100 Hz timer pays it every tick;
 3. one 256-sample batch ``Solution.at(array)`` after a 10 ms gap, per sample: what the
-   node's look-ahead (:mod:`rigidrot_ros.runtime.lookahead`) pays instead;
+   node's look-ahead (:mod:`rigidrot_ros.runtime.ahead`) pays instead;
 4. the real ``AttitudeNode`` on that scene at 100 Hz with a subscriber to its two topics
    in the same process, as its own ``/diagnostics`` report it (1 s windows): evaluation
    (a tick's sample from the look-ahead buffer), the whole tick up to publication, the
@@ -102,11 +102,12 @@ def in_node(scene, seconds, lookahead=True):
     from rclpy.parameter import Parameter
 
     from rigidrot_ros.ros import attitude_node as an
+    from rigidrot_ros.run import truth_ahead    # where the node's truth builds its look-ahead
 
     rclpy.init()
-    saved = an.Lookahead
+    saved = truth_ahead.Lookahead
     if not lookahead:
-        an.Lookahead = _no_lookahead(saved)
+        truth_ahead.Lookahead = _no_lookahead(saved)
     try:
         params = dict(scene.as_dict(), publish_rate=100.0)
         node = an.AttitudeNode(
@@ -129,7 +130,7 @@ def in_node(scene, seconds, lookahead=True):
         sub.destroy_node()
         return diags[1:], got[0]              # the first window holds the start-up
     finally:
-        an.Lookahead = saved
+        truth_ahead.Lookahead = saved
         rclpy.try_shutdown()
 
 

@@ -158,16 +158,9 @@ def main(argv=None):
 def _run(params, ros_args):
     import signal
 
-    from geometry_msgs.msg import PoseWithCovarianceStamped
-    from nav_msgs.msg import Odometry
     import rclpy
-    from rclpy.duration import Duration
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import Imu
-    from std_srvs.srv import Trigger
 
-    from rigidrot_ros.estimators.mekf import MEKF
     from rigidrot_ros.ros.spin import init_ros
 
     reason = init_ros('rigidrot_mekf', ros_args)
@@ -182,81 +175,14 @@ def _run(params, ros_args):
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)   # in place of rclpy's: ROS stays up to publish
     node = rclpy.create_node('mekf')
-    qos = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    pub = node.create_publisher(Odometry, 'estimator/odom', qos)
-    state = {}
-
-    def feed(topic, msg):
-        for out in state['filter'].receive(topic, msg):
-            pub.publish(out)
-
-    def start():
-        state['filter'] = MEKF(params)
-        state['order'] = StampOrder(feed, (params.imu_topic, params.star_tracker_topic))
-    start()
-    subs = []
-
-    from rclpy.serialization import deserialize_message
-
-    def push(topic, data, kind, msg_type):
-        msg = cdr_view(kind, data)
-        if msg is None:
-            msg = deserialize_message(data, msg_type)
-        state['order'].push(topic, msg.header.stamp.sec * 1_000_000_000
-                            + msg.header.stamp.nanosec, msg)
-
-    def take_waiting():
-        """Take every message already delivered to the subscriptions."""
-        more = True
-        while more:
-            more = False
-            for topic, kind, sub in subs:
-                with sub.handle:
-                    got = sub.handle.take_message(sub.msg_type, sub.raw)
-                if got is not None:
-                    push(topic, got[0], kind, sub.msg_type)
-                    more = True
-
-    def on(topic, kind, msg_type):
-        def cb(data):
-            push(topic, data, kind, msg_type)
-            take_waiting()
-        return cb
-
-    def flush():
-        """Feed everything delivered and held; publish the last estimates; wait for acks."""
-        take_waiting()
-        state['order'].drain()
-        n = 0
-        for out in state['filter'].finish():
-            pub.publish(out)
-            n += 1
-        pub.wait_for_all_acked(Duration(seconds=1.0))
-        return n
-
-    def on_reset(request, response):
-        n, updates = flush(), state['filter'].updates
-        start()
-        response.success = True
-        response.message = f'reset ({updates} star tracker updates, {n} last estimates)'
-        return response
-
-    in_qos = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE)
-    for topic, kind, msg_type in ((params.imu_topic, 'imu', Imu),
-                                  (params.star_tracker_topic, 'star_tracker',
-                                   PoseWithCovarianceStamped)):
-        subs.append((topic, kind, node.create_subscription(
-            msg_type, kind, on(topic, kind, msg_type), in_qos, raw=True)))
-    node.create_service(Trigger, '~/reset', on_reset)
-    node.create_timer(0.2, lambda: state['order'].release_old())
+    mekf = _MekfNode(node, params)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
         while not stop and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
         if rclpy.ok():
-            flush()
+            mekf.flush()
     except KeyboardInterrupt:
         pass
     finally:
@@ -264,6 +190,91 @@ def _run(params, ros_args):
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+class _MekfNode:
+    """The MEKF on ``node``: raw subscriptions in stamp order, ``estimator/odom``, ``~/reset``."""
+
+    def __init__(self, node, params):
+        from geometry_msgs.msg import PoseWithCovarianceStamped
+        from nav_msgs.msg import Odometry
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.serialization import deserialize_message
+        from sensor_msgs.msg import Imu
+        from std_srvs.srv import Trigger
+
+        self.params, self._deserialize = params, deserialize_message
+        qos = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub = node.create_publisher(Odometry, 'estimator/odom', qos)
+        self.start()
+        self.subs = []
+        in_qos = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE)
+        for topic, kind, msg_type in ((params.imu_topic, 'imu', Imu),
+                                      (params.star_tracker_topic, 'star_tracker',
+                                       PoseWithCovarianceStamped)):
+            self.subs.append((topic, kind, node.create_subscription(
+                msg_type, kind, self._on(topic, kind, msg_type), in_qos, raw=True)))
+        node.create_service(Trigger, '~/reset', self.on_reset)
+        node.create_timer(0.2, lambda: self.order.release_old())
+
+    def start(self):
+        """Start a fresh filter and a fresh stamp order."""
+        from rigidrot_ros.estimators.mekf import MEKF
+        self.filter = MEKF(self.params)
+        self.order = StampOrder(self.feed, (self.params.imu_topic,
+                                            self.params.star_tracker_topic))
+
+    def feed(self, topic, msg):
+        """Give the filter one message in stamp order; publish what it answers."""
+        for out in self.filter.receive(topic, msg):
+            self.pub.publish(out)
+
+    def push(self, topic, data, kind, msg_type):
+        """Decode one raw message (a view of its CDR where it can) into the stamp order."""
+        msg = cdr_view(kind, data)
+        if msg is None:
+            msg = self._deserialize(data, msg_type)
+        self.order.push(topic, msg.header.stamp.sec * 1_000_000_000
+                        + msg.header.stamp.nanosec, msg)
+
+    def take_waiting(self):
+        """Take every message already delivered to the subscriptions."""
+        more = True
+        while more:
+            more = False
+            for topic, kind, sub in self.subs:
+                with sub.handle:
+                    got = sub.handle.take_message(sub.msg_type, sub.raw)
+                if got is not None:
+                    self.push(topic, got[0], kind, sub.msg_type)
+                    more = True
+
+    def _on(self, topic, kind, msg_type):
+        def cb(data):
+            self.push(topic, data, kind, msg_type)
+            self.take_waiting()
+        return cb
+
+    def flush(self):
+        """Feed everything delivered and held; publish the last estimates; wait for acks."""
+        from rclpy.duration import Duration
+        self.take_waiting()
+        self.order.drain()
+        n = 0
+        for out in self.filter.finish():
+            self.pub.publish(out)
+            n += 1
+        self.pub.wait_for_all_acked(Duration(seconds=1.0))
+        return n
+
+    def on_reset(self, request, response):
+        """Flush the run so far, then start a fresh filter (``~/reset``)."""
+        n, updates = self.flush(), self.filter.updates
+        self.start()
+        response.success = True
+        response.message = f'reset ({updates} star tracker updates, {n} last estimates)'
+        return response
 
 
 if __name__ == '__main__':

@@ -44,7 +44,7 @@ from rigidrot_ros.run.params import BY_NAME, PARAMS
 from rigidrot_ros.run.schedule import Schedule
 from rigidrot_ros.run.sensor_ahead import Sensor
 from rigidrot_ros.runtime import collector, diagnostics, realtime, switches
-from rigidrot_ros.runtime.lookahead import BatchWorker
+from rigidrot_ros.runtime.worker import BatchWorker
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
 
@@ -84,7 +84,7 @@ class AttitudeNode(Node):
         self._passes = collector.Passes()
         #: The publishing thread's scheduling policy (realtime.request; diagnostics)
         self._scheduling = realtime.describe()
-        #: Runs the look-ahead batches off the executor's thread (lookahead.BatchWorker)
+        #: Runs the look-ahead batches off the executor's thread (worker.BatchWorker)
         self._worker = BatchWorker() if switches.lookahead_worker() else None
         self._gate_last = (0, 0)        # the worker gate's holds and ns at the last report
         self.add_on_set_parameters_callback(self._on_set)

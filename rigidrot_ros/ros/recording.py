@@ -27,7 +27,7 @@ RECORD_FLUSH_S = 0.1
 def open_recorder(node, values, worker=None):
     """Return a :class:`Recorder` of ``node`` into a new bag (``record_path``, ``record_topics``).
 
-    ``worker``: the node's :class:`rigidrot_ros.runtime.lookahead.BatchWorker`, if it has one;
+    ``worker``: the node's :class:`rigidrot_ros.runtime.worker.BatchWorker`, if it has one;
     the writer then closes its chunks there (``BagWriter(offload=worker.call)``, outside the
     worker's evaluation lock; its gate opened where the node waits for a chunk write),
     unless ``RIGIDROT_RECORD_OFFLOAD=0``. Raises :class:`SceneError` naming the path or the

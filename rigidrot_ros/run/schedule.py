@@ -177,7 +177,7 @@ class Schedule:
         return ', '.join(ran)
 
     def open_gate(self, c_tick, now_ns, c_end):
-        """Let the worker run until shortly before the next call (lookahead.SlackGate).
+        """Let the worker run until shortly before the next call (gate.SlackGate).
 
         For good while a stream's batch in the worker is needed soon (``Ahead.urgent``).
         ``c_tick``, ``c_end``: the call's start and end (perf_counter ns); ``now_ns``: its

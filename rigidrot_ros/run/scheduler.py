@@ -178,7 +178,7 @@ def next_batch(streams, behind=False):
     Parameters
     ----------
     streams : list of (ahead, last, rate)
-        Each stream's look-ahead (:class:`~rigidrot_ros.runtime.lookahead.Ahead`), the index
+        Each stream's look-ahead (:class:`~rigidrot_ros.runtime.ahead.Ahead`), the index
         of its last published sample, and its rate (Hz); ties go to the first.
     behind : bool
         This call came late (a catch-up); then the batch waits for a later call unless its

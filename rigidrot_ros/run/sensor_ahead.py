@@ -3,7 +3,7 @@
 :class:`Sensor` serves a sensor output of the table (:class:`rigidrot_ros.run.output.SensorOutput`)
 on the node's schedule: its grid and timing model (:class:`~rigidrot_ros.run.scheduler.Track`),
 its samples read ahead in blocks by its kind (:meth:`SensorOutput.sample`, through
-:class:`~rigidrot_ros.runtime.lookahead.SensorAhead`), their messages encoded a batch at a
+:class:`~rigidrot_ros.runtime.ahead.SensorAhead`), their messages encoded a batch at a
 time by its kind (:meth:`Output.build`: CDR, one call per topic), the samples due at a
 scheduler call, and its latency and drop counts for the diagnostics. The schedule
 (:mod:`rigidrot_ros.run.schedule`) creates one per sensor at a run's ``t_start``.
@@ -15,7 +15,7 @@ from rigidrot_ros.run import scheduler
 from rigidrot_ros.run.output import scene_time
 from rigidrot_ros.run.settings import SAMPLE_BUDGET_S
 from rigidrot_ros.runtime import diagnostics
-from rigidrot_ros.runtime.lookahead import SensorAhead
+from rigidrot_ros.runtime.ahead import SensorAhead
 
 __all__ = ['Sensor']
 

@@ -5,7 +5,7 @@ attitude and angular_velocity, and transform, odom, markers where on) at the tru
 ticks: tick j of a grid anchored at ``g`` is stamped ``g + j / publish_rate``
 (:mod:`rigidrot_ros.run.grid`) and holds the scene at ``(stamp - t_start) * time_scale``.
 The coming ticks' samples are evaluated ahead in batches
-(:class:`~rigidrot_ros.runtime.lookahead.Lookahead`: one ``solution.at`` a batch) and
+(:class:`~rigidrot_ros.runtime.ahead.Lookahead`: one ``solution.at`` a batch) and
 their messages encoded there by the kinds (:meth:`Output.build`, CDR, one call per topic),
 so a tick takes its bytes from the buffer.
 """
@@ -16,7 +16,7 @@ import numpy as np
 
 from rigidrot_ros.run import grid
 from rigidrot_ros.run.output import scene_time
-from rigidrot_ros.runtime.lookahead import Lookahead
+from rigidrot_ros.runtime.ahead import Lookahead
 
 __all__ = ['TruthAhead']
 

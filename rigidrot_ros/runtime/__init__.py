@@ -1,7 +1,8 @@
 """Runtime mechanisms of a live run, with no ROS and no model of their own.
 
-``lookahead`` (the batch worker that evaluates ahead of the publishing thread, and its
-slack gate), ``collector`` (the garbage collector held out of the hot path),
+``ahead`` (every stream's samples evaluated ahead in batches), ``worker`` (the thread
+that runs those batches off the publishing thread), ``gate`` (that worker held to the
+publishing thread's slack), ``collector`` (the garbage collector held out of the hot path),
 ``realtime`` (real-time scheduling policy where permitted), ``diagnostics`` (timing
 windows reported on ``/diagnostics``), ``switches`` (every environment variable the
 package reads, read there alone) and ``processes`` (a console script found and a child

@@ -25,7 +25,7 @@ started);
 ``publish_rate_hz`` and ``delivered_rate_hz``. The node adds ``scheduling`` (its
 policy, :mod:`~rigidrot_ros.runtime.realtime`) and ``worker_gate`` (the look-ahead worker
 held to the scheduler's slack over the window,
-:class:`~rigidrot_ros.runtime.lookahead.SlackGate`: ``<n> holds, <ms> ms``; ``open`` where
+:class:`~rigidrot_ros.runtime.gate.SlackGate`: ``<n> holds, <ms> ms``; ``open`` where
 it is not held, e.g. below a 1 ms period; ``off`` with ``RIGIDROT_WORKER_GATE=0`` or no
 worker).
 

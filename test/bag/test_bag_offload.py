@@ -14,7 +14,7 @@ from record_helpers import _Disk, _Thread
 from rigidrot_ros.bag import BagWriter, read_bag
 from rigidrot_ros.bag import writer as bagmod
 from rigidrot_ros.bag.metadata import MAX_PENDING_CHUNKS
-from rigidrot_ros.runtime.lookahead import BatchWorker
+from rigidrot_ros.runtime.worker import BatchWorker
 
 _NEVER = 1e9                    # no flush by the clock: chunks close by size and by flush()
 

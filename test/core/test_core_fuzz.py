@@ -419,18 +419,19 @@ def _run(n, seed, monkeypatch):
 
 
 @pytest.mark.filterwarnings('error::RuntimeWarning')      # no numpy overflow, silently
-def test_core_fuzz_10000_scenes(monkeypatch):
-    stats = _run(10000, 20261122, monkeypatch)
+def test_core_fuzz_5000_scenes(monkeypatch):
+    """5000 scenes in the default suite; ``-m fuzz`` runs 50 000 more."""
+    stats = _run(5000, 20261122, monkeypatch)
     c = stats.counts
     # the draw reaches every closed form and refusals of each kind
     for key in ('checked: fixed-axis closed form', 'checked: torque-free-sphere closed form',
                 'checked: torque-free-axisymmetric closed form',
                 'checked: DOP853 (torque, moderate)'):
-        assert c.get(key, 0) >= 100, (key, c)
-    assert sum(v for k, v in c.items() if k.startswith('accepted')) >= 3000, c
+        assert c.get(key, 0) >= 50, (key, c)
+    assert sum(v for k, v in c.items() if k.startswith('accepted')) >= 1500, c
     for key in ('refused at solve: NoExactSolution', 'refused at at(t): PrecisionError',
                 'refused at Scene: ValueError'):
-        assert c.get(key, 0) >= 10, (key, c)
+        assert c.get(key, 0) >= 5, (key, c)
 
 
 @pytest.mark.fuzz

@@ -18,7 +18,7 @@ def test_core_imports_without_rclpy():
         from rigidrot_ros.core import Scene, solve
         sol = solve(Scene(inertia=(2, 2, 1), torque=(0, 0, 0.1), omega0=(0.3, -0.2, 0.5)))
         sol.at([0.0, 1.0])
-        from rigidrot_ros.runtime.lookahead import Lookahead     # the node's pure part too
+        from rigidrot_ros.runtime.ahead import Lookahead     # the node's pure part too
         la = Lookahead(sol, lambda k: 0.01 * k, 0.01)
         la.get(0)
         la.refill(0)

@@ -124,7 +124,7 @@ def test_the_table_settings_and_the_node_parts_import_without_rclpy():
             'import rigidrot_ros.run.params, rigidrot_ros.run.settings\n'
             'import rigidrot_ros.run.grid, rigidrot_ros.run.table, rigidrot_ros.run.output\n'
             'import rigidrot_ros.run.outputs, rigidrot_ros.runtime.diagnostics\n'
-            'import rigidrot_ros.runtime.lookahead, rigidrot_ros.run.scheduler\n'
+            'import rigidrot_ros.runtime.ahead, rigidrot_ros.run.scheduler\n'
             'import rigidrot_ros.run.sensor_ahead, rigidrot_ros.run.truth_ahead\n'
             'import rigidrot_ros.run.schedule, rigidrot_ros.run.generate\n'
             'import rigidrot_ros.msgs.template\n'

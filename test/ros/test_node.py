@@ -159,13 +159,26 @@ def test_diagnostics_report_model_costs_and_ticks():
     sub.destroy_node()
 
 
+def _now_ns():
+    return rclpy.clock.Clock().now().nanoseconds
+
+
+def _after(messages, t_ns):
+    """The messages stamped after ``t_ns``: those published after a change made then.
+
+    A tick is stamped with its grid time and published at or after it, so a message still
+    in flight when the change was made carries a stamp no later than the change.
+    """
+    return [m for m in messages if stamp_ns(m) > t_ns]
+
+
 def test_publish_rate_change_takes_effect_at_once():
     node, ex, lis = _listening(publish_rate=100.0)
     _spin_until(ex, lambda: len(lis.att) >= 10)
+    before = _now_ns()          # ticks published before the change: stamped no later
     assert node.set_parameters([Parameter('publish_rate', value=20.0)])[0].successful
-    n0 = len(lis.att)
-    _spin_until(ex, lambda: len(lis.att) >= n0 + 12)
-    stamps = [stamp_ns(m) for m in lis.att[n0 + 1:]]
+    _spin_until(ex, lambda: len(_after(lis.att, before)) >= 12)
+    stamps = [stamp_ns(m) for m in _after(lis.att, before)]
     gaps = np.diff(stamps) * 1e-9
     assert np.median(gaps) == pytest.approx(0.05, abs=0.01)
     node.destroy_node()
@@ -191,12 +204,13 @@ def test_frame_id_change_applies_at_once_to_messages_built_ahead():
     node, ex, lis = _listening(publish_rate=100.0)
     _spin_until(ex, lambda: len(lis.att) >= 40)     # the buffer holds built messages now
     assert len(node._schedule.truth.ahead) > 0
+    before = _now_ns()
     assert node.set_parameters([Parameter('frame_id', value='world'),
                                 Parameter('body_frame_id', value='base_link')])[0].successful
-    n0 = len(lis.att)
-    _spin_until(ex, lambda: len(lis.att) >= n0 + 3 and len(lis.rate) >= n0 + 3)
-    assert {m.header.frame_id for m in lis.att[n0 + 1:]} == {'world'}
-    assert {m.header.frame_id for m in lis.rate[n0 + 1:]} == {'base_link'}
+    _spin_until(ex, lambda: len(_after(lis.att, before)) >= 3
+                and len(_after(lis.rate, before)) >= 3)
+    assert {m.header.frame_id for m in _after(lis.att, before)} == {'world'}
+    assert {m.header.frame_id for m in _after(lis.rate, before)} == {'base_link'}
     node.destroy_node()
 
 
@@ -204,14 +218,14 @@ def test_rate_change_anchors_a_new_grid_on_the_same_scene_clock():
     node, ex, lis = _listening(publish_rate=100.0, time_scale=1.0)
     _spin_until(ex, lambda: len(lis.att) >= 10)
     start = node._schedule.t_start_ns
+    before = _now_ns()
     assert node.set_parameters([Parameter('publish_rate', value=40.0)])[0].successful
-    n0 = len(lis.att)
-    _spin_until(ex, lambda: len(lis.att) >= n0 + 8)
+    _spin_until(ex, lambda: len(_after(lis.att, before)) >= 8)
     assert node._schedule.t_start_ns == start        # the scene time runs on
-    later = np.array([stamp_ns(m) for m in lis.att[n0 + 1:]])
+    later = np.array([stamp_ns(m) for m in _after(lis.att, before)])
     assert np.all(np.diff(later) % 25_000_000 == 0) and np.all(np.diff(later) > 0)
     sol = node.solution
-    for m in lis.att[n0 + 1:]:
+    for m in _after(lis.att, before):
         t = (stamp_ns(m) - start) * 1e-9
         q = np.array([m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w])
         assert quat.angle_between(q, sol.at(t).quaternion) <= 2e-12
@@ -263,7 +277,12 @@ def test_use_sim_time_switched_on_while_running_moves_the_stamps_to_the_sim_cloc
     ex.add_node(clock_node)
     sim_ns = 100_000_000_000
     end = wall + 20e9
-    while len(lis.att) < n_before + 15 and rclpy.clock.Clock().now().nanoseconds < end:
+
+    def on_sim():           # stamps after the switch that are in sim time
+        return sum(stamp_ns(m) < 1_000_000_000_000 for m in lis.att[n_before:])
+    # ticks already due on the system clock may still come first: wait for ten in sim time
+    while ((len(lis.att) < n_before + 15 or on_sim() < 10)
+           and rclpy.clock.Clock().now().nanoseconds < end):
         sim_ns += 1_000_000
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = divmod(sim_ns, 1_000_000_000)

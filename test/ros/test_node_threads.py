@@ -9,7 +9,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 import pytest
 
 from rigidrot_ros.runtime import realtime
-from rigidrot_ros.runtime.lookahead import AHEAD_MAX
+from rigidrot_ros.runtime.ahead import AHEAD_MAX
 from ros_helpers import node_and_listener, read_node_bag, reset_twice, spin_until
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('ros_context')]

@@ -17,7 +17,7 @@ from sensor_msgs.msg import Imu, MagneticField
 from rigidrot_ros.msgs import messages as msgs
 from rigidrot_ros.run import grid, outputs, params, settings
 from rigidrot_ros.run.scheduler import timing_of, Track
-from rigidrot_ros.runtime.lookahead import AHEAD_MIN
+from rigidrot_ros.runtime.ahead import AHEAD_MIN
 from ros_helpers import node_and_listener, NODE_SCENE, spin_until, stamp_ns
 from run_helpers import per_sample, sensors
 

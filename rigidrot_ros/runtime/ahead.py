@@ -29,49 +29,28 @@ noise stream ran on: each sample is read exactly once), then each sample is eval
 when it is due (the truth: one scalar call; a sensor: its per-sample reader).
 
 Each buffered truth sample is the same exact solution, with its own error bound, as a
-scalar call at that time would give (both within the bound; the last bits may differ).
 
-**Off the publishing thread.** With a :class:`BatchWorker` (the node has one), a batch
-that :meth:`Ahead.refill` starts runs in the worker's thread: the indices are reserved at
-once, and the publishing thread takes the results in when it next touches that buffer, so
-a batch no longer holds the executor (a gyro batch has a fixed part of ~0.6 ms, past
-half a period at 1 kHz). There the next batch starts when a whole batch, and at least
-:data:`WORKER_AHEAD_S` of samples, is left (not half a batch), and a batch beyond its
-budget is no strike. Its batches are :data:`WORKER_BATCH` samples (the fixed part paid
-once per 256; fewer only where the cost model predicts more than :data:`WORKER_BUDGET_S`
-of CPU). Only one evaluation runs at a
-time (:attr:`BatchWorker.lock`: the core's caches, a sensor's noise stream and mpmath's
-working precision are not thread-safe): an index asked for while its batch runs waits for
-it, and the publishing thread's own evaluations (a miss, a catch-up) take the lock. A
-sensor's samples are still read in index order, each once. The process's thread switch
-interval is lowered (:data:`SWITCH_INTERVAL_S`) so that the publishing thread gets the
-interpreter within that time of its wake-up while a batch runs. The node's diagnostics
-report is built in the worker too (:meth:`BatchWorker.call`).
-
-**In the scheduler's slack.** Sharing the interpreter still cost the publishing thread:
-handed back and forth every 0.1 ms, a call of 60 µs took up to 1.7 ms beside a batch. So
-where the scheduler's period is at least :data:`GATE_MIN_PERIOD_S` the worker runs only
-between the end of one call and shortly before the next (:class:`SlackGate`), unless a
-batch is needed soon (:meth:`Ahead.urgent`); the publishing thread never waits on a held
-worker (it opens the gate first).
+**Off the publishing thread.** With a :class:`~rigidrot_ros.runtime.worker.BatchWorker`
+(the node has one), a batch that :meth:`Ahead.refill` starts runs in the worker. There the
+next batch starts when a whole batch, and at least :data:`WORKER_AHEAD_S` of samples, is
+left (not half a batch), and a batch beyond its budget is no strike. Its batches are
+:data:`WORKER_BATCH` samples (the fixed part paid once per 256; fewer only where the cost
+model predicts more than :data:`WORKER_BUDGET_S` of CPU).
 """
 
 import abc
 import contextlib
-import queue
-import sys
 import threading
 import time
 
 import numpy as np
 
 from rigidrot_ros.runtime import switches
+from rigidrot_ros.runtime.gate import GATE_URGENT_S
 
-__all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'BatchWorker', 'AHEAD_MIN', 'AHEAD_MAX',
+__all__ = ['Ahead', 'Lookahead', 'SensorAhead', 'AHEAD_MIN', 'AHEAD_MAX',
            'BATCH_BUDGET_S', 'PERIOD_SHARE', 'LATE_SHARE', 'AMORTIZE', 'STRIKES', 'WARMUP_S',
-           'SWITCH_INTERVAL_S', 'WORKER_AHEAD_S', 'WORKER_BATCH',
-           'WORKER_BUDGET_S', 'SlackGate', 'GATE_GUARD_S', 'GATE_HOLD_MAX_S',
-           'GATE_URGENT_S', 'GATE_MIN_PERIOD_S']
+           'WORKER_AHEAD_S', 'WORKER_BATCH', 'WORKER_BUDGET_S']
 
 #: The first batch's size, and the smallest.
 AHEAD_MIN = 8
@@ -100,7 +79,8 @@ WARMUP_S = 2.0
 #: under 32 samples (traced at 1 kHz, 20 s, under load: 505 batches, 0.85 s of the worker's
 #: time), and 30 of that run's 34 late gyro samples waited while one ran: the worker and
 #: the publishing thread share the interpreter, which changes hands every
-#: :data:`SWITCH_INTERVAL_S`, so the publishing call runs at about half speed meanwhile.
+#: :data:`~rigidrot_ros.runtime.worker.SWITCH_INTERVAL_S`, so the publishing call runs at
+#: about half speed meanwhile.
 #: Fixed-size batches pay the fixed part once per 256 samples, as far as
 #: :data:`WORKER_BUDGET_S` allows.
 WORKER_BATCH = AHEAD_MAX
@@ -114,137 +94,6 @@ _HISTORY = 8
 #: buffered (measured: calls waited 4 to 11 ms for batches of 8 to 16 samples at 1 kHz,
 #: under load, when they started with a batch left).
 WORKER_AHEAD_S = 0.05
-#: The interpreter's thread switch interval with a worker (``sys.setswitchinterval``; 5 ms
-#: by default: the publishing thread would wait that long for a running batch).
-SWITCH_INTERVAL_S = 1e-4
-
-
-#: The worker stops this long before the publishing thread's next call is due (at most
-#: :data:`_GUARD_SHARE` of the scheduler's period): the publishing thread wakes to a free
-#: interpreter, not to one the worker holds.
-GATE_GUARD_S = 2e-4
-_GUARD_SHARE = 0.4
-#: Top-level packages whose code the worker is never held in: they hold locks across
-#: Python code (threading's conditions and events, queue, the import system, logging's
-#: handlers, numba's compiler lock), and a held worker would keep them from the thread
-#: that waits for it.
-_NO_HOLD = frozenset({'threading', 'queue', 'importlib', 'logging', 'numba', 'llvmlite',
-                      'concurrent'})
-#: The gate holds the worker only where the scheduler's period is at least this long:
-#: at 2 kHz the slack between two calls (a period less the call, the executor's own
-#: work and the guard: ~0.15 ms) did not fit the worker's batches (measured: batches of
-#: ~200 samples took 38 ms of wall time instead of ~4, the publishing thread waited for
-#: them, 2025 late gyro samples in 20 s against ~260 without the gate).
-GATE_MIN_PERIOD_S = 1e-3
-#: A stream with a batch in the worker and less than this many seconds of samples
-#: buffered before it makes the gate open for good until the batch is in
-#: (:meth:`Ahead.urgent`): a worker held to the slack must never make the publishing
-#: thread wait for its batch.
-GATE_URGENT_S = 0.02
-#: The longest the worker waits for the publishing thread to open the gate again; past it
-#: (the scheduler stopped: a reset, a shutdown) the worker goes on for as long again.
-GATE_HOLD_MAX_S = 0.02
-
-
-class SlackGate:
-    """The worker's work, held to the publishing thread's slack between two calls.
-
-    The worker and the publishing thread share the interpreter. While a batch runs, the
-    interpreter changes hands every :data:`SWITCH_INTERVAL_S`, and each hand-over makes the
-    publishing thread wait for the next: traced at 1 kHz, a call of 60 µs took 0.5 to
-    1.7 ms while a batch ran beside it, and most of the samples published more than a
-    period late waited so (with the diagnostics report, built in the worker too). Yet the
-    worker has little to do: at 1 kHz about 15 ms of CPU a second.
-
-    So the worker runs only where the publishing thread has nothing to do. At the end of
-    each call the scheduler opens the gate until shortly before its next call is due
-    (:meth:`open_until`: :data:`GATE_GUARD_S` before, at most :data:`_GUARD_SHARE` of a
-    period). The worker checks the gate at every Python and C call it makes (:meth:`profile`,
-    the worker thread's ``sys.setprofile``: no yield points written into the models), and
-    past the deadline waits, without the interpreter, until the scheduler opens it again.
-
-    The publishing thread never waits on a held worker: where it needs the worker's result
-    now (a sample whose batch still runs, the evaluation lock, a drain) it opens the gate
-    first (:meth:`open`). A worker held for :data:`GATE_HOLD_MAX_S` (the scheduler stopped
-    calling) goes on, for as long again. ``RIGIDROT_WORKER_GATE=0`` leaves the gate open.
-
-    ``clock``: ns, monotonic (the deadlines' clock). :attr:`holds` counts the waits,
-    :attr:`held_ns` sums them.
-    """
-
-    #: The deadline of a gate open for good.
-    FREE = (1 << 63) - 1
-
-    def __init__(self, clock=time.perf_counter_ns, hold_max_s=GATE_HOLD_MAX_S, on=None):
-        self.on = switches.worker_gate() if on is None else bool(on)
-        self._clock = clock
-        self._hold_max_ns = int(hold_max_s * 1e9)
-        self._deadline = self.FREE
-        self._cond = threading.Condition(threading.Lock())
-        self._waiting = False
-        self.holds = 0
-        self.held_ns = 0
-
-    @property
-    def deadline(self):
-        """The time (``clock``) until which the worker may run; :data:`FREE` if open for good."""
-        return self._deadline
-
-    def open_until(self, deadline_ns):
-        """Let the worker run until ``deadline_ns`` (``clock``; the publishing thread)."""
-        self._deadline = int(deadline_ns) if self.on else self.FREE
-        if self._waiting:
-            with self._cond:
-                self._cond.notify_all()
-
-    def open(self):
-        """Let the worker run until the next :meth:`open_until` (the caller waits for it)."""
-        self.open_until(self.FREE)
-
-    def check(self):
-        """In the worker: return at once if the gate is open, else wait until it opens."""
-        if self._clock() >= self._deadline:
-            self._hold()
-
-    def profile(self, frame, event, arg):
-        """``sys.setprofile`` function of the worker thread: :meth:`check` at every event.
-
-        Not in the code of a package that holds a lock the publishing thread may take
-        (:data:`_NO_HOLD`: an ``Event.set`` held half way kept its lock from the thread
-        waiting on the event, until the hold timed out).
-        """
-        if self._clock() >= self._deadline and \
-                frame.f_globals.get('__name__', '').partition('.')[0] not in _NO_HOLD:
-            self._hold()
-
-    def _hold(self):
-        t0 = self._clock()
-        end = t0 + self._hold_max_ns
-        with self._cond:
-            self._waiting = True
-            try:
-                while True:
-                    now = self._clock()
-                    if now < self._deadline:
-                        break
-                    if now >= end:          # the scheduler went quiet: run for as long
-                        self._deadline = now + self._hold_max_ns
-                        break
-                    self._cond.wait((end - now) / 1e9)
-            finally:
-                self._waiting = False
-        self.holds += 1
-        self.held_ns += self._clock() - t0
-
-    def deadline_ns(self, due_ns, period_ns):
-        """Return the deadline for a call due at ``due_ns`` (``clock``) every ``period_ns``.
-
-        :data:`GATE_GUARD_S` before it (at most :data:`_GUARD_SHARE` of a period), or
-        :data:`FREE` where the period is shorter than :data:`GATE_MIN_PERIOD_S`.
-        """
-        if period_ns < GATE_MIN_PERIOD_S * 1e9:
-            return self.FREE
-        return due_ns - int(min(GATE_GUARD_S * 1e9, _GUARD_SHARE * period_ns))
 
 
 class _Job:
@@ -271,124 +120,6 @@ class _Job:
         self.wall = time.perf_counter() - c0
         self.cost = time.thread_time() - cpu0
         self.done.set()
-
-
-class _Call:
-    """A plain call for the worker; its exception goes to ``on_error``.
-
-    ``evaluates``: it runs under :attr:`BatchWorker.lock` (it touches a model's state).
-    """
-
-    __slots__ = ('fn', 'on_error', 'evaluates')
-
-    def __init__(self, fn, on_error, evaluates=True):
-        self.fn, self.on_error, self.evaluates = fn, on_error, evaluates
-
-    def run(self):
-        try:
-            self.fn()
-        except Exception as exc:    # noqa: B902 - the worker thread never ends on a call
-            if self.on_error is not None:
-                self.on_error(exc)
-
-
-class BatchWorker:
-    """A thread that evaluates look-ahead batches, one at a time, off the publishing thread.
-
-    :attr:`lock` is held during every batch; hold it for any other evaluation of the same
-    solutions and sensors (:meth:`Ahead.get` and :meth:`Ahead.fill_to` do). :meth:`stop`
-    ends the thread (idempotent); a job still queued then is finished first.
-    """
-
-    def __init__(self, name='rigidrot-lookahead', gate=None):
-        self.lock = threading.RLock()
-        #: Holds the worker to the scheduler's slack (:class:`SlackGate`; open until the
-        #: scheduler first sets a deadline).
-        self.gate = gate if gate is not None else SlackGate()
-        self._jobs = queue.SimpleQueue()
-        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
-        self._ended = threading.Event()     # set by the thread as it ends
-        self._thread.start()
-        if sys.getswitchinterval() > SWITCH_INTERVAL_S:
-            sys.setswitchinterval(SWITCH_INTERVAL_S)
-
-    def call(self, fn, on_error=None, evaluates=True):
-        """Queue ``fn()`` (any work that should not hold the publishing thread).
-
-        An exception goes to ``on_error(exc)`` if given, else it is dropped. ``evaluates``:
-        ``fn`` touches a model's state, so it runs under :attr:`lock`; False for work that
-        does not (a chunk of the bag written), which the publishing thread's own
-        evaluations then never wait for.
-        """
-        self.submit(_Call(fn, on_error, evaluates))
-
-    def drain(self, timeout=None):
-        """Wait until every job queued so far has run; False if ``timeout`` s passed first."""
-        done = threading.Event()
-        self.call(done.set)
-        self.gate.open()
-        return done.wait(timeout)
-
-    @contextlib.contextmanager
-    def locked(self):
-        """Hold :attr:`lock` (from the publishing thread: a held worker is let go first)."""
-        if not self.lock.acquire(blocking=False):
-            self.gate.open()
-            self.lock.acquire()
-        try:
-            yield
-        finally:
-            self.lock.release()
-
-    def wait_for(self, job):
-        """Wait until ``job`` has run (from the publishing thread: the gate is opened)."""
-        if not job.done.is_set():
-            self.gate.open()
-            job.done.wait()
-
-    def submit(self, job):
-        """Queue a :class:`_Job` (anything with ``run()``)."""
-        if not self.alive:
-            raise RuntimeError('the look-ahead worker has stopped')
-        self._jobs.put(job)
-
-    def _loop(self):
-        while True:
-            job = self._jobs.get()
-            if job is None:
-                self._ended.set()
-                return
-            # the gate's checks cost the worker about its own time again: only while the
-            # scheduler holds it to deadlines (none at short periods, nor before its first)
-            sys.setprofile(self.gate.profile if self.gate.deadline != SlackGate.FREE else None)
-            if getattr(job, 'evaluates', True):
-                with self.lock:
-                    job.run()
-            else:
-                job.run()
-            sys.setprofile(None)        # idle, the worker waits on its queue, not the gate
-
-    @property
-    def alive(self):
-        """Whether the thread runs."""
-        return self._thread.is_alive() and not self._ended.is_set()
-
-    def stop(self, timeout=5.0):
-        """End the thread after the jobs queued; wait at most ``timeout`` s. Idempotent."""
-        self.gate.on = False
-        self.gate.open()
-        if self._thread.is_alive():
-            self._jobs.put(None)
-            # waited on an event, not join(): a second Ctrl-C (spin's handler raises
-            # KeyboardInterrupt) in join() makes Python 3.11 take the running thread for
-            # ended; the last batch is waited out (bounded by ``timeout``), the bag is
-            # still to be finished
-            end = time.monotonic() + timeout
-            while not self._ended.is_set() and time.monotonic() < end:
-                try:
-                    self._ended.wait(max(end - time.monotonic(), 0.0))
-                except KeyboardInterrupt:
-                    continue
 
 
 class Ahead(abc.ABC):

@@ -1,17 +1,19 @@
-"""The node's look-ahead buffers, without ROS: values, batch sizes, skips, failures."""
+"""The look-ahead buffers, without ROS: values, batch sizes, skips, failures, worker batches."""
 
 import math
-import sys
 
 import numpy as np
 import pytest
 
 from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene, solve
-from rigidrot_ros.runtime.lookahead import (AHEAD_MAX, AHEAD_MIN, AMORTIZE, BATCH_BUDGET_S,
-                                            BatchWorker, LATE_SHARE, Lookahead, PERIOD_SHARE,
-                                            SensorAhead, SlackGate, STRIKES, WARMUP_S,
-                                            WORKER_AHEAD_S, WORKER_BATCH, WORKER_BUDGET_S)
+from rigidrot_ros.runtime.ahead import (AHEAD_MAX, AHEAD_MIN, AMORTIZE, BATCH_BUDGET_S,
+                                        LATE_SHARE, Lookahead, PERIOD_SHARE, SensorAhead,
+                                        STRIKES, WARMUP_S, WORKER_AHEAD_S, WORKER_BATCH,
+                                        WORKER_BUDGET_S)
+from rigidrot_ros.runtime.worker import BatchWorker
+
+from lookahead_helpers import sensor  # noqa: I100, I201 - a helper module beside it
 
 SCENE = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
 PERIOD = 0.01
@@ -234,21 +236,10 @@ def test_disabled_lookahead_evaluates_every_tick():
     assert la.get(3)[1] is None
 
 
-def _sensor(reads, worker=None, gate=None):
-    """A SensorAhead whose reads are logged in ``reads`` (and wait for ``gate``, if any)."""
-    def read(ks):
-        if gate is not None:
-            gate.wait()
-        reads.extend(ks)
-        return [('s', k) for k in ks], None
-    return SensorAhead(read, lambda k: read(range(k, k + 1))[0][0], 1e-3, first=1,
-                       budget_s=1.0, worker=worker)
-
-
 def test_a_catch_up_reads_the_owed_samples_as_one_batch_each_once():
     """fill_to: the samples a late call owes come from one batch, none evaluated alone."""
     reads = []
-    la = _sensor(reads)
+    la = sensor(reads)
     la.get(1)
     la.refill(1)                                    # 2 .. 9 buffered
     assert la.fill_to(2, 300) == 300 - (1 + AHEAD_MIN)   # 10 .. 300 in one read
@@ -303,7 +294,7 @@ def test_a_sensor_in_the_worker_is_read_once_in_order_and_waited_for():
     gate.set()
     worker = BatchWorker()
     try:
-        la = _sensor(reads, worker, gate)
+        la = sensor(reads, worker, gate)
         got = []
         for k in range(1, 300):
             got.append(la.get(k)[0])
@@ -435,7 +426,7 @@ def test_a_call_owing_samples_of_the_running_batch_does_not_wait_in_fill_to():
     worker = BatchWorker()
     try:
         gate.set()
-        la = _sensor(reads, worker, gate)
+        la = sensor(reads, worker, gate)
         la.get(1)
         la._collect(wait=True)
         gate.clear()
@@ -449,230 +440,4 @@ def test_a_call_owing_samples_of_the_running_batch_does_not_wait_in_fill_to():
         timer.cancel()
     finally:
         gate.set()
-        worker.stop()
-
-
-def test_a_call_in_the_worker_reports_its_error_and_the_worker_goes_on():
-    worker = BatchWorker()
-    try:
-        errors, done = [], []
-        worker.call(lambda: 1 / 0, errors.append)
-        worker.call(lambda: done.append(True))
-        assert worker.drain(timeout=30.0)
-        assert [type(e) for e in errors] == [ZeroDivisionError] and done == [True]
-    finally:
-        worker.stop()
-
-
-def test_a_second_ctrl_c_while_the_worker_stops_does_not_end_the_shutdown():
-    """stop() waits the running batch out even when a KeyboardInterrupt hits its wait."""
-    import signal
-    import threading
-    gate, ran = threading.Event(), []
-    worker = BatchWorker()
-    worker.call(lambda: (gate.wait(10), ran.append(1)))
-
-    def interrupt():
-        pause = threading.Event()
-        pause.wait(0.2)                             # main is in stop()'s wait by then
-        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
-        pause.wait(0.2)
-        gate.set()
-    old = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        threading.Thread(target=interrupt, daemon=True).start()
-        worker.stop()                               # no KeyboardInterrupt out of here
-    finally:
-        signal.signal(signal.SIGINT, old)
-    assert ran == [1] and not worker.alive
-
-
-# -- the slack gate: the worker runs only where the publishing thread leaves it room ------
-
-def _gated_worker(hold_max_s):
-    gate = SlackGate(hold_max_s=hold_max_s, on=True)
-    return gate, BatchWorker(gate=gate)
-
-
-def _busy(worker, counter, stop, entered=None):
-    """Queue a call that counts Python calls until ``stop`` (each call a gate check)."""
-    def bump():
-        counter[0] += 1
-
-    def body():
-        if entered is not None:
-            entered.set()
-        while not stop.is_set():
-            bump()
-    worker.call(body)
-
-
-def _until(cond, timeout=10.0):
-    import time
-    end = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < end, 'timed out'
-        time.sleep(0.001)
-
-
-def test_the_gate_holds_the_worker_past_its_deadline_and_lets_it_go_when_opened():
-    import threading
-    import time
-    gate, worker = _gated_worker(60.0)
-    counter, stop = [0], threading.Event()
-    try:
-        gate.open_until(time.perf_counter_ns() + 10**10)    # a deadline: the worker checks
-        _busy(worker, counter, stop)
-        _until(lambda: counter[0] > 100)
-        gate.open_until(time.perf_counter_ns() - 1)     # the deadline has passed
-        time.sleep(0.05)                            # the worker reaches its next check
-        held = counter[0]
-        time.sleep(0.2)
-        assert counter[0] == held                   # not one more call while closed
-        gate.open_until(time.perf_counter_ns() + 10**10)
-        _until(lambda: counter[0] > held + 100)
-        assert gate.holds == 1 and gate.held_ns >= 0.2e9
-    finally:
-        stop.set()
-        gate.open()
-        worker.stop()
-
-
-def test_a_worker_held_longer_than_the_longest_hold_goes_on():
-    """The scheduler stopped opening the gate (a reset, a shutdown): the worker is not stuck."""
-    import threading
-    import time
-    gate, worker = _gated_worker(0.05)
-    try:
-        gate.open_until(0)                          # closed, and nobody opens it
-        done = threading.Event()
-        t0 = time.monotonic()
-        worker.call(lambda: done.set())
-        assert done.wait(30.0)
-        assert time.monotonic() - t0 >= 0.05
-        assert gate.holds >= 1 and gate.held_ns >= 0.05e9
-    finally:
-        worker.stop()
-
-
-@pytest.mark.parametrize('how', ['sample', 'lock', 'drain'])
-def test_the_publishing_thread_never_waits_for_a_held_worker(how):
-    """A sample whose batch is held, the evaluation lock, a drain: the gate opens first.
-
-    The hold would last 20 s here: each of these returns in a fraction of that.
-    """
-    import threading
-    import time
-    gate, worker = _gated_worker(20.0)
-    counter, stop, entered = [0], threading.Event(), threading.Event()
-    try:
-        if how == 'sample':
-            reads = []
-            la = _sensor(reads, worker)
-            la.get(1)
-            gate.open_until(0)
-            la.refill(1)                            # 2 .. 9 reserved, the worker held
-            t0 = time.monotonic()
-            assert la.get(2)[0] == ('s', 2)
-        else:
-            gate.open_until(time.perf_counter_ns() + 10**10)
-            _busy(worker, counter, stop, entered)
-            assert entered.wait(10.0)               # the worker is in the call (the lock held)
-            gate.open_until(0)
-            time.sleep(0.05)                        # and held there
-            t0 = time.monotonic()
-            if how == 'lock':
-                stop.set()
-                with worker.locked():
-                    pass
-            else:
-                stop.set()
-                assert worker.drain(timeout=30.0)
-        assert time.monotonic() - t0 < 10.0
-    finally:
-        stop.set()
-        gate.open()
-        worker.stop()
-
-
-def test_the_worker_is_never_held_in_code_that_holds_a_lock_across_python():
-    """An Event.set held half way kept the event's lock from the thread waiting on it."""
-    import threading
-    import time
-    gate = SlackGate(hold_max_s=0.05, on=True)
-    gate.open_until(0)
-    frame = eval('_sys._getframe()', vars(threading))      # a frame of threading's code
-    t0 = time.monotonic()
-    gate.profile(frame, 'call', None)
-    assert gate.holds == 0 and time.monotonic() - t0 < 0.05
-    gate.profile(sys._getframe(), 'call', None)     # ours: held (until the 0.05 s are up)
-    assert gate.holds == 1 and gate.held_ns >= 0.05e9
-
-
-def test_a_worker_starts_unchecked_while_the_gate_is_open_for_good():
-    """No deadline (short periods, before the scheduler's first call): no checks to pay."""
-    import threading
-    gate, worker = _gated_worker(20.0)
-    try:
-        seen = []
-        worker.call(lambda: seen.append(sys.getprofile()))
-        assert worker.drain(timeout=30.0)
-        gate.open_until(10**30)
-        done = threading.Event()
-        worker.call(lambda: (seen.append(sys.getprofile()), done.set()))
-        assert done.wait(30.0)
-        assert seen == [None, gate.profile]
-    finally:
-        worker.stop()
-
-
-def test_a_gate_turned_off_never_closes():
-    gate = SlackGate(on=False)
-    gate.open_until(0)
-    assert gate.deadline == SlackGate.FREE
-    gate.check()
-    assert gate.holds == 0
-
-
-def test_the_deadline_leaves_a_guard_and_short_periods_are_never_gated():
-    from rigidrot_ros.runtime.lookahead import GATE_GUARD_S, GATE_MIN_PERIOD_S
-    gate = SlackGate(on=True)
-    ms = 10**6
-    assert gate.deadline_ns(50 * ms, 10 * ms) == 50 * ms - round(GATE_GUARD_S * 1e9)
-    assert gate.deadline_ns(50 * ms, ms) == 50 * ms - min(round(GATE_GUARD_S * 1e9), 0.4 * ms)
-    short = int(GATE_MIN_PERIOD_S * 1e9) - 1
-    assert gate.deadline_ns(50 * ms, short) == SlackGate.FREE
-
-
-def test_a_batch_held_in_the_worker_is_urgent_once_its_samples_are_near():
-    """The scheduler opens the gate for good while a stream's batch is needed soon."""
-    gate, worker = _gated_worker(20.0)
-    try:
-        reads = []
-        la = _sensor(reads, worker)
-        la.get(1)
-        assert not la.urgent()                      # no batch in the worker
-        gate.open_until(0)
-        la.refill(1)                                # 2 .. 9, the next sample: held
-        assert la.urgent()
-        gate.open()
-        la._collect(wait=True)
-        assert not la.urgent()
-    finally:
-        worker.stop()
-
-
-def test_a_call_that_evaluates_nothing_does_not_wait_for_the_evaluation_lock():
-    """A chunk of the bag written in the worker never holds up the node's own evaluations."""
-    import threading
-    worker = BatchWorker()
-    try:
-        free, locked = threading.Event(), threading.Event()
-        with worker.locked():                       # the publishing thread evaluates
-            worker.call(free.set, evaluates=False)
-            assert free.wait(30.0)
-            worker.call(locked.set)
-            assert not locked.wait(0.2)             # this one waits for the lock
-        assert locked.wait(30.0)
-    finally:
         worker.stop()
