@@ -48,6 +48,7 @@ PARTS = (
     'view_live',
     'leaderboard',
     'campaign_ros',
+    'campaign_inproc',
 )
 
 

@@ -5,18 +5,36 @@ per run; the object it returns gets ``receive(topic, msg)`` for the run descript
 every sensor message of the run (:data:`rigidrot_ros.campaign.session.SENSORS`: never the
 truth's topics), in log-time order, and ``finish()`` at the end. Each returns a list (or
 tuple, or None for none) of estimate messages of a scored type
-(:data:`~rigidrot_ros.campaign.session.SCORED_TYPES`); they are bagged on
-``estimator.topic`` with their header stamps as log times, with the run description, and
-the bag is scored.
+(:data:`~rigidrot_ros.campaign.session.SCORED_TYPES`), on ``estimator.topic``.
+
+**In memory** (the default): the run's messages are generated in memory (the bag's
+messages, :func:`rigidrot_ros.run.generate.iter_serialized`, read back as messages), the
+estimates are kept as what a bag of them would give the scorer
+(:func:`rigidrot_ros.scoring.decode.message_rows`) and scored from there
+(:func:`rigidrot_ros.campaign.run.score_estimates`): no file. An object that also has
+``receive_arrays(arrays, order)`` (defined by its class or a subclass of the one that
+defines ``receive`` and ``finish``: a subclass that changes how messages are taken is fed
+messages) is given the whole run at once instead, as arrays
+(:func:`rigidrot_ros.run.generate.run_arrays`, the sensor topics and ``'run'``, the run
+description) with the order its messages would arrive in
+(:func:`rigidrot_ros.run.feed.sensor_feed`), and returns its estimates as arrays
+(``type``, ``stamps_ns``, ``orientation`` (n, 4) and ``orientation_cov`` (n, 3, 3) or
+None; the reference MEKF's :meth:`~rigidrot_ros.estimators.mekf.MEKF.receive_arrays`): no
+message is built. It must give the estimates its messages would carry, bit for bit.
+
+**Bags kept** (``rigidrot_campaign --keep-bags DIR``): the messages are fed and the
+estimates bagged on ``estimator.topic`` with their header stamps as log times, with the
+run description, in ``DIR/run_NNNNNN/estimate``; that bag is read back and scored. Both
+ways give the same row and series, so the same ``report.json``.
 
 What fails the run, with its reason: the factory raises or returns an object without
 ``receive``/``finish`` (a start-up failure: the campaign stops with that line when no
-run has succeeded yet), ``receive``/``finish`` raises, returns something that is not a
-list of messages or a message of a type the campaign does not score, or the run outlives
-``timeout`` (a filter stuck inside a call is interrupted: by SIGALRM in a process's main
-thread, which also ends a ``time.sleep``, else by an exception set on its thread, which
-takes effect at its next Python instruction; a call blocked in C code outside the main
-thread is not interrupted).
+run has succeeded yet), ``receive``/``finish``/``receive_arrays`` raises, returns
+something that is not a list of messages (or arrays) of a type the campaign scores, or
+the run outlives ``timeout`` (a filter stuck inside a call is interrupted: by SIGALRM in
+a process's main thread, which also ends a ``time.sleep``, else by an exception set on
+its thread, which takes effect at its next Python instruction; a call blocked in C code
+outside the main thread is not interrupted).
 """
 
 import ctypes
@@ -27,9 +45,11 @@ import threading
 import time
 import traceback
 
+import numpy as np
+
 from rigidrot_ros.campaign.failure import RunFailed
 
-__all__ = ['run_inproc']
+__all__ = ['run_inproc', 'Estimates', 'logged_run']
 
 _SEC = 1_000_000_000
 
@@ -97,21 +117,91 @@ def _is_message(obj):
     return callable(getattr(type(obj), 'get_fields_and_field_types', None))
 
 
-def run_inproc(spec, values, work, timing):
-    """Feed run ``values`` to the factory's object; return the bag of its estimates."""
-    from rclpy.serialization import serialize_message
+def _owner(cls, name):
+    return next((c for c in cls.__mro__ if name in vars(c)), None)
 
-    from rigidrot_ros.bag import BagWriter
-    from rigidrot_ros.campaign.session import SCORED_TYPES, SENSORS
+
+def _takes_arrays(filt):
+    """Whether ``filt`` is fed arrays: its ``receive_arrays`` is its messages' own.
+
+    A class that overrides ``receive`` or ``finish`` of a class with ``receive_arrays``
+    (a filter with a twist on the messages) is fed the messages: its arrays would skip
+    the twist.
+    """
+    if not callable(getattr(filt, 'receive_arrays', None)) or \
+            any(n in getattr(filt, '__dict__', {}) for n in ('receive', 'finish')):
+        return False
+    cls = type(filt)
+    arrays = _owner(cls, 'receive_arrays')
+    return arrays is not None and all(issubclass(arrays, _owner(cls, n))
+                                      for n in ('receive', 'finish'))
+
+
+class Estimates:
+    """An in-process run's estimates in memory: what the scorer would read from their bag.
+
+    ``rows`` as :func:`rigidrot_ros.scoring.decode.message_rows` gives them, in the order
+    the estimator returned them; ``run`` the run description as the bag's reader gives it.
+    """
+
+    def __init__(self, topic, type_name, rows, run):
+        self.topic, self.type, self.rows, self.run = topic, type_name, rows, run
+
+
+def logged_run(description):
+    """Return a run description as a bag of it reads back (its ``rigidrot_run`` record).
+
+    :meth:`rigidrot_ros.bag.BagWriter.add_run` writes each value that is not a string as
+    JSON, and the reader decodes each value that reads as JSON.
+    """
+    from rigidrot_ros.bag.metadata import decode_run
+    return decode_run({k: (v if isinstance(v, str) else json.dumps(v))
+                       for k, v in description.items()})
+
+
+def _message_feed(values, duration):
+    """Yield ``(topic, log_ns, msg)`` of the run's sensors and description, in log order.
+
+    The messages :func:`rigidrot_ros.run.generate.iter_run` yields for these topics (the
+    bag's bytes read back as messages: the same fields, bit for bit).
+    """
+    from rclpy.serialization import deserialize_message
+
+    from rigidrot_ros.campaign.session import SENSORS
+    from rigidrot_ros.ros.recorder import msg_class
+    from rigidrot_ros.run.feed import sensor_types
+    from rigidrot_ros.run.generate import iter_serialized, RUN_TOPIC
+    types = sensor_types(SENSORS)
+    classes = {}
+    for topic, ns, data in iter_serialized(values, duration, SENSORS + ('run',)):
+        cls = classes.get(topic)
+        if cls is None:
+            cls = classes[topic] = msg_class(
+                'std_msgs/msg/String' if topic == RUN_TOPIC else types[topic.rsplit('/', 1)[-1]])
+        yield topic, ns, deserialize_message(data, cls)
+
+
+def run_inproc(spec, values, work, timing):
+    """Feed run ``values`` to the factory's object: its :class:`Estimates`, or their bag.
+
+    With ``work`` (bags kept), the estimates are bagged in ``work/estimate`` and its path
+    is returned; without, they are returned in memory.
+    """
+    from rigidrot_ros.campaign.session import SCORED_TYPES
     from rigidrot_ros.campaign.spec import load_factory
     from rigidrot_ros.ros.recorder import type_name_of
-    from rigidrot_ros.run.generate import iter_run, RUN_TOPIC
+    from rigidrot_ros.run.generate import RUN_TOPIC
+    from rigidrot_ros.scoring.decode import message_rows
     est = spec['estimator']
     topic = est['topic']
     deadline = time.monotonic() + spec['timeout']
     where = ['the factory']
     writer = None
+    keep = work is not None
     counts = {'n': 0, 'type': None}
+    rows, runs = [], []
+    if keep:
+        from rclpy.serialization import serialize_message
 
     def put(out):
         if out is None:
@@ -127,13 +217,17 @@ def run_inproc(spec, values, work, timing):
                                 f'{", ".join(SCORED_TYPES)} (an orientation with its '
                                 f'covariance)')
             if counts['type'] is None:
-                writer.add_topic(topic, name)
+                if keep:
+                    writer.add_topic(topic, name)
                 counts['type'] = name
             elif name != counts['type']:
                 raise RunFailed(f'{where[0]} returned a {name} after {counts["type"]}s: one '
                                 f'type per topic')
-            stamp = m.header.stamp
-            writer.write(topic, serialize_message(m), stamp.sec * _SEC + stamp.nanosec)
+            if keep:
+                stamp = m.header.stamp
+                writer.write(topic, serialize_message(m), stamp.sec * _SEC + stamp.nanosec)
+            else:
+                rows.append(message_rows(name, m))
             counts['n'] += 1
 
     t0 = time.perf_counter()
@@ -153,15 +247,21 @@ def run_inproc(spec, values, work, timing):
                 raise RunFailed(f'the factory made no estimator: its {type(filt).__name__} '
                                 f'has no {" and no ".join(m + "()" for m in missing)}',
                                 startup=True)
-            writer = BagWriter(None, 'campaign', flush_period=60.0,
-                               path=os.path.join(work, 'estimate'), split_seconds=0.0)
-            for k, (name, ns, msg) in enumerate(iter_run(values, spec['duration'])):
+            if not keep and _takes_arrays(filt):
+                return _feed_arrays(filt, spec, values, topic, timing, t0, where)
+            if keep:
+                from rigidrot_ros.bag import BagWriter
+                writer = BagWriter(None, 'campaign', flush_period=60.0,
+                                   path=os.path.join(work, 'estimate'), split_seconds=0.0)
+            for name, ns, msg in _message_feed(values, spec['duration']):
                 if name == RUN_TOPIC:
-                    writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String')
-                    writer.add_run(json.loads(msg.data))
-                    writer.write(RUN_TOPIC, serialize_message(msg), ns)
-                elif name.rsplit('/', 1)[-1] not in SENSORS:
-                    continue
+                    run = json.loads(msg.data)
+                    if keep:
+                        writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String')
+                        writer.add_run(run)
+                        writer.write(RUN_TOPIC, serialize_message(msg), ns)
+                    else:
+                        runs.append(logged_run(run))
                 where[0] = f'receive() on {name} at stamp {ns} ns'
                 try:
                     out = filt.receive(name, msg)
@@ -186,4 +286,51 @@ def run_inproc(spec, values, work, timing):
     timing['filter_s'] = time.perf_counter() - t0
     if not counts['n']:
         raise RunFailed(f'the estimator published nothing on {topic}')
-    return writer.path
+    if keep:
+        return writer.path
+    if not runs:
+        raise RunFailed('the run description was not generated (no ~/run message)')
+    return Estimates(topic, counts['type'], rows, runs[0])
+
+
+def _feed_arrays(filt, spec, values, topic, timing, t0, where):
+    """Give ``filt`` the whole run as arrays (``receive_arrays``); its :class:`Estimates`."""
+    from rigidrot_ros.campaign.session import SCORED_TYPES, SENSORS
+    from rigidrot_ros.run.feed import sensor_feed
+    from rigidrot_ros.run.generate import run_arrays
+    from rigidrot_ros.scoring.decode import ORIENTATION
+    arrays = run_arrays(values, spec['duration'])
+    feed, order = sensor_feed(arrays, SENSORS)
+    feed['run'] = arrays['run']
+    where[0] = 'receive_arrays()'
+    try:
+        out = filt.receive_arrays(feed, order)
+    except Exception as exc:  # noqa: B902 - the estimator crashed
+        raise RunFailed(f'the estimator crashed in receive_arrays(): {type(exc).__name__}: '
+                        f'{exc}', traceback.format_exc()) from None
+    if not isinstance(out, dict):
+        raise RunFailed(f'receive_arrays() returned {type(out).__name__}, not a dict of '
+                        f'arrays')
+    name = out.get('type')
+    if name not in SCORED_TYPES:
+        raise RunFailed(f'receive_arrays() returned estimates of type {name!r}: the campaign '
+                        f'scores {", ".join(SCORED_TYPES)} (an orientation with its '
+                        f'covariance)')
+    try:
+        stamps = np.asarray(out['stamps_ns'], dtype=np.int64).reshape(-1)
+        n = len(stamps)
+        q = np.asarray(out['orientation'], dtype=float).reshape(n, 4)
+        cov = out.get('orientation_cov')
+        cov = None if cov is None else np.asarray(cov, dtype=float).reshape(n, 3, 3)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise RunFailed(f'receive_arrays() returned unreadable estimates ({type(exc).__name__}: '
+                        f'{exc}): it needs stamps_ns (n,), orientation (n, 4) and '
+                        f'orientation_cov (n, 3, 3) or None') from None
+    timing['filter_s'] = time.perf_counter() - t0
+    if not n:
+        raise RunFailed(f'the estimator published nothing on {topic}')
+    frame = str(out.get('frame_id', ''))
+    covs = [None] * n if cov is None else list(cov)
+    rows = [(s, [(ORIENTATION, tuple(v), c, frame)])
+            for s, v, c in zip(stamps.tolist(), q.tolist(), covs)]
+    return Estimates(topic, name, rows, logged_run(json.loads(json.dumps(arrays['run']))))

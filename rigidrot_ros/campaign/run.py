@@ -21,16 +21,15 @@ import os
 import shutil
 import signal
 import subprocess
-import tempfile
 import time
 import traceback
 
 from rigidrot_ros.campaign.failure import RunFailed
 from rigidrot_ros.campaign.spec import draw_run, run_values
-from rigidrot_ros.campaign.workdir import claim_work_dir
+from rigidrot_ros.campaign.workdir import claim_domain, claim_work_dir
 from rigidrot_ros.runtime.processes import script, stop
 
-__all__ = ['run_one', 'RunFailed', 'score_bag']
+__all__ = ['run_one', 'RunFailed', 'score_bag', 'score_estimates']
 
 _SEC = 1_000_000_000
 
@@ -53,6 +52,30 @@ def score_bag(path, topic, runs=None):
         res = score_against_runs(bag, [s for s in streams if s.field == 'orientation'])
     except (BagError, ScoreError) as exc:
         raise RunFailed(f'scoring failed: {" ".join(str(exc).split())}') from None
+    return _row_series(res, topic, bag.runs)
+
+
+def score_estimates(est):
+    """Score an in-process run's :class:`~rigidrot_ros.campaign.inproc.Estimates`: as a bag.
+
+    The row and series :func:`score_bag` gives for the bag of the same estimates (the
+    estimates as its reader gives them, the run description as its ``rigidrot_run``
+    record gives it), without the bag.
+    """
+    from rigidrot_ros.bag import BagContents
+    from rigidrot_ros.scoring.decode import ORIENTATION, stream_of_rows
+    from rigidrot_ros.scoring.score import score_against_runs, ScoreError
+    bag = BagContents(path=f'(the estimates of {est.topic}, in memory)', runs=[est.run])
+    stream = stream_of_rows(est.topic, est.type, ORIENTATION, est.rows)
+    try:
+        res = score_against_runs(bag, [] if stream is None else [stream])
+    except ScoreError as exc:
+        raise RunFailed(f'scoring failed: {" ".join(str(exc).split())}') from None
+    return _row_series(res, est.topic, bag.runs)
+
+
+def _row_series(res, topic, runs):
+    """Return the run's ``(row, series)`` from the scorer's results for ``topic``."""
     if not res or not res[0].get('count'):
         raise RunFailed(f'{topic}: no orientation sample could be scored')
     r = res[0]
@@ -63,41 +86,34 @@ def score_bag(path, topic, runs=None):
     row = {'count': r['count'], 'nees_count': r['nees_count'], 'anees': r['anees'],
            'anees_lo': r['anees_bounds_95'][0], 'anees_hi': r['anees_bounds_95'][1],
            'rms_rad': r['rms'], 'max_rad': r['max'], 'p95_rad': r['p95']}
-    sensors = [run['sensors'] for run in bag.runs if isinstance(run.get('sensors'), dict)]
+    sensors = [run['sensors'] for run in runs if isinstance(run.get('sensors'), dict)]
     if sensors:                 # the error model the estimator was fed (run description)
         row['sensors'] = sensors[0]
     return row, series
 
 
-def _inproc(spec, values, work, timing):
-    """Feed the run's messages to the factory's object; bag its answers; score them."""
+def _inproc(spec, values, work, timing, keep):
+    """Feed the run to the factory's object; score its answers, from their bag if kept."""
     from rigidrot_ros.campaign.inproc import run_inproc
-    return score_bag(run_inproc(spec, values, work, timing), spec['estimator']['topic'])
+    if keep:
+        return score_bag(run_inproc(spec, values, work, timing), spec['estimator']['topic'])
+    out = run_inproc(spec, values, None, timing)
+    t0 = time.perf_counter()
+    try:
+        return score_estimates(out)
+    finally:
+        timing['score_s'] = time.perf_counter() - t0
 
 
 @contextlib.contextmanager
 def _domain(base, span):
-    """Claim a ROS_DOMAIN_ID no other run on this machine holds (a lock file per id)."""
-    root = os.path.join(tempfile.gettempdir(), f'rigidrot_campaign_domains_{os.getuid()}')
-    os.makedirs(root, exist_ok=True)
-    end = time.monotonic() + 600
-    while True:
-        for d in range(base, base + span):
-            fh = open(os.path.join(root, f'{d}.lock'), 'w')
-            try:
-                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                fh.close()
-                continue
-            try:
-                yield d
-            finally:
-                fcntl.flock(fh, fcntl.LOCK_UN)
-                fh.close()
-            return
-        if time.monotonic() > end:
-            raise RunFailed(f'no free ROS domain in [{base}, {base + span}) for 600 s')
-        time.sleep(0.2)
+    """Hold a domain of :func:`claim_domain` for the block."""
+    d, fh = claim_domain(base, span)
+    try:
+        yield d
+    finally:
+        fcntl.flock(fh, fcntl.LOCK_UN)
+        fh.close()
 
 
 def _tail(path, lines=40):
@@ -217,15 +233,17 @@ def run_one(spec, index, bag_root=None):
     row.update({k: v for k, v in draws.items()})
     out = {'row': row, 'series': None, 'log': ''}
     timing = {}
-    owned = None if bag_root else claim_work_dir(index)   # removed even if we are killed
-    work = os.path.join(bag_root, f'run_{index:06d}') if bag_root else owned.path
+    in_memory = spec['estimator']['kind'] == 'inproc' and not bag_root   # no file at all
+    owned = None if bag_root or in_memory else claim_work_dir(index)   # removed even if killed
+    work = os.path.join(bag_root, f'run_{index:06d}') if bag_root else \
+        (owned.path if owned is not None else None)
     if bag_root:
         shutil.rmtree(work, ignore_errors=True)
         os.makedirs(work)
     try:
         values = run_values(spec, draws)
         if spec['estimator']['kind'] == 'inproc':
-            score, series = _inproc(spec, values, work, timing)
+            score, series = _inproc(spec, values, work, timing, keep=bool(bag_root))
         else:
             score, series = _ros(spec, values, work, timing)
         row.update(score)
@@ -240,7 +258,7 @@ def run_one(spec, index, bag_root=None):
         out['log'] = exc.log + ''.join(
             f'--- {n}.log\n{_tail(os.path.join(work, n + ".log"))}'
             for n in ('estimator', 'recorder', 'replay')
-            if os.path.exists(os.path.join(work, n + '.log')))
+            if work is not None and os.path.exists(os.path.join(work, n + '.log')))
     except Exception as exc:  # noqa: B902 - anything else fails this run, not the campaign
         row.update(status='failed', reason=f'{type(exc).__name__}: '
                                            f'{" ".join(str(exc).split())}'[:300])

@@ -39,7 +39,6 @@ reset.
 """
 
 import atexit
-import fcntl
 import os
 import shutil
 import signal
@@ -48,6 +47,7 @@ import tempfile
 import time
 
 from rigidrot_ros.campaign.failure import RunFailed
+from rigidrot_ros.campaign.workdir import claim_domain
 
 __all__ = ['run_paced', 'Session', 'SENSORS', 'SCORED_TYPES', 'feed_topics', 'claim_domain',
            'STARTUP_S']
@@ -68,32 +68,11 @@ STOP_S = 5.0
 RESET_S = 10.0
 #: Default quiet time after the last message before the estimator is stopped (or reset).
 SETTLE_S = 0.2
-_LOCK_WAIT_S = 600.0
 
 
 def feed_topics(topics):
     """Return the topics of ``topics`` an estimator is given (:data:`SENSORS`), sorted."""
     return sorted(t for t in topics if t.rsplit('/', 1)[-1] in SENSORS)
-
-
-def claim_domain(base, span):
-    """Claim a ROS_DOMAIN_ID in ``[base, base + span)``: ``(domain, locked file)``."""
-    root = os.path.join(tempfile.gettempdir(), f'rigidrot_campaign_domains_{os.getuid()}')
-    os.makedirs(root, exist_ok=True)
-    end = time.monotonic() + _LOCK_WAIT_S
-    while True:
-        for d in range(base, base + span):
-            fh = open(os.path.join(root, f'{d}.lock'), 'w')
-            try:
-                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                fh.close()
-                continue
-            return d, fh
-        if time.monotonic() > end:
-            raise RunFailed(f'no free ROS domain in [{base}, {base + span}) for '
-                            f'{_LOCK_WAIT_S:g} s')
-        time.sleep(0.2)
 
 
 def _last_line(path):

@@ -1,4 +1,6 @@
-"""A run's temporary directory, removed even when the process that made it is killed.
+"""Machine-local claims of a run: its temporary directory, and its ROS domain.
+
+A run's temporary directory is removed even when the process that made it is killed.
 
 A campaign run works in ``$TMPDIR/rigidrot_campaign_run<index>_<random>`` (the bags it
 generates and records). The process that owns it holds an exclusive ``flock`` on the
@@ -11,6 +13,10 @@ killed on a machine leaves nothing behind once a run or a campaign comes next th
 The directory is made under a hidden name, locked, then renamed into place (rename is
 atomic), so a sweep never sees a directory whose owner has not locked it yet. Directories
 of other names, and those of other users (they cannot be opened), are left alone.
+
+A ROS run claims a ``ROS_DOMAIN_ID`` no other run on the machine holds
+(:func:`claim_domain`, one lock file per id): the paced path's session and the replay path
+of :mod:`rigidrot_ros.campaign.run` both claim theirs here.
 """
 
 import fcntl
@@ -19,7 +25,10 @@ import shutil
 import tempfile
 import time
 
-__all__ = ['WorkDir', 'claim_work_dir', 'sweep_work_dirs', 'PREFIX', 'LOCK_NAME']
+from rigidrot_ros.campaign.failure import RunFailed
+
+__all__ = ['WorkDir', 'claim_work_dir', 'sweep_work_dirs', 'PREFIX', 'LOCK_NAME', 'claim_domain',
+           'DOMAIN_WAIT_S']
 
 #: Name prefix of a run's directory in the temporary directory.
 PREFIX = 'rigidrot_campaign_run'
@@ -93,3 +102,31 @@ def sweep_work_dirs(root=None):
                 shutil.rmtree(path, ignore_errors=True)
                 removed += 1
     return removed
+
+
+#: Seconds a run waits for a free ROS domain.
+DOMAIN_WAIT_S = 600.0
+
+
+def claim_domain(base, span):
+    """Claim a ROS_DOMAIN_ID in ``[base, base + span)``: ``(domain, locked file)``.
+
+    One lock file per id (``flock``), so no other run on this machine holds it while the
+    file is open; waits :data:`DOMAIN_WAIT_S` at most for one to be free (RunFailed).
+    """
+    root = os.path.join(tempfile.gettempdir(), f'rigidrot_campaign_domains_{os.getuid()}')
+    os.makedirs(root, exist_ok=True)
+    end = time.monotonic() + DOMAIN_WAIT_S
+    while True:
+        for d in range(base, base + span):
+            fh = open(os.path.join(root, f'{d}.lock'), 'w')
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                fh.close()
+                continue
+            return d, fh
+        if time.monotonic() > end:
+            raise RunFailed(f'no free ROS domain in [{base}, {base + span}) for '
+                            f'{DOMAIN_WAIT_S:g} s')
+        time.sleep(0.2)

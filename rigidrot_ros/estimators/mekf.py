@@ -63,6 +63,10 @@ PARAMS = {
 }
 
 
+_I3 = np.eye(3)
+_I6 = np.eye(6)
+
+
 def _skew(v):
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
@@ -94,6 +98,10 @@ def _qlog(q):
 
 def _stamp_ns(msg):
     return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def _finite(*values):
+    return all(math.isfinite(v) for v in values)
 
 
 class MekfParams:
@@ -155,7 +163,13 @@ class MEKF:
     final with it (an estimate at stamp ``t`` is final once a message with a later stamp
     has come, so that a star tracker sample at ``t`` is in it whichever of the two came
     first); :meth:`finish` returns the last ones. The in-process campaign API.
+    :meth:`receive_arrays` takes a whole run as arrays instead and returns the same
+    estimates as arrays, bit for bit (the same operations on the same values, without
+    building a message).
     """
+
+    #: The type of the estimates (:meth:`receive_arrays` says it too).
+    output_type = 'nav_msgs/msg/Odometry'
 
     def __init__(self, params=None):
         self.p = params if isinstance(params, MekfParams) else MekfParams(params)
@@ -170,33 +184,80 @@ class MEKF:
         self._gyro_count = 0
         self.updates = 0
         self.rejected = 0
+        self._sink = None                # receive_arrays: where the estimates go
+        self._phi = _I6.copy()           # Phi's buffer: its lower rows [0 I] never change
+        self._noise = {}                 # Q by dt (the same dt gives the same Q)
+        self._var = {}                   # the gyro covariance matrix by its variance
+        self._checked = {}               # star tracker covariances checked, by their bytes
 
     # -- the filter --------------------------------------------------------------------
+    def _q_noise(self, dt):
+        q = self._noise.get(dt)
+        if q is None:
+            su2, sv2 = self.p.sigma_u ** 2, self.p.sigma_v ** 2
+            q = np.zeros((6, 6))
+            q[:3, :3] = (sv2 * dt + su2 * dt ** 3 / 3) * _I3
+            q[:3, 3:] = q[3:, :3] = -(su2 * dt * dt / 2) * _I3
+            q[3:, 3:] = su2 * dt * _I3
+            if len(self._noise) < 64:
+                self._noise[dt] = q
+        return q
+
     def _propagate(self, dt):
+        # The operations of the module text, element by element where they are elementwise
+        # (the same IEEE operations on the same values as the matrix expressions), with
+        # BLAS for every product that sums, as ``@`` calls it (``np.dot`` of 1-D and 2-D
+        # float arrays makes the same ddot and dgemm calls): the numbers do not change.
         if dt <= 0:
             return
+        dot = np.dot
         w = self.omega - self.beta
-        x = math.sqrt(float(w @ w))
-        W = _skew(w)
-        W2 = W @ W
+        x = math.sqrt(float(dot(w, w)))
+        w0, w1, w2 = w.tolist()
+        n0, n1, n2 = -w0, -w1, -w2
+        W = np.array(((0.0, n2, w1), (w2, 0.0, n0), (n1, w0, 0.0)))
+        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = dot(W, W).tolist()
         if x * dt < 1e-5:           # series of the coefficients below
             s1, s2, s3 = dt, dt * dt / 2, dt ** 3 / 6
         else:
             s1 = math.sin(x * dt) / x
             s2 = (1 - math.cos(x * dt)) / (x * x)
             s3 = (x * dt - math.sin(x * dt)) / x ** 3
-        phi = np.eye(6)
-        phi[:3, :3] = np.eye(3) - W * s1 + W2 * s2
-        phi[:3, 3:] = W * s2 - np.eye(3) * dt - W2 * s3
-        su2, sv2 = self.p.sigma_u ** 2, self.p.sigma_v ** 2
-        q = np.zeros((6, 6))
-        q[:3, :3] = (sv2 * dt + su2 * dt ** 3 / 3) * np.eye(3)
-        q[:3, 3:] = q[3:, :3] = -(su2 * dt * dt / 2) * np.eye(3)
-        q[3:, 3:] = su2 * dt * np.eye(3)
-        P = phi @ self.P @ phi.T + q
-        self.P = 0.5 * (P + P.T)
-        self.q = _qmul(self.q, _qexp(w * dt))
-        self.q /= np.linalg.norm(self.q)
+        # Phi11 = I - W s1 + W^2 s2, Phi12 = W s2 - I dt - W^2 s3, every element written
+        # out with its zeros (the same operations as the matrix expressions, signed zeros
+        # included)
+        phi = self._phi
+        phi[:3] = (
+            (1.0 - 0.0 * s1 + a0 * s2,
+             0.0 - n2 * s1 + a1 * s2,
+             0.0 - w1 * s1 + a2 * s2,
+             0.0 * s2 - 1.0 * dt - a0 * s3,
+             n2 * s2 - 0.0 * dt - a1 * s3,
+             w1 * s2 - 0.0 * dt - a2 * s3),
+            (0.0 - w2 * s1 + b0 * s2,
+             1.0 - 0.0 * s1 + b1 * s2,
+             0.0 - n0 * s1 + b2 * s2,
+             w2 * s2 - 0.0 * dt - b0 * s3,
+             0.0 * s2 - 1.0 * dt - b1 * s3,
+             n0 * s2 - 0.0 * dt - b2 * s3),
+            (0.0 - n1 * s1 + c0 * s2,
+             0.0 - w0 * s1 + c1 * s2,
+             1.0 - 0.0 * s1 + c2 * s2,
+             n1 * s2 - 0.0 * dt - c0 * s3,
+             w0 * s2 - 0.0 * dt - c1 * s3,
+             0.0 * s2 - 1.0 * dt - c2 * s3))
+        P = dot(dot(phi, self.P), phi.T)
+        P += self._q_noise(dt)
+        P = P + P.T
+        P *= 0.5
+        self.P = P
+        v = w * dt
+        a = math.sqrt(float(dot(v, v)))              # _qexp(v), as floats
+        s = 0.5 - a * a / 48.0 if a < 1e-6 else math.sin(0.5 * a) / a
+        vx, vy, vz = v.tolist()
+        q = np.array(_qmul(self.q.tolist(), (vx * s, vy * s, vz * s, math.cos(0.5 * a))))
+        q /= math.sqrt(float(dot(q, q)))             # np.linalg.norm(q)
+        self.q = q
 
     def _update(self, q_m, R):
         z = _qlog(_qmul(np.array([-self.q[0], -self.q[1], -self.q[2], self.q[3]]), q_m))
@@ -217,9 +278,12 @@ class MEKF:
         """Take one sensor message; return the estimate messages final by now (list)."""
         name = topic.rsplit('/', 1)[-1]
         if name == self.p.imu_topic:
-            return self._on_imu(msg)
+            v = msg.angular_velocity
+            return self._on_imu(_stamp_ns(msg), v.x, v.y, v.z,
+                                msg.angular_velocity_covariance, msg.header.stamp)
         if name == self.p.star_tracker_topic:
-            return self._on_star(msg)
+            o = msg.pose.pose.orientation
+            return self._on_star(_stamp_ns(msg), (o.x, o.y, o.z, o.w), msg.pose.covariance)
         return []
 
     def finish(self):
@@ -230,19 +294,20 @@ class MEKF:
     def _flush(self, t_ns):
         """Publish the due estimate if a message later than it has come (or at the end)."""
         if self._due is not None and (t_ns is None or t_ns > self._due[0]):
-            msg = self._odometry(self._due[1])
-            self._due = None
-            return [msg]
+            due, self._due = self._due, None
+            if self._sink is not None:
+                self._sink.append((due[0], self.q.copy(), self.P.copy(), self.omega - self.beta,
+                                   self.gyro_var))
+                return []
+            return [self._odometry(due[1])]
         return []
 
-    def _on_star(self, msg):
-        t = _stamp_ns(msg)
+    def _on_star(self, t, q_m, cov6):
         out = self._flush(t)
-        o = msg.pose.pose.orientation
-        q_m = np.array([o.x, o.y, o.z, o.w], dtype=float)
-        R = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[3:, 3:]
-        if not (np.all(np.isfinite(q_m)) and abs(np.linalg.norm(q_m) - 1) < 1e-6
-                and np.all(np.isfinite(R)) and np.all(np.linalg.eigvalsh(0.5 * (R + R.T)) > 0)):
+        q_m = np.array(q_m, dtype=float)
+        R = np.asarray(cov6, dtype=float).reshape(6, 6)[3:, 3:]
+        if not (_finite(*q_m.tolist()) and abs(math.sqrt(float(q_m.dot(q_m))) - 1) < 1e-6
+                and self._usable(R)):
             self.rejected += 1
             return out
         if self.q is None:
@@ -260,30 +325,42 @@ class MEKF:
             self.rejected += 1           # older than the state: not in stamp order
         return out
 
-    def _on_imu(self, msg):
-        t = _stamp_ns(msg)
+    def _usable(self, R):
+        """Whether ``R`` is finite and positive definite (the answer kept by its bytes)."""
+        key = R.tobytes()
+        ok = self._checked.get(key)
+        if ok is None:
+            ok = bool(np.all(np.isfinite(R)) and np.all(np.linalg.eigvalsh(0.5 * (R + R.T)) > 0))
+            if len(self._checked) < 64:
+                self._checked[key] = ok
+        return ok
+
+    def _on_imu(self, t, wx, wy, wz, cov9, stamp):
         out = self._flush(t)
         if self.q is None or t <= self.t_ns:
             return out
-        v = msg.angular_velocity
-        omega = np.array([v.x, v.y, v.z], dtype=float)
-        if not np.all(np.isfinite(omega)):
+        if not _finite(wx, wy, wz):
             self.rejected += 1
             return out
-        self.omega = omega
-        self.gyro_var = np.asarray(msg.angular_velocity_covariance, dtype=float).reshape(3, 3)
-        self.pending_star.sort(key=lambda s: s[0])
-        while self.pending_star and self.pending_star[0][0] <= t:
-            ts, q_m, R = self.pending_star.pop(0)
-            self._propagate((ts - self.t_ns) * 1e-9)
-            self.t_ns = ts
-            self._update(q_m, R)
+        self.omega = np.array([wx, wy, wz], dtype=float)
+        self.gyro_var = np.asarray(cov9, dtype=float).reshape(3, 3)
+        self._advance(t)
+        if self._gyro_count % self.p.output_every == 0:
+            self._due = (t, stamp)
+        return out
+
+    def _advance(self, t):
+        """Take the star tracker samples up to ``t``, propagate to ``t``; count the sample."""
+        if self.pending_star:
+            self.pending_star.sort(key=lambda s: s[0])
+            while self.pending_star and self.pending_star[0][0] <= t:
+                ts, q_m, R = self.pending_star.pop(0)
+                self._propagate((ts - self.t_ns) * 1e-9)
+                self.t_ns = ts
+                self._update(q_m, R)
         self._propagate((t - self.t_ns) * 1e-9)
         self.t_ns = t
         self._gyro_count += 1
-        if self._gyro_count % self.p.output_every == 0:
-            self._due = (t, msg.header.stamp)
-        return out
 
     def _odometry(self, stamp):
         from nav_msgs.msg import Odometry
@@ -299,6 +376,72 @@ class MEKF:
         a.x, a.y, a.z = (float(v) for v in w)
         odom.twist.covariance = _cov6(self.P[3:, 3:] + self.gyro_var)
         return odom
+
+    # -- arrays ------------------------------------------------------------------------
+    def receive_arrays(self, arrays, order):
+        """Take a whole run as arrays; return all its estimates as arrays.
+
+        The estimates the messages of :meth:`receive` and :meth:`finish` would carry, fed
+        the same samples in the same order, bit for bit (the last ones included: no
+        :meth:`finish` after it).
+
+        Parameters
+        ----------
+        arrays : dict
+            By topic, the columns of :func:`rigidrot_ros.run.generate.run_arrays`: the
+            imu's ``stamps_ns``, ``w`` (rad/s, in B) and ``var`` (its per-axis variance,
+            the diagonal of ``angular_velocity_covariance``); the star tracker's
+            ``stamps_ns``, ``q`` (x, y, z, w) ``q_NB`` and ``cov`` (the rotation block of
+            its covariance). Other topics are ignored.
+        order : iterable of (topic, row)
+            The samples in the order they arrive.
+
+        Returns
+        -------
+        dict
+            ``type`` (nav_msgs/msg/Odometry), ``frame_id``, ``stamps_ns`` (n,) int64,
+            ``orientation`` (n, 4) q_NB (x, y, z, w), ``orientation_cov`` (n, 3, 3) of the
+            error in B, ``angular_velocity`` (n, 3) rad/s in B, ``angular_velocity_cov``
+            (n, 3, 3).
+        """
+        imu = star = None
+        for topic, cols in arrays.items():
+            name = topic.rsplit('/', 1)[-1] if isinstance(topic, str) else None
+            if name == self.p.imu_topic:
+                imu = topic, cols['stamps_ns'].tolist(), cols['w'].tolist(), \
+                    cols['var'].tolist()
+            elif name == self.p.star_tracker_topic:
+                cov6 = np.zeros((len(cols['cov']), 6, 6))
+                cov6[:, 3:, 3:] = cols['cov']
+                star = topic, cols['stamps_ns'].tolist(), cols['q'].tolist(), cov6
+        self._sink = sink = []
+        try:
+            for topic, k in order:
+                if imu is not None and topic == imu[0]:
+                    self._on_imu(imu[1][k], *imu[2][k], self._cov9(imu[3][k]), None)
+                elif star is not None and topic == star[0]:
+                    self._on_star(star[1][k], star[2][k], star[3][k])
+            self._flush(None)
+        finally:
+            self._sink = None
+        n = len(sink)
+        out = {'type': self.output_type, 'frame_id': self.p.frame_id,
+               'stamps_ns': np.array([s[0] for s in sink], dtype=np.int64),
+               'orientation': np.array([s[1] for s in sink]).reshape(n, 4),
+               'orientation_cov': np.array([s[2][:3, :3] for s in sink]).reshape(n, 3, 3),
+               'angular_velocity': np.array([s[3] for s in sink]).reshape(n, 3),
+               'angular_velocity_cov': np.array([s[2][3:, 3:] + s[4]
+                                                 for s in sink]).reshape(n, 3, 3)}
+        return out
+
+    def _cov9(self, v):
+        """Return the gyro covariance a message of variance ``v`` carries (the node's)."""
+        c = self._var.get(v)
+        if c is None:
+            c = np.array([v, 0.0, 0.0, 0.0, v, 0.0, 0.0, 0.0, v])
+            if len(self._var) < 64 and v == v:
+                self._var[v] = c
+        return c
 
 
 def _cov6(block):

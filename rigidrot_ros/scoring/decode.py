@@ -34,7 +34,8 @@ from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 
-__all__ = ['Stream', 'decode_bag', 'SUPPORTED', 'ORIENTATION', 'RATE']
+__all__ = ['Stream', 'decode_bag', 'SUPPORTED', 'ORIENTATION', 'RATE', 'message_rows',
+           'stream_of_rows']
 
 ORIENTATION = 'orientation'
 RATE = 'angular_velocity'
@@ -246,15 +247,67 @@ def _stream(topic, type_name, fld, items):
     s.invalid = int(bad.sum())
     if any(i[2] is not None for i in items):
         cov = np.full((n, 3, 3), np.nan)
-        for k, i in enumerate(items):
-            if i[2] is None:
-                continue
-            c, status = _check_cov(i[2])
+        given = [k for k, i in enumerate(items) if i[2] is not None]
+        for k, status in zip(given, _check_covs([items[k][2] for k in given])):
             if status == 'ok':
-                cov[k] = c
+                cov[k] = items[k][2]
             elif status == 'unknown':
                 s.cov_unknown += 1
             else:
                 s.cov_unusable += 1
         s.cov = cov if s.cov_unknown < n else None
     return s
+
+
+def _check_covs(covs):
+    """:func:`_check_cov`'s status of each 3x3 of ``covs``, the checks made on all at once.
+
+    The same tests, element by element as ``np.allclose`` makes them (``|c - c^T| <=
+    rtol |c^T|``, or equal) and a Cholesky factorisation of each (LAPACK's, one matrix at
+    a time either way); a stack one matrix of which fails it is checked one by one.
+    """
+    if not covs:
+        return []
+    c = np.array(covs, dtype=float).reshape(len(covs), 3, 3)
+    status = np.full(len(c), 'unusable', dtype=object)
+    finite = np.all(np.isfinite(c), axis=(1, 2))
+    nonzero = np.any(c, axis=(1, 2))
+    status[finite & ~nonzero] = 'unknown'
+    cand = np.nonzero(finite & nonzero)[0]
+    ct = np.swapaxes(c[cand], 1, 2)
+    close = (np.abs(c[cand] - ct) <= 0.0 + 1e-9 * np.abs(ct)) | (c[cand] == ct)
+    cand = cand[np.all(close, axis=(1, 2))]
+    try:
+        np.linalg.cholesky(c[cand])
+        status[cand] = 'ok'
+    except np.linalg.LinAlgError:
+        for k in cand:
+            status[k] = _check_cov(c[k])[1]
+    return status.tolist()
+
+
+def message_rows(type_name, msg):
+    """Return ``(stamp_ns, [(field, value, covariance or None, frame), ...])`` of a message.
+
+    What :func:`decode_bag` reads of one message of a supported type, taken from a
+    message object in memory (an rclpy message, or one decoded from a bag) and copied, so
+    a message changed after this call does not change what is scored. KeyError for a type
+    that is not supported.
+    """
+    fields = [(fld, tuple(float(x) for x in value),
+               None if cov is None else np.array(cov, dtype=float), frame)
+              for fld, value, cov, frame in _fields(type_name, msg)]
+    return _stamp(msg), fields
+
+
+def stream_of_rows(topic, type_name, fld, rows):
+    """Return the :class:`Stream` of field ``fld`` of ``rows`` (:func:`message_rows`), or None.
+
+    The stream :func:`decode_bag` makes of the same messages in a bag, which reads them in
+    log-time order (the campaign logs an estimate at its stamp): the rows are taken in
+    stamp order, rows of one stamp in the order given. None when no row has the field.
+    """
+    order = sorted(range(len(rows)), key=lambda k: rows[k][0])
+    items = [(rows[k][0], value, cov, frame) for k in order
+             for f, value, cov, frame in rows[k][1] if f == fld]
+    return _stream(topic, type_name, fld, items) if items else None

@@ -36,6 +36,7 @@ Error conventions (quaternions (x, y, z, w), ``q_NB``):
   3), not as a significance test of the run.
 """
 
+import functools
 import math
 
 import mpmath
@@ -126,11 +127,17 @@ def _chi2_ppf(p, k):
 
 def anees_bounds(m, dof=3, level=0.95):
     """Two-sided ``level`` bounds of ANEES over ``m`` independent samples of ``dof``."""
+    return list(_anees_bounds(m, dof, level))
+
+
+@functools.lru_cache(maxsize=1024, typed=True)
+def _anees_bounds(m, dof, level):
+    """:func:`anees_bounds`, kept: a campaign asks for the same ``m`` run after run."""
     alpha = (1.0 - level) / 2
     with mpmath.workdps(30):
         lo = _chi2_ppf(alpha, dof * m) / m
         hi = _chi2_ppf(1 - alpha, dof * m) / m
-    return [float(lo), float(hi)]
+    return float(lo), float(hi)
 
 
 def _runs(bag, topic=None):

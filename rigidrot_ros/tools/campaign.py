@@ -3,7 +3,8 @@
 Reads a YAML spec (``rigidrot_ros.campaign.spec``), runs its M runs on a local process
 pool, a Dask LocalCluster (--workers N) or a running Dask cluster (--scheduler, with
 --tls-ca-file/--tls-cert/--tls-key for a TLS one), and writes report.json, runs.csv and
-charts into -o DIR. Rerun with the same -o to continue a stopped campaign.
+charts into -o DIR. Rerun with the same -o to continue a stopped campaign. In-process
+runs write no file but their results (--keep-bags DIR keeps each run's bags).
 """
 
 import os
@@ -36,8 +37,11 @@ def _parser():
                      help="this client's certificate, signed by a CA the scheduler trusts")
     tls.add_argument('--tls-key', metavar='PEM',
                      help="this client's private key (if not in --tls-cert's file)")
-    ap.add_argument('--bags', help="keep each run's bags under this directory (a shared "
-                                   'path with a cluster); default: temporary, removed')
+    ap.add_argument('--keep-bags', '--bags', dest='bags', metavar='DIR',
+                    help="keep each run's bags under DIR/run_NNNNNN (a shared path with a "
+                         "cluster; an in-process estimator's estimates are then bagged and "
+                         'scored from the bag, the same report); default: an in-process run '
+                         'writes no bag, a ROS one a temporary one, removed')
     ap.add_argument('--quiet', action='store_true', help='no progress bar')
     return ap
 
@@ -88,7 +92,7 @@ def main(argv=None):
             try:
                 os.makedirs(opts.bags, exist_ok=True)
             except OSError as exc:
-                raise SpecError(f'--bags {opts.bags}: cannot create it: '
+                raise SpecError(f'--keep-bags {opts.bags}: cannot create it: '
                                 f'{exc.strerror or exc}') from None
         report = run_campaign(spec, opts.output,
                               workers=opts.workers if opts.workers else opts.processes,

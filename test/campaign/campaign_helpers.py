@@ -140,3 +140,33 @@ def fails_after_the_check(params):
     if _CALLS[0] > 1:
         raise OSError('no licence for this filter')
     return Silent()
+
+
+class _BadArrays(MEKF):
+    """The MEKF whose ``receive_arrays`` misbehaves as ``how`` says."""
+
+    def __init__(self, params, how):
+        super().__init__(params)
+        self.how = how
+
+    def receive_arrays(self, arrays, order):
+        """Misbehave."""
+        if self.how == 'raises':
+            raise ValueError('no arrays today')
+        if self.how == 'not_a_dict':
+            return [1, 2]
+        if self.how == 'wrong_type':
+            return {'type': 'std_msgs/msg/String'}
+        out = super().receive_arrays(arrays, order)
+        if self.how == 'short':
+            out['orientation'] = out['orientation'][:-1]
+        if self.how == 'empty':
+            out = {k: (v[:0] if hasattr(v, 'shape') else v) for k, v in out.items()}
+        return out
+
+
+def bad_arrays(params):
+    """Make a :class:`_BadArrays` (``params['how']``; the rest are the MEKF's)."""
+    params = dict(params)
+    how = params.pop('how')
+    return _BadArrays(params, how)

@@ -55,7 +55,8 @@ def _listing(root):
     (_ros(domain_base=200, domain_span=40), [], 'make domain_span at most 33'),
     (dict(SPEC, seed=10 ** 400), [], 'seed must lie in'),
     (dict(SPEC, base={'params_file': 'a\0b'}), [], 'base.params_file must be a file name'),
-    (SPEC, ['--bags', '/proc/no/bags'], '--bags /proc/no/bags: cannot create it'),
+    (SPEC, ['--keep-bags', '/proc/no/bags'], '--keep-bags /proc/no/bags: cannot create it'),
+    (SPEC, ['--bags', '/proc/no/bags'], '--keep-bags /proc/no/bags: cannot create it'),
     (SPEC, ['--tls-cert', 'c.pem'], '--tls-cert apply to --scheduler'),
     (SPEC, ['--scheduler', 'tls://127.0.0.1:1', '--tls-cert', 'c.pem'],
      '--tls-ca-file is needed with --tls-cert'),
@@ -70,6 +71,17 @@ def test_bad_input_one_line_exit_2(tmp_path, capsys, monkeypatch, doc, extra, wo
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and word in err and 'Traceback' not in err, err
     assert _listing(tmp_path) == before
+
+
+def test_keep_bags_without_a_directory_is_one_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    path = _write(tmp_path, SPEC)
+    with pytest.raises(SystemExit) as exc:
+        main([path, '-o', str(tmp_path / 'out'), '--quiet', '--keep-bags'])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and len(err.splitlines()) == 1, err
+    assert 'argument --keep-bags/--bags: expected one argument' in err
+    assert not (tmp_path / 'out').exists()
 
 
 @pytest.mark.parametrize('out', ['/proc/rigidrot_out', '/dev/null/out', ''])
@@ -158,7 +170,9 @@ def test_pool_workers_end_when_the_client_is_killed(tmp_path):
                               env=env, stderr=subprocess.DEVNULL)
     try:
         end = time.monotonic() + 120
-        while not list(tmp_path.glob(PREFIX + '*')):          # a run is under way
+        # runs under way: a work directory, or (in memory, none) a first result saved
+        while not list(tmp_path.glob(PREFIX + '*')) and \
+                not list(tmp_path.glob('out/runs/*.json')):
             assert client.poll() is None and time.monotonic() < end
             time.sleep(0.1)
         kids = _children(client.pid)
@@ -218,3 +232,23 @@ def test_a_killed_pool_worker_stops_the_campaign_in_one_line(tmp_path, capsys, m
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and 'a worker of the process pool died' in err \
         and 'run the same command again' in err, err
+
+
+def test_in_process_workers_are_forked_from_a_client_without_threads():
+    import threading
+
+    from rigidrot_ros.campaign.engine import start_method
+    inproc = {'estimator': {'kind': 'inproc'}}
+    mixed = {'estimators': [{'kind': 'inproc'}, {'kind': 'ros'}]}
+    alone = threading.active_count() == 1
+    assert start_method(inproc) == ('fork' if alone and sys.platform.startswith('linux')
+                                    else 'spawn')
+    assert start_method({'estimator': {'kind': 'ros'}}) == start_method(mixed) == 'spawn'
+    stop = threading.Event()
+    th = threading.Thread(target=stop.wait)
+    th.start()
+    try:
+        assert start_method(inproc) == 'spawn'       # a fork would copy its locks
+    finally:
+        stop.set()
+        th.join()
