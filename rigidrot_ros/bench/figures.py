@@ -269,6 +269,55 @@ def _generation(res):
     return res['generate']['generation']
 
 
+def _inproc(res, way, key):
+    """Return the median of ``key`` over the rounds of ``way`` ('before', 'now')."""
+    import statistics
+    return statistics.median(r[key] for r in res['campaign_inproc'][way])
+
+
+@figure('campaign_inproc.cpu', RESULTS)
+def _inproc_cpu(res):
+    return f'{number(_inproc(res, "now", "cpu_s"))} s'
+
+
+@figure('campaign_inproc.cpu_before', RESULTS)
+def _inproc_cpu_before(res):
+    return f'{number(_inproc(res, "before", "cpu_s"))} s'
+
+
+@figure('campaign_inproc.cpu_ratio', RESULTS)
+def _inproc_cpu_ratio(res):
+    return f'{number(_inproc(res, "before", "cpu_s") / _inproc(res, "now", "cpu_s"), 2)}×'
+
+
+@figure('campaign_inproc.cpu_runs_min', RESULTS)
+def _inproc_cpu_runs(res):
+    c = res['campaign_inproc']
+    return number(c['runs'] * 60.0 * c['cores'] / _inproc(res, 'now', 'cpu_s'))
+
+
+@figure('campaign_inproc.runs_min', RESULTS)
+def _inproc_runs(res):
+    return number(_inproc(res, 'now', 'runs_per_min'))
+
+
+@figure('campaign_inproc.runs_min_before', RESULTS)
+def _inproc_runs_before(res):
+    return number(_inproc(res, 'before', 'runs_per_min'))
+
+
+@figure('campaign_inproc.ratio', RESULTS)
+def _inproc_ratio(res):
+    return f'{number(res["campaign_inproc"]["ratio"])}×'
+
+
+@figure('campaign_inproc.load', RESULTS)
+def _inproc_load(res):
+    c = res['campaign_inproc']
+    loads = [x for way in ('before', 'now') for r in c[way] for x in r['load_average']]
+    return f'{min(loads):.1f}–{max(loads):.1f}'
+
+
 @figure('generate.hour_s', RESULTS)
 def _gen_wall(res):
     return f'{number(_generation(res)["wall_s"])} s'
