@@ -58,7 +58,7 @@ def pytest_configure(config):
 
 
 def _children(pid):
-    """List the children of ``pid`` from /proc: (name, pid) pairs."""
+    """List the children of ``pid`` from /proc: (name, pid, state) triples (Z: a zombie)."""
     out = []
     for entry in os.listdir('/proc'):
         if not entry.isdigit():
@@ -70,19 +70,20 @@ def _children(pid):
             continue
         name, rest = stat[stat.index('(') + 1:stat.rindex(')')], stat[stat.rindex(')') + 2:]
         if int(rest.split()[1]) == pid:
-            out.append((name, int(entry)))
+            out.append((name, int(entry), rest.split()[0]))
     return out
 
 
 def pytest_unconfigure(config):
     """End the orphans adopted (controller); remove this worker's file of last words."""
     if _controls_workers(config) and os.path.isdir('/proc'):
-        left = _children(os.getpid())
-        for _, pid in left:
+        adopted = _children(os.getpid())
+        left = [(name, pid) for name, pid, state in adopted if state != 'Z']
+        for _, pid, _ in adopted:
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
             with contextlib.suppress(OSError):
-                os.waitpid(pid, 0)
+                os.waitpid(pid, 0)          # the ended ones too: no zombie outlives the run
         if left:
             sys.__stderr__.write(f'ended {len(left)} processes left running by test processes: '
                                  f'{", ".join(sorted({n for n, _ in left}))}\n')

@@ -187,81 +187,22 @@ def run_inproc(spec, values, work, timing):
     With ``work`` (bags kept), the estimates are bagged in ``work/estimate`` and its path
     is returned; without, they are returned in memory.
     """
-    from rigidrot_ros.campaign.session import SCORED_TYPES
-    from rigidrot_ros.campaign.spec import load_factory
-    from rigidrot_ros.ros.recorder import type_name_of
     from rigidrot_ros.run.generate import RUN_TOPIC
-    from rigidrot_ros.scoring.decode import message_rows
     est = spec['estimator']
     topic = est['topic']
     deadline = time.monotonic() + spec['timeout']
     where = ['the factory']
-    writer = None
-    keep = work is not None
-    counts = {'n': 0, 'type': None}
-    rows, runs = [], []
-    if keep:
-        from rclpy.serialization import serialize_message
-
-    def put(out):
-        if out is None:
-            return
-        if isinstance(out, (str, bytes)) or _is_message(out) or \
-                not isinstance(out, (list, tuple)):
-            raise RunFailed(f'{where[0]} returned {type(out).__name__}, not a list of '
-                            f'messages')
-        for m in out:
-            name = type_name_of(m) if _is_message(m) else type(m).__name__
-            if name not in SCORED_TYPES:
-                raise RunFailed(f'{where[0]} returned a {name}: the campaign scores '
-                                f'{", ".join(SCORED_TYPES)} (an orientation with its '
-                                f'covariance)')
-            if counts['type'] is None:
-                if keep:
-                    writer.add_topic(topic, name)
-                counts['type'] = name
-            elif name != counts['type']:
-                raise RunFailed(f'{where[0]} returned a {name} after {counts["type"]}s: one '
-                                f'type per topic')
-            if keep:
-                stamp = m.header.stamp
-                writer.write(topic, serialize_message(m), stamp.sec * _SEC + stamp.nanosec)
-            else:
-                rows.append(message_rows(name, m))
-            counts['n'] += 1
-
+    sink = None
     t0 = time.perf_counter()
     try:
         with _Watchdog(deadline):
-            factory = load_factory(est['factory'])
-            try:
-                filt = factory(dict(est['params']))
-            except RunFailed:
-                raise
-            except Exception as exc:  # noqa: B902 - the estimator's own failure
-                raise RunFailed(f'the factory failed: {type(exc).__name__}: {exc}',
-                                traceback.format_exc(), startup=True) from None
-            missing = [m for m in ('receive', 'finish')
-                       if not callable(getattr(filt, m, None))]
-            if missing:
-                raise RunFailed(f'the factory made no estimator: its {type(filt).__name__} '
-                                f'has no {" and no ".join(m + "()" for m in missing)}',
-                                startup=True)
-            if not keep and _takes_arrays(filt):
+            filt = _make_filter(est)
+            if work is None and _takes_arrays(filt):
                 return _feed_arrays(filt, spec, values, topic, timing, t0, where)
-            if keep:
-                from rigidrot_ros.bag import BagWriter
-                writer = BagWriter(None, 'campaign', flush_period=60.0,
-                                   path=os.path.join(work, 'estimate'), split_seconds=0.0)
+            sink = _Sink(topic, work, where)
             for name, ns, msg in _message_feed(values, spec['duration']):
                 if name == RUN_TOPIC:
-                    run = json.loads(msg.data)
-                    if keep:
-                        writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String')
-                        writer.add_run(run)
-                        writer.write(RUN_TOPIC, serialize_message(msg), ns)
-                    else:
-                        runs.append(logged_run(run))
+                    sink.run(msg, ns)
                 where[0] = f'receive() on {name} at stamp {ns} ns'
                 try:
                     out = filt.receive(name, msg)
@@ -269,28 +210,116 @@ def run_inproc(spec, values, work, timing):
                     raise RunFailed(f'the estimator crashed in {where[0]}: '
                                     f'{type(exc).__name__}: {exc}',
                                     traceback.format_exc()) from None
-                put(out)
+                sink.put(out)
             where[0] = 'finish()'
             try:
                 out = filt.finish()
             except Exception as exc:  # noqa: B902
                 raise RunFailed(f'the estimator crashed in finish(): {type(exc).__name__}: '
                                 f'{exc}', traceback.format_exc()) from None
-            put(out)
+            sink.put(out)
     except _Hung:
         raise RunFailed(f'timeout: the run took longer than {spec["timeout"]:g} s (in '
                         f'{where[0]})', traceback.format_exc()) from None
     finally:
-        if writer is not None:
-            writer.close()
+        if sink is not None:
+            sink.close()
     timing['filter_s'] = time.perf_counter() - t0
-    if not counts['n']:
-        raise RunFailed(f'the estimator published nothing on {topic}')
-    if keep:
-        return writer.path
-    if not runs:
-        raise RunFailed('the run description was not generated (no ~/run message)')
-    return Estimates(topic, counts['type'], rows, runs[0])
+    return sink.result()
+
+
+def _make_filter(est):
+    """Make the run's estimator with the spec's factory; RunFailed says why it cannot."""
+    from rigidrot_ros.campaign.spec import load_factory
+    factory = load_factory(est['factory'])
+    try:
+        filt = factory(dict(est['params']))
+    except RunFailed:
+        raise
+    except Exception as exc:  # noqa: B902 - the estimator's own failure
+        raise RunFailed(f'the factory failed: {type(exc).__name__}: {exc}',
+                        traceback.format_exc(), startup=True) from None
+    missing = [m for m in ('receive', 'finish') if not callable(getattr(filt, m, None))]
+    if missing:
+        raise RunFailed(f'the factory made no estimator: its {type(filt).__name__} '
+                        f'has no {" and no ".join(m + "()" for m in missing)}',
+                        startup=True)
+    return filt
+
+
+class _Sink:
+    """Where a run's estimates go: rows in memory, or (``work``: bags kept) a bag."""
+
+    def __init__(self, topic, work, where):
+        from rigidrot_ros.scoring.decode import message_rows
+        self.topic, self.where, self.keep = topic, where, work is not None
+        self.n, self.type, self.rows, self.runs = 0, None, [], []
+        self._rows_of = message_rows
+        self.writer = None
+        if self.keep:
+            from rclpy.serialization import serialize_message
+
+            from rigidrot_ros.bag import BagWriter
+            self._serialize = serialize_message
+            self.writer = BagWriter(None, 'campaign', flush_period=60.0,
+                                    path=os.path.join(work, 'estimate'), split_seconds=0.0)
+
+    def run(self, msg, ns):
+        """Take the run description (``~/run``) at log time ``ns``."""
+        from rigidrot_ros.run.generate import RUN_TOPIC
+        run = json.loads(msg.data)
+        if self.keep:
+            self.writer.add_topic(RUN_TOPIC, 'std_msgs/msg/String')
+            self.writer.add_run(run)
+            self.writer.write(RUN_TOPIC, self._serialize(msg), ns)
+        else:
+            self.runs.append(logged_run(run))
+
+    def put(self, out):
+        """Take what ``receive`` or ``finish`` returned: a list of scored messages, or None."""
+        from rigidrot_ros.campaign.session import SCORED_TYPES
+        from rigidrot_ros.ros.recorder import type_name_of
+        where = self.where[0]
+        if out is None:
+            return
+        if isinstance(out, (str, bytes)) or _is_message(out) or \
+                not isinstance(out, (list, tuple)):
+            raise RunFailed(f'{where} returned {type(out).__name__}, not a list of messages')
+        for m in out:
+            name = type_name_of(m) if _is_message(m) else type(m).__name__
+            if name not in SCORED_TYPES:
+                raise RunFailed(f'{where} returned a {name}: the campaign scores '
+                                f'{", ".join(SCORED_TYPES)} (an orientation with its '
+                                f'covariance)')
+            if self.type is None:
+                if self.keep:
+                    self.writer.add_topic(self.topic, name)
+                self.type = name
+            elif name != self.type:
+                raise RunFailed(f'{where} returned a {name} after {self.type}s: one type per '
+                                f'topic')
+            if self.keep:
+                stamp = m.header.stamp
+                self.writer.write(self.topic, self._serialize(m),
+                                  stamp.sec * _SEC + stamp.nanosec)
+            else:
+                self.rows.append(self._rows_of(name, m))
+            self.n += 1
+
+    def close(self):
+        """Finish the bag, if one is kept."""
+        if self.writer is not None:
+            self.writer.close()
+
+    def result(self):
+        """Return the bag's path (kept) or the :class:`Estimates`; RunFailed if none."""
+        if not self.n:
+            raise RunFailed(f'the estimator published nothing on {self.topic}')
+        if self.keep:
+            return self.writer.path
+        if not self.runs:
+            raise RunFailed('the run description was not generated (no ~/run message)')
+        return Estimates(self.topic, self.type, self.rows, self.runs[0])
 
 
 def _feed_arrays(filt, spec, values, topic, timing, t0, where):

@@ -234,21 +234,31 @@ def _estimator(est):
         raise SpecError('estimator needs exactly one of factory (in process) or command '
                         '(a ROS program)')
     if 'factory' in est:
-        extra = sorted(k for k in est if k not in INPROC_KEYS)
-        if extra:
-            raise SpecError(f'estimator: {", ".join(extra)} apply to a command, not a factory')
-        params = est.get('params') or {}
-        if not isinstance(params, dict):
-            raise SpecError(f'estimator.params must be a mapping, got {_short(params)}')
-        factory = load_factory(est['factory'])
-        try:
-            factory(dict(params))                      # the parameters are checked now
-        except Exception as exc:  # noqa: B902 - the estimator's own complaint
-            raise SpecError(f'estimator {est["factory"]} refuses its params: '
-                            f'{" ".join(str(exc).split())}') from None
-        topic = str(est.get('topic', '/estimator/odom'))
-        return {'kind': 'inproc', 'factory': str(est['factory']), 'params': dict(params),
-                'topic': topic if topic.startswith('/') else '/' + topic}
+        return _inproc_estimator(est)
+    return _ros_estimator(est)
+
+
+def _inproc_estimator(est):
+    """Check an in-process estimator (``factory``): its parameters are tried now."""
+    extra = sorted(k for k in est if k not in INPROC_KEYS)
+    if extra:
+        raise SpecError(f'estimator: {", ".join(extra)} apply to a command, not a factory')
+    params = est.get('params') or {}
+    if not isinstance(params, dict):
+        raise SpecError(f'estimator.params must be a mapping, got {_short(params)}')
+    factory = load_factory(est['factory'])
+    try:
+        factory(dict(params))                      # the parameters are checked now
+    except Exception as exc:  # noqa: B902 - the estimator's own complaint
+        raise SpecError(f'estimator {est["factory"]} refuses its params: '
+                        f'{" ".join(str(exc).split())}') from None
+    topic = str(est.get('topic', '/estimator/odom'))
+    return {'kind': 'inproc', 'factory': str(est['factory']), 'params': dict(params),
+            'topic': topic if topic.startswith('/') else '/' + topic}
+
+
+def _ros_estimator(est):
+    """Check a ROS program's estimator (``command``): its command, topics and feed."""
     extra = sorted(k for k in est if k not in ROS_KEYS)
     if extra:
         raise SpecError(f'estimator: {", ".join(extra)} apply to a factory, not a command')

@@ -572,6 +572,25 @@ def _write_piece(writer, span, a, b, start_ns):
     writer.write_chunk(data, span.cid[a:b], span.log[a:b] + start_ns, offsets)
 
 
+def _write_block(writer, run, span, lo, hi):
+    """Write the records of ``span`` logged in [lo, hi) ns, the run description where it falls."""
+    a, b = np.searchsorted(span.log, [lo, hi]).tolist()
+    if a <= span.run_at < b:
+        # as the node's recorder: a metadata record, written at once; the chunk still
+        # open before the run description is closed after it
+        before = _pieces(span, a, span.run_at, writer.chunk_size, writer.open_bytes)
+        for x, y, closed in before:
+            if closed:
+                _write_piece(writer, span, x, y, run.start_ns)
+        writer.add_run(run.description())
+        for x, y, closed in before:
+            if not closed:
+                _write_piece(writer, span, x, y, run.start_ns)
+        a = span.run_at
+    for x, y, _ in _pieces(span, a, b, writer.chunk_size, writer.open_bytes):
+        _write_piece(writer, span, x, y, run.start_ns)
+
+
 def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
     """Write the run's bag to ``out_dir`` (created; must not exist or be empty); its path.
 
@@ -621,22 +640,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
                 failed = [e for at, e in failures if at < hi]
                 if failed:                      # a sample of this block cannot be evaluated
                     raise failed[0]
-                a, b = np.searchsorted(span.log, [lo, hi]).tolist()
-                if a <= span.run_at < b:
-                    # as the node's recorder: a metadata record, written at once; the
-                    # chunk still open before the run description is closed after it
-                    before = _pieces(span, a, span.run_at, writer.chunk_size,
-                                     writer.open_bytes)
-                    for x, y, closed in before:
-                        if closed:
-                            _write_piece(writer, span, x, y, run.start_ns)
-                    writer.add_run(run.description())
-                    for x, y, closed in before:
-                        if not closed:
-                            _write_piece(writer, span, x, y, run.start_ns)
-                    a = span.run_at
-                for x, y, _ in _pieces(span, a, b, writer.chunk_size, writer.open_bytes):
-                    _write_piece(writer, span, x, y, run.start_ns)
+                _write_block(writer, run, span, lo, hi)
                 if progress is not None:
                     progress(min(hi, run.span_ns) * 1e-9 * run.time_scale, total)
                 if stop:

@@ -162,6 +162,19 @@ def _children(pid):
     return out
 
 
+def _running(pid):
+    """Whether process ``pid`` runs: it exists and is not a zombie (ended, not yet reaped).
+
+    An orphan is reaped by whoever adopts it: init at once, or the test run's controlling
+    process (a subreaper) only at the end of the run.
+    """
+    try:
+        with open(f'/proc/{pid}/stat', encoding='ascii', errors='replace') as fh:
+            return fh.read().rsplit(')', 1)[1].split()[0] not in ('Z', 'X')
+    except (OSError, IndexError):
+        return False
+
+
 def test_pool_workers_end_when_the_client_is_killed(tmp_path):
     spec = _write(tmp_path, dict(SPEC, runs=40, duration=30.0))
     env = dict(os.environ, TMPDIR=str(tmp_path))
@@ -183,9 +196,9 @@ def test_pool_workers_end_when_the_client_is_killed(tmp_path):
     # a worker inside a compiled call (numba's first compilation, an Arb evaluation) unwinds
     # when the call returns: seconds on a quiet machine, tens of them on a loaded one
     end = time.monotonic() + 90
-    while any(os.path.exists(f'/proc/{k}') for k in kids) and time.monotonic() < end:
+    while any(_running(k) for k in kids) and time.monotonic() < end:
         time.sleep(0.1)
-    alive = [k for k in kids if os.path.exists(f'/proc/{k}')]
+    alive = [k for k in kids if _running(k)]
     for k in alive:
         os.kill(k, signal.SIGKILL)
     assert not alive, 'orphans of the killed client were still running after 90 s'
