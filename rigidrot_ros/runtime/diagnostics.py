@@ -26,8 +26,8 @@ started);
 policy, :mod:`~rigidrot_ros.runtime.realtime`) and ``worker_gate`` (the look-ahead worker
 held to the scheduler's slack over the window,
 :class:`~rigidrot_ros.runtime.gate.SlackGate`: ``<n> holds, <ms> ms``; ``open`` where
-it is not held, e.g. below a 1 ms period; ``off`` with ``RIGIDROT_WORKER_GATE=0`` or no
-worker).
+it is not held, e.g. below a 1 ms period; ``off`` by default (``RIGIDROT_WORKER_GATE``
+unset or ``0``) or with no worker).
 
 Where a window's time went: ``call_max_us`` (the window's longest scheduler call, from
 its due time on the scheduler grid to its end, µs) and ``call_max_phases`` (that call's

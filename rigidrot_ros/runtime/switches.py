@@ -58,8 +58,12 @@ def lookahead_worker(environ=None):
 
 
 def worker_gate(environ=None):
-    """Whether the worker runs only in the scheduler's slack (``RIGIDROT_WORKER_GATE=0``: not)."""
-    return _on('RIGIDROT_WORKER_GATE', environ)
+    """Whether the worker runs only in the scheduler's slack (``RIGIDROT_WORKER_GATE`` set).
+
+    Set and not ``0``; off by default: with it, in-process nodes of the test suite
+    deadlocked under load (:class:`~rigidrot_ros.runtime.gate.SlackGate`).
+    """
+    return _text('RIGIDROT_WORKER_GATE', environ) not in ('', '0')
 
 
 def worker_batch(default, low, high, environ=None):

@@ -108,7 +108,7 @@ def test_no_other_module_reads_a_switch():
     assert found == {}, f'read them through rigidrot_ros.runtime.switches: {found}'
 
 
-@pytest.mark.parametrize('reader', [switches.lookahead_worker, switches.worker_gate,
+@pytest.mark.parametrize('reader', [switches.lookahead_worker,
                                     switches.gc_freeze, switches.gc_schedule,
                                     switches.record_offload])
 def test_a_switch_on_by_default_is_off_only_at_0(reader):
@@ -117,6 +117,13 @@ def test_a_switch_on_by_default_is_off_only_at_0(reader):
     for text in ('', '1', 'yes', ' 2 '):
         assert reader({name: text}) is True
     assert reader({name: '0'}) is False and reader({name: ' 0 '}) is False
+
+
+def test_the_worker_gate_is_on_only_when_set_to_anything_but_0():
+    assert switches.worker_gate({}) is False
+    assert switches.worker_gate({'RIGIDROT_WORKER_GATE': ''}) is False
+    assert switches.worker_gate({'RIGIDROT_WORKER_GATE': '0'}) is False
+    assert switches.worker_gate({'RIGIDROT_WORKER_GATE': '1'}) is True
 
 
 def test_no_jit_is_on_when_set_to_anything_but_0():
