@@ -16,14 +16,16 @@ from rigidrot_ros.core import quaternion as quat
 from rigidrot_ros.core import Scene
 from ros_helpers import next_domain_id, ros_env
 
-# pytest-timeout (setup.cfg: 600 s) fails a hung test by name, but its timer is Python code:
-# a thread stuck in C holding the interpreter lock would stop it too. This one is not: 60 s
-# later the process writes every thread's stack and exits (xdist reports the crashed test).
-# A test given more time (``@pytest.mark.timeout(s)``) gets it here too. A test process sent
-# SIGTERM writes its stacks first. Both go to a file of the worker's (a test's stderr is
-# captured, and lost with the process), which the controlling process prints when the
-# worker goes down.
-HARD_TIMEOUT_S = 660
+# A hung test must not hold the run. pytest-timeout (setup.cfg: 600 s) fails it by name,
+# but its timer is Python code (a thread stuck in C holding the interpreter lock stops it
+# too) and, in a test process of ``-n``, what it prints is captured and lost with the
+# process. faulthandler's timer is neither: in a test process of ``-n`` it fires 30 s
+# before pytest-timeout's, alone, 60 s after it; it writes every thread's stack and ends
+# the process (xdist reports the test as crashed). A test given more time
+# (``@pytest.mark.timeout(s)``) gets it here too. A test process sent SIGTERM writes its
+# stacks first. Both go to a file of the worker's, which the controlling process prints
+# when the worker goes down.
+TIMEOUT_S = 600.0
 
 
 def _last_words_path(uid, worker):
@@ -121,7 +123,8 @@ def pytest_testnodedown(node, error):
 @pytest.fixture(autouse=True)
 def _hard_timeout(request):
     mark = request.node.get_closest_marker('timeout')
-    hard = mark.args[0] + 60 if mark is not None and mark.args else HARD_TIMEOUT_S
+    limit = float(mark.args[0]) if mark is not None and mark.args else TIMEOUT_S
+    hard = limit - 30 if _LAST_WORDS is not sys.__stderr__ else limit + 60
     faulthandler.dump_traceback_later(hard, exit=True, file=_LAST_WORDS)
     yield
     faulthandler.cancel_dump_traceback_later()
