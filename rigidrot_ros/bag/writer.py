@@ -286,12 +286,23 @@ class BagWriter:
         """Whether ``topic`` has a channel in this bag."""
         return topic in self._channels
 
-    def write(self, topic, data, log_time_ns, publish_time_ns=None):
-        """Write one serialized (CDR) message."""
+    def _begin(self, n):
+        """Prepare for ``n`` messages; return whether there is anything to write.
+
+        Raises an offloaded write's error not yet reported, and starts the next file of a
+        split bag if one is due (only when ``n`` > 0).
+        """
         if self._error is not None:
             self._raise_error()
+        if n == 0:
+            return False
         if self._roll_due:
             self._roll()
+        return True
+
+    def write(self, topic, data, log_time_ns, publish_time_ns=None):
+        """Write one serialized (CDR) message."""
+        self._begin(1)
         cid = self._channels[topic]
         self._writer.add_message(channel_id=cid, log_time=int(log_time_ns), data=bytes(data),
                                  publish_time=int(publish_time_ns or log_time_ns),
@@ -324,12 +335,8 @@ class BagWriter:
         if not (len(topics) == n == len(log_times_ns)):
             raise ValueError('write_many needs one topic, one payload and one stamp per '
                              'message')
-        if self._error is not None:
-            self._raise_error()
-        if n == 0:
+        if not self._begin(n):
             return
-        if self._roll_due:
-            self._roll()
         log = np.asarray(log_times_ns, dtype=np.int64)
         cids = np.array([self._channels[t] for t in topics], dtype=np.int64)
         seq = self._sequence_numbers(topics, cids)
@@ -399,12 +406,8 @@ class BagWriter:
         if not (len(log) == n == len(offsets)):
             raise ValueError('write_chunk needs one channel, one stamp and one offset per '
                              'record')
-        if self._error is not None:
-            self._raise_error()
-        if n == 0:
+        if not self._begin(n):
             return
-        if self._roll_due:
-            self._roll()
         writer = self._writer
         chunk = writer._Writer__chunk_builder
         base = chunk.count

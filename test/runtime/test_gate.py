@@ -21,11 +21,10 @@ held_alone = pytest.mark.skipif(
 
 
 def test_the_gate_tests_that_hold_a_worker_pass_in_a_fresh_interpreter():
-    if os.environ.get(_ALONE):
-        pytest.skip('this is the fresh interpreter')
     env = {k: v for k, v in os.environ.items() if not k.startswith('PYTEST_XDIST')}
     run = subprocess.run([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider',
-                          '-p', 'no:xdist', __file__], env=dict(env, **{_ALONE: '1'}),
+                          '-p', 'no:xdist', __file__, '-k', 'not in_a_fresh_interpreter'],
+                         env=dict(env, **{_ALONE: '1'}),
                          capture_output=True, text=True, timeout=300,
                          cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     assert run.returncode == 0, run.stdout[-4000:] + run.stderr[-2000:]
