@@ -3,12 +3,13 @@
 - :func:`split_ros_args` separates a script's own arguments from ``--ros-args ... [--]``.
 - :func:`init_ros` runs ``rclpy.init`` and turns a failure (a missing ``--params-file``, a
   malformed ``-p``) into one line of text instead of rcl's log line and a traceback; it
-  makes the first Ctrl-C shut ROS down without a KeyboardInterrupt (:func:`_quiet_sigint`),
+  makes the first Ctrl-C shut ROS down without a KeyboardInterrupt (:func:`_quiet_signals`),
   and SIGINTs within :data:`SIGNAL_MERGE_S` of the first one request.
 - :func:`spin_until_shutdown` spins until Ctrl-C, SIGTERM or a shutdown, then cleans up,
   on the executor :func:`make_executor` makes.
   The clean-up (the node's ``destroy_node``: a recorder finishes its bag) runs to
-  its end whatever signal arrives meanwhile.
+  its end whatever signal arrives meanwhile, and a SIGINT or SIGTERM that arrives after it,
+  while the process exits, is ignored (:func:`_stopping`).
 """
 
 import os
@@ -86,7 +87,11 @@ def _clean_rcl_message(text):
     return ' '.join(text.split())
 
 
-def _quiet_sigint():
+#: Set once ``rclpy.init`` has installed its handlers (:func:`init_ros`).
+_ROS_UP = threading.Event()
+
+
+def _quiet_signals():
     """Let the first SIGINT shut ROS down without raising KeyboardInterrupt; a second raises.
 
     rclpy's SIGINT handler, installed by ``rclpy.init`` in front of the one found, shuts the
@@ -97,22 +102,36 @@ def _quiet_sigint():
     in a test of ours). Installed only over Python's default handler and from the main
     thread. SIGINTs within :data:`SIGNAL_MERGE_S` of the first are the same request; a
     later one raises KeyboardInterrupt, for a process that would not stop (its clean-up,
-    :func:`spin_until_shutdown`'s, still runs to its end). SIGTERM is rclpy's alone: it
-    shuts ROS down, however often it comes.
+    :func:`spin_until_shutdown`'s, still runs to its end).
+
+    SIGTERM is rclpy's: it shuts ROS down, however often it comes. The Python handler set
+    here under rclpy's (which calls it after its own) does nothing once ROS is up; it is
+    there so that a SIGTERM between rclpy's shutdown, which puts back the handler it found,
+    and :func:`_stopping` finds a handler instead of the default action, which would end a
+    process that has finished its clean-up by that signal. Before ``rclpy.init`` a SIGTERM
+    takes the default action, as if nothing were installed.
     """
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+    if threading.current_thread() is not threading.main_thread():
         return
-    first = []
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        first = []
 
-    def handler(signum, frame):
-        now = time.monotonic()
-        if not first:
-            first.append(now)
-        elif now - first[0] > SIGNAL_MERGE_S:
-            raise KeyboardInterrupt
+        def on_int(signum, frame):
+            now = time.monotonic()
+            if not first:
+                first.append(now)
+            elif now - first[0] > SIGNAL_MERGE_S:
+                raise KeyboardInterrupt
 
-    signal.signal(signal.SIGINT, handler)
+        signal.signal(signal.SIGINT, on_int)
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+
+        def on_term(signum, frame):
+            if not _ROS_UP.is_set():
+                signal.signal(signal.SIGTERM, signal.SIG_DFL)
+                os.kill(os.getpid(), signal.SIGTERM)
+
+        signal.signal(signal.SIGTERM, on_term)
 
 
 def init_ros(prog, ros_args):
@@ -138,7 +157,7 @@ def init_ros(prog, ros_args):
     reason = _check_params_files(ros_args)
     if reason is not None:
         return reason
-    _quiet_sigint()
+    _quiet_signals()
     sys.stderr.flush()
     saved = os.dup(2)
     try:
@@ -156,6 +175,7 @@ def init_ros(prog, ros_args):
             finally:
                 os.dup2(saved, 2)
             if reason is None:
+                _ROS_UP.set()
                 held.seek(0)
                 data = held.read()
                 if data:
@@ -185,6 +205,21 @@ def _spin(node):
         executor.shutdown()
 
 
+def _stopping():
+    """Ignore SIGINT and SIGTERM from now on: the stop they would ask for is done.
+
+    Called once the clean-up has run. Without it a late signal kills a process that has
+    finished everything: rclpy's uninstall leaves SIGTERM at its default action, and
+    Python's finalisation resets SIGINT to its default action, so a SIGINT or SIGTERM that
+    arrives while the process exits (the second of two SIGINTs sent "at once" by a process
+    the scheduler holds between them) ended it by that signal instead of with its status.
+    SIGKILL and SIGQUIT still end a process whose exit hangs. Main thread only.
+    """
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
+
+
 def spin_until_shutdown(node, loop=None):
     """Run ``loop(node)`` (default: spin on :func:`make_executor`), then clean up.
 
@@ -194,7 +229,8 @@ def spin_until_shutdown(node, loop=None):
     that races the shutdown (``RCLError`` once the context is gone) end it quietly; any
     other error propagates. The node's ``destroy_node`` runs in every case, to its end
     whatever signal arrives meanwhile (:func:`rigidrot_ros.bag.metadata.uninterrupted`), so
-    a recorder finishes its file; a Ctrl-C during it is then taken as done.
+    a recorder finishes its file; a Ctrl-C during it is then taken as done. After the
+    clean-up SIGINT and SIGTERM are ignored (:func:`_stopping`).
     """
     try:
         (loop or _spin)(node)
@@ -205,7 +241,15 @@ def spin_until_shutdown(node, loop=None):
             raise               # a real failure; after a shutdown it is only the race
     finally:
         try:
-            uninterrupted(node.destroy_node)
+            uninterrupted(_clean_up, node)
         except KeyboardInterrupt:
             pass                # the clean-up it asked for is done
+        _stopping()
+
+
+def _clean_up(node):
+    """Destroy ``node``, then shut ROS down (even if the destruction raised)."""
+    try:
+        node.destroy_node()
+    finally:
         rclpy.try_shutdown()

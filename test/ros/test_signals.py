@@ -16,7 +16,8 @@ import time
 import pytest
 import yaml
 
-from ros_helpers import next_domain_id, ros_env, start, wait_for
+from rigidrot_ros.ros.spin import SIGNAL_MERGE_S
+from ros_helpers import next_domain_id, ros_env, script, start, wait_for
 
 
 def _mcap_count(bag):
@@ -163,6 +164,45 @@ def test_sigint_twice_then_sigterm_leave_every_bag_whole(tmp_path, when):
         assert _rosbags_count(bag) == (n, n)
         assert _listed(bag) == n
         assert not list(bag.glob('*.tmp'))
+
+
+@pytest.mark.ros
+def test_signals_that_keep_coming_while_the_node_exits_leave_its_status_0(tmp_path):
+    """SIGINT, then SIGTERM every millisecond until the node is gone: exit 0, bag whole.
+
+    A signal that arrives after the clean-up, while the process exits, used to find the
+    default action (rclpy puts back what it found for SIGTERM; Python's finalisation does
+    so for SIGINT) and end a node that had finished its bag by that signal. A second SIGINT
+    inside the merge window goes along, as ``kill -INT`` of ``timeout`` sends it.
+    """
+    proc = start([script('attitude_node'), '--ros-args', '-p', 'imu.enable:=true',
+                  '-p', 'record:=true', '-p', f'record_path:={tmp_path}'],
+                 ros_env(next_domain_id()), start_new_session=True)
+    try:
+        assert wait_for(lambda: list(tmp_path.glob('*/*.mcap'))
+                        and list(tmp_path.glob('*/*.mcap'))[0].stat().st_size > 8192,
+                        timeout=60), 'the node did not record'
+        first = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        sent = 1
+        while proc.poll() is None and time.monotonic() - first < 60:
+            late = time.monotonic() - first
+            if late < SIGNAL_MERGE_S * 0.5 and sent == 1:
+                proc.send_signal(signal.SIGINT)
+            proc.send_signal(signal.SIGTERM)
+            sent += 1
+            time.sleep(0.001)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert sent > 10, f'only {sent} signals were sent before it exited'
+    assert proc.returncode == 0, err[-3000:]
+    assert 'Traceback' not in err and 'bag finished' in err, err[-3000:]
+    (bag,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    n = _mcap_count(bag)
+    assert n > 10 and _rosbags_count(bag) == (n, n) and _listed(bag) == n
 
 
 def test_the_merge_window_is_documented():
