@@ -117,16 +117,25 @@ def norm3(v):
     return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
 
 
+def _closed_form_log(bound, hh, atm, a_rho, b_rho, log_c):
+    """``L`` of the closed-form bound at ``hh``, ``|tm|`` and ellipses (arrays that broadcast).
+
+    Elementwise: an entry's bits depend on its own ``hh``, ``|tm|`` and rho alone, whatever
+    the shape of the arrays (contiguous operands, as every caller passes them).
+    """
+    reach = atm + hh * a_rho
+    y = hh * b_rho * (bound.c1 + bound.c2 * reach)
+    big = bound.w_t + bound.m_t * reach
+    log_cosh = y + np.log1p(np.exp(-2.0 * y)) - _LOG_2
+    return np.log(math.sqrt(2.0) * hh) + np.log(big) + log_cosh + log_c
+
+
 def _log_bound(bound, hh, tm):
     """``L`` (m, rho): the log of the truncation bound without the ``-(2n - 2) log rho``."""
     hh = hh[:, None]
     with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
         if bound.kind == 'closed-form':
-            reach = np.abs(tm)[:, None] + hh * _A_RHO
-            y = hh * _B_RHO * (bound.c1 + bound.c2 * reach)
-            big = bound.w_t + bound.m_t * reach
-            log_cosh = y + np.log1p(np.exp(-2.0 * y)) - _LOG_2
-            out = np.log(math.sqrt(2.0) * hh) + np.log(big) + log_cosh + _LOG_C
+            out = _closed_form_log(bound, hh, np.abs(tm)[:, None], _A_RHO, _B_RHO, _LOG_C)
         else:
             om = np.asarray(bound.solution.omega_at(tm), dtype=float)
             w = np.max(np.abs(om), axis=-1)[:, None] * (1 + 1e-12) + 1e-300
@@ -149,8 +158,8 @@ def truncation_many(bound, t0, t1, n):
     return _truncation(_log_bound(bound, hh, tm), np.broadcast_to(n, hh.shape))
 
 
-def _truncation(log_l, n):
-    log_err = log_l - (2.0 * n - 2.0)[:, None] * _LOG_RHO
+def _truncation(log_l, n, log_rho=_LOG_RHO):
+    log_err = log_l - (2.0 * n - 2.0)[:, None] * log_rho
     with np.errstate(over='ignore'):            # a bound beyond float64 is inf
         return np.exp(np.min(log_err, axis=1))
 
@@ -160,24 +169,95 @@ def _rules(bound, hh, tm, tol):
     m = len(hh)
     if bound.kind == 'linear':                   # a linear rate: 2 nodes are exact
         return np.full(m, _NODES[0]), np.zeros(m)
+    if bound.kind == 'closed-form' and m >= 2 * _GROUP:
+        got = _pruned_rules(bound, hh, tm, tol)
+        if got is not None:
+            return got
     return rules_from_log(_log_bound(bound, hh, tm), tol)
 
 
-def rules_from_log(log_l, tol):
+#: Consecutive intervals whose ellipses are pruned together (:func:`_pruned_rules`).
+_GROUP = 32
+#: Slack on the log bounds of a group, relative (and absolute): far above their rounding.
+_SLACK = 1e-9
+
+
+def _pruned_rules(bound, hh, tm, tol):
+    """:func:`rules_from_log` of :func:`_log_bound`, bit for bit, on the ellipses that can win.
+
+    The closed-form ``L`` grows with ``hh`` and ``|tm|`` (``c1, c2, w_t, m_t >= 0``), so
+    the rows of a group of :data:`_GROUP` lie between ``L`` at the group's smallest and at
+    its largest ``(hh, |tm|)`` (with :data:`_SLACK`). An ellipse whose lower value exceeds
+    the least upper value (of the rule estimate, and of the truncation of each rule the
+    group can take) is the minimum of no row: its entries are left at +inf and only the
+    others are evaluated, each as :func:`_log_bound` evaluates it. The minima, so the
+    rules and their bounds, are the same bits. A row whose rule ends past the group's
+    range is chosen again over every ellipse. None where the shortcut does not apply.
+    """
+    if min(bound.c1, bound.c2, bound.w_t, bound.m_t) < 0 or not np.all(hh > 0):
+        return None
+    m, groups = len(hh), -(-len(hh) // _GROUP)
+    atm = np.abs(tm)
+    pad = groups * _GROUP - m
+
+    def ends(v):
+        g = np.concatenate([v, np.full(pad, v[-1])]).reshape(groups, _GROUP)
+        return g.min(axis=1)[:, None], g.max(axis=1)[:, None]
+    (h_lo, h_hi), (a_lo, a_hi) = ends(hh), ends(atm)
+    with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
+        lo = _closed_form_log(bound, h_lo, a_lo, _A_RHO, _B_RHO, _LOG_C)
+        hi = _closed_form_log(bound, h_hi, a_hi, _A_RHO, _B_RHO, _LOG_C)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        return None
+    lo = lo - _SLACK * (1.0 + np.abs(lo))
+    hi = hi + _SLACK * (1.0 + np.abs(hi))
+    target = math.log(0.5 * tol)
+    f_lo = (lo - target) / (2.0 * _LOG_RHO) + 1.0
+    f_hi = (hi - target) / (2.0 * _LOG_RHO) + 1.0
+    keep = f_lo <= np.min(f_hi, axis=1)[:, None]
+    nodes = np.array(_NODES)
+    top = len(nodes) - 1
+    first = np.minimum(np.searchsorted(nodes, np.min(f_lo, axis=1)), top)
+    last = np.minimum(np.searchsorted(nodes, np.min(f_hi, axis=1)) + 2, top)
+    for j in range(int(first.min()), int(last.max()) + 1):
+        at = (first <= j) & (j <= last)
+        g_lo = lo[at] - (2.0 * nodes[j] - 2.0) * _LOG_RHO
+        g_hi = hi[at] - (2.0 * nodes[j] - 2.0) * _LOG_RHO
+        keep[at] |= g_lo <= np.min(g_hi, axis=1)[:, None]
+    # each group's ellipses in rho order, the first repeated up to the widest group's count
+    count = keep.sum(axis=1)
+    width = int(count.max())
+    cols = np.argsort(~keep, axis=1, kind='stable')[:, :width]
+    cols = np.where(np.arange(width) < count[:, None], cols, cols[:, :1])
+    cols = np.repeat(cols, _GROUP, axis=0)[:m]
+    with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
+        log_l = _closed_form_log(bound, hh[:, None], atm[:, None], _A_RHO[cols],
+                                 _B_RHO[cols], _LOG_C[cols])
+    log_l = np.where(np.isnan(log_l), np.inf, log_l)
+    n, trunc = rules_from_log(log_l, tol, _LOG_RHO[cols])
+    pick = np.where(n == 0, top, np.searchsorted(nodes, n))
+    again = np.flatnonzero(pick > np.repeat(last, _GROUP)[:m])
+    if len(again):
+        n[again], trunc[again] = rules_from_log(_log_bound(bound, hh[again], tm[again]), tol)
+    return n, trunc
+
+
+def rules_from_log(log_l, tol, log_rho=_LOG_RHO):
     """Fewest nodes (m,) with ``exp(min_rho(L - (2 n - 2) log rho)) <= tol / 2``, bounds.
 
     ``log_l`` (m, rho): the log of a truncation bound without its ``rho^-(2n - 2)``
-    factor (:data:`increments._RHO`); 0 nodes where no rule of up to 32 nodes serves.
+    factor, at the ellipses of ``log_rho`` (the logs of :data:`increments._RHO`, or of
+    some of them for each row, (m, rho)); 0 nodes where no rule of up to 32 nodes serves.
     Each row's choice depends on its own row alone.
     """
     target = math.log(0.5 * tol)
     with np.errstate(invalid='ignore'):
-        need = np.min((log_l - target) / (2.0 * _LOG_RHO) + 1.0, axis=1)
+        need = np.min((log_l - target) / (2.0 * log_rho) + 1.0, axis=1)
     nodes = np.array(_NODES)
     pick = np.minimum(np.searchsorted(nodes, np.where(np.isnan(need), np.inf, need)),
                       len(nodes) - 1)
     n = nodes[pick]
-    trunc = _truncation(log_l, n.astype(float))
+    trunc = _truncation(log_l, n.astype(float), log_rho)
     # the log-linear shortcut can miss by a rounding: step up where the bound fails
     while True:
         bad = ~(trunc <= 0.5 * tol) & (pick < len(nodes) - 1)
@@ -185,7 +265,7 @@ def rules_from_log(log_l, tol):
             break
         pick = np.where(bad, pick + 1, pick)
         n = nodes[pick]
-        trunc = _truncation(log_l, n.astype(float))
+        trunc = _truncation(log_l, n.astype(float), log_rho)
     n = np.where(trunc <= 0.5 * tol, n, 0)
     return n, trunc
 

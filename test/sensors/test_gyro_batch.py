@@ -144,6 +144,27 @@ def test_each_interval_takes_the_fewest_nodes_that_meet_tol():
             assert truncation_many(rb, t0[i:i + 1], t1[i:i + 1], smaller)[0] > 0.5e-13
 
 
+@pytest.mark.parametrize('scene', ['axisymmetric', 'axial-torque'])
+def test_the_pruned_rule_choice_is_the_full_one_bit_for_bit(scene):
+    """Blocks choose their rules on the ellipses that can win: the same rules and bounds."""
+    from rigidrot_ros.sensors.batch import _log_bound, _pruned_rules, rules_from_log
+    rb = RateBound(solve(SCENES[scene]))
+    assert rb.kind == 'closed-form'
+    rng = np.random.default_rng(7)
+    grids = [_grid(rate, k0, k0 + 500) for rate, k0 in
+             ((1000.0, 0), (1000.0, 3_599_000), (4000.0, 12_345), (10.0, 7), (1.0, 3000))]
+    grids += [np.sort(rng.uniform(0.0, 10.0 ** e, 400)) for e in (-1, 1, 3, 6)]
+    seen = set()
+    for times, tol in zip(grids, (1e-13, 1e-13, 1e-15, 1e-10, 1e-13, 1e-13, 1e-6, 1e-13,
+                                  1e-13)):
+        hh, tm = 0.5 * np.diff(times), 0.5 * (times[1:] + times[:-1])
+        n, trunc = _pruned_rules(rb, hh, tm, tol)
+        ref_n, ref_trunc = rules_from_log(_log_bound(rb, hh, tm), tol)
+        assert np.array_equal(n, ref_n) and trunc.tobytes() == ref_trunc.tobytes()
+        seen.update(n.tolist())
+    assert 0 in seen and len(seen) > 6      # rules of many sizes, and intervals none serves
+
+
 def test_long_intervals_fall_back_to_subintervals_alone():
     from rigidrot_ros.sensors import delta_angle
     sol = solve(SCENES['axial-torque'])
