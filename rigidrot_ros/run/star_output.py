@@ -26,7 +26,17 @@ class StarTrackerOutput(SensorOutput):
         self.model = setup.star_tracker
 
     def read(self, times, budget=None):
-        """Read the attitude at each of ``times`` (scene s)."""
+        """Read the attitude at each of ``times`` (scene s).
+
+        At once (:meth:`StarTracker.read_many`, the per-sample bits), else, where an
+        attitude cannot be evaluated, sample by sample (nothing drawn before).
+        """
+        try:
+            r = self.model.read_many(times)
+            return {'q': r.quaternion, 'cov': r.covariance}, [None] * len(r.t)
+        except Exception:    # noqa: B902 - each sample's own error, from the reads below
+            pass
+
         def one(t):
             r = self.model.read(t)
             return r.quaternion, r.covariance

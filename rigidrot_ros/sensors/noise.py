@@ -224,7 +224,10 @@ class AttitudeNoise:
     def draw(self, count=None):
         """Rotation-vector errors e in B (rad): shape (3,), or (count, 3)."""
         n = self._rng.standard_normal((1 if count is None else count, 3))
-        along = n @ self.boresight
+        if count is None:
+            along = n @ self.boresight
+        else:   # row by row as one draw: a matrix-vector product gives other bits
+            along = np.array([(row @ self.boresight)[0] for row in n[:, None]]).reshape(-1)
         e = self.sigma_c * (n - along[:, None] * self.boresight) + \
             self.sigma_a * along[:, None] * self.boresight
         return e[0] if count is None else e

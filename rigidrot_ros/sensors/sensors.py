@@ -169,3 +169,20 @@ class StarTracker:
         # the exact attitude's own error adds (in quadrature, at most) to the covariance
         cov = self.noise.covariance + float(s.error_bound) ** 2 * np.eye(3)
         return StarTrackerReading(float(t), q_meas, e, cov, q_true)
+
+    def read_many(self, times):
+        """Sample at each of ``times`` (scene s, 1-D) at once: a :class:`StarTrackerReading`.
+
+        Its fields hold one row per time: bit for bit the readings :meth:`read` gives at
+        the same times in order (the attitudes' bits depend on t alone, the noise is
+        drawn in the same order, the error bound squared as a Python float is). If the
+        attitudes cannot be evaluated, ValueError (or PrecisionError) before any noise
+        is drawn.
+        """
+        t = np.asarray(times, dtype=float)
+        s = self.solution.at(t)
+        q_true = np.asarray(s.quaternion, dtype=float)
+        q_meas, e = self.noise.corrupt(q_true)
+        square = np.array([b ** 2 for b in np.asarray(s.error_bound, dtype=float).tolist()])
+        cov = self.noise.covariance + square[:, None, None] * np.eye(3)
+        return StarTrackerReading(t, q_meas, e, cov, q_true)
