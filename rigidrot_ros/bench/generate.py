@@ -147,7 +147,7 @@ def _stages(duration, log):
     """
     from rigidrot_ros.bag import BagWriter
     from rigidrot_ros.bag import writer as bag_writer
-    from rigidrot_ros.run import generate as gen
+    from rigidrot_ros.run import chunks, generate as gen
     values = dict(gen.parse_override(s) for s in SCENE)
     spent = dict.fromkeys(('set-up', 'truth', 'gyro', 'star tracker', 'pack', 'chunk',
                            'compress + write'), 0.0)
@@ -184,13 +184,13 @@ def _stages(duration, log):
                     break
                 elo, ehi, parts = got
                 c1 = time.perf_counter()
-                span = gen._span(run, parts, cids, seq)
+                span = chunks.span_of(run, parts, cids, seq, gen._order(parts))
                 c2 = time.perf_counter()
                 for lo in range(elo, ehi, step):
                     a, b = np.searchsorted(span.log, [lo, min(ehi, lo + step)]).tolist()
-                    pieces = gen._pieces(span, a, b, writer.chunk_size, writer.open_bytes)
+                    pieces = chunks.pieces(span, a, b, writer.chunk_size, writer.open_bytes)
                     for x, y, _ in pieces:
-                        gen._write_piece(writer, span, x, y, run.start_ns)
+                        chunks.write_piece(writer, span, x, y, run.start_ns)
                 c3 = time.perf_counter()
                 spent['truth'] += c1 - c0
                 spent['pack'] += c2 - c1

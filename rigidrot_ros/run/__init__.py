@@ -7,6 +7,7 @@ module, ``truth_outputs``, ``imu_output``, ``star_output``, ``mag_output``, and 
 for the run description, all on the base classes of ``output``: topics, type, rank,
 enabling parameter, reading a block of samples, encoding to CDR and to messages);
 ``schedule``, ``truth_ahead`` and ``sensor_ahead`` (the node's one timer: what each call
-publishes, its samples read and encoded ahead); and ``generate`` (a whole run into a bag
-offline, byte-identical to the node's recording).
+publishes, its samples read and encoded ahead); ``generate`` (a whole run into a bag
+offline, byte-identical to the node's recording) and ``chunks`` (its blocks as MCAP
+records and chunks).
 """

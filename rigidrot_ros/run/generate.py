@@ -30,7 +30,8 @@ if its true time lies in ``[start_ns, start_ns + duration_s / time_scale)``
 Parameters are validated by the node's own code (:mod:`rigidrot_ros.run.settings`).
 :func:`generate_bag` encodes each block with the kinds' vectorised CDR
 (:mod:`rigidrot_ros.msgs.cdr`) and streams it to the bag, so memory stays bounded
-whatever the duration; :func:`iter_run` gives the same messages as ROS messages.
+whatever the duration (its records and chunks: :mod:`rigidrot_ros.run.chunks`);
+:func:`iter_run` gives the same messages as ROS messages.
 """
 
 import difflib
@@ -44,7 +45,7 @@ import numpy as np
 import yaml
 
 from rigidrot_ros.bag import qos_yaml
-from rigidrot_ros.run import grid, table
+from rigidrot_ros.run import chunks, grid, table
 from rigidrot_ros.run.output import scene_time
 from rigidrot_ros.run.scheduler import timing_of, Track
 from rigidrot_ros.run.truth_outputs import read_truth
@@ -189,6 +190,9 @@ def _check_span(duration_s, start_ns):
 
 class _Run:
     """The outputs of one run (the table's kinds it switches on), a block of clock at a time."""
+
+    #: where the run description goes (:func:`rigidrot_ros.run.chunks.span_of` finds it)
+    run_topic = RUN_TOPIC
 
     def __init__(self, values, duration_s, start_ns):
         _check_span(duration_s, start_ns)
@@ -408,12 +412,12 @@ def run_arrays(values, duration_s, start_ns=0):
             if p.topic != RUN_TOPIC:
                 parts.setdefault(p.topic, []).append((p.stamps, p.true, p.cols))
     out = {'run': run.description()}
-    for topic, chunks in parts.items():
-        true = np.concatenate([c[1] for c in chunks])
-        d = {'stamps_ns': np.concatenate([c[0] for c in chunks]), 'true_ns': true,
+    for topic, got in parts.items():
+        true = np.concatenate([c[1] for c in got])
+        d = {'stamps_ns': np.concatenate([c[0] for c in got]), 'true_ns': true,
              't': np.asarray(scene_time(true, run.start_ns, run.time_scale), dtype=float)}
-        for key in chunks[0][2]:
-            d[key] = np.concatenate([np.asarray(c[2][key]) for c in chunks])
+        for key in got[0][2]:
+            d[key] = np.concatenate([np.asarray(c[2][key]) for c in got])
         out[topic] = d
     return out
 
@@ -453,144 +457,6 @@ def _qos_yamls(p):
             qos_yaml(depth=1, durability='transient_local'))
 
 
-class _Span(NamedTuple):
-    """A span's messages in the order the node publishes them, as slices of their records.
-
-    Message i is ``sources[src[i]][off[i]:off[i] + size[i]]``, an MCAP Message record
-    (head and CDR) of channel ``cid[i]`` logged at ``log[i]`` (ns, from the start);
-    ``cont[i]``: its record follows message i - 1's in the same source; ``run_at``: the
-    place of the run description (-1: none).
-    """
-
-    log: np.ndarray
-    cid: np.ndarray
-    src: np.ndarray
-    off: np.ndarray
-    size: np.ndarray
-    cont: np.ndarray
-    sources: list
-    run_at: int
-
-
-def _records(run, parts, cids, seq):
-    """Build the MCAP Message records of a span's parts: ``(sources, src, off, size)`` per part.
-
-    The parts of one output share rows: where each topic's CDR is a fixed-size
-    :class:`~rigidrot_ros.msgs.cdr.Batch`, a row's records lie back to back in one array
-    (:func:`rigidrot_ros.bag.writer.record_dtype`), so the records of a sample's topics
-    and of consecutive samples are consecutive bytes. Other parts (the run description)
-    are joined message by message. ``seq`` (topic -> next sequence number) counts on.
-    """
-    from rigidrot_ros.bag.writer import MESSAGE_HEAD, fill_records, record_dtype
-    from rigidrot_ros.msgs.cdr import Batch
-    groups = {}
-    for i, p in enumerate(parts):
-        groups.setdefault(id(p.output), []).append(i)
-    sources, where = [], [None] * len(parts)
-    for idx in groups.values():
-        raws = [parts[i].output.encode_batch(parts[i].name, parts[i].stamps, parts[i].cols,
-                                             run.frames) for i in idx]
-        n = len(parts[idx[0]].stamps)
-        if all(isinstance(r, Batch) for r in raws):
-            rows = np.empty(n, dtype=record_dtype([r.size for r in raws]))
-            step = rows.dtype.itemsize
-            for j, (i, r) in enumerate(zip(idx, raws)):
-                p = parts[i]
-                fill_records(rows, j, cids[p.topic], seq[p.topic], p.log, r.data)
-                seq[p.topic] += n
-                at = rows.dtype.fields[f'm{j}'][1]
-                where[i] = (len(sources), np.arange(n, dtype=np.int64) * step + at,
-                            np.full(n, 31 + r.size, dtype=np.int64))
-            sources.append(memoryview(rows.view(np.uint8)) if n else b'')
-            continue
-        for i, r in zip(idx, raws):
-            p = parts[i]
-            datas = r.tolist() if isinstance(r, Batch) else list(r)
-            heads = np.zeros(n, dtype=MESSAGE_HEAD)
-            size = np.array([len(d) for d in datas], dtype=np.int64)
-            heads['op'], heads['len'], heads['cid'] = 0x05, 22 + size, cids[p.topic]
-            heads['seq'] = np.arange(seq[p.topic], seq[p.topic] + n)
-            heads['log'] = heads['pub'] = p.log
-            seq[p.topic] += n
-            flat = heads.tobytes()
-            sources.append(b''.join(b for k, d in enumerate(datas)
-                                    for b in (flat[31 * k:31 * k + 31], d)))
-            where[i] = (len(sources) - 1, np.concatenate([[0], np.cumsum(31 + size)[:-1]]),
-                        31 + size)
-    return sources, where
-
-
-def _span(run, parts, cids, seq):
-    """Return a span's :class:`_Span`: its parts' records, merged as :func:`_order` merges."""
-    sources, where = _records(run, parts, cids, seq)
-    which, rows = _order(parts)
-    if not len(which):
-        empty = np.empty(0, dtype=np.int64)
-        return _Span(empty, empty, empty, empty, empty, np.empty(0, dtype=bool), sources, -1)
-    first = np.cumsum([0] + [len(p.stamps) for p in parts])[:-1]
-    pick = first[which] + rows
-    src = np.concatenate([np.full(len(p.stamps), w[0]) for p, w in zip(parts, where)])[pick]
-    off = np.concatenate([w[1] for w in where])[pick]
-    size = np.concatenate([w[2] for w in where])[pick]
-    cid = np.concatenate([np.full(len(p.stamps), cids[p.topic]) for p in parts])[pick]
-    log = np.concatenate([p.log for p in parts])[pick] - run.start_ns
-    cont = np.zeros(len(pick), dtype=bool)
-    cont[1:] = (src[1:] == src[:-1]) & (off[1:] == off[:-1] + size[:-1])
-    at = np.flatnonzero(cid == cids.get(RUN_TOPIC, -1))
-    return _Span(log, cid, src, off, size, cont, sources, int(at[0]) if len(at) else -1)
-
-
-def _pieces(span, a, b, limit, base=0):
-    """Cut messages ``a:b`` of ``span`` into chunks as :meth:`BagWriter.write_many` does.
-
-    A chunk is closed right after the record that takes it past ``limit`` bytes, the
-    first counting ``base`` bytes already open (:attr:`BagWriter.open_bytes`); returns
-    ``[(lo, hi, closed), ...]``, ``closed`` False for a last piece left open (``flush``
-    closes it).
-    """
-    out = []
-    while a < b:
-        ends = base + np.cumsum(span.size[a:b])
-        over = np.flatnonzero(ends > limit)
-        c = a + int(over[0]) + 1 if len(over) else b
-        out.append((a, c, bool(len(over))))
-        a, base = c, 0
-    return out
-
-
-def _write_piece(writer, span, a, b, start_ns):
-    """Write messages ``a:b`` of ``span`` as one chunk (their records joined run by run)."""
-    new = ~span.cont[a:b]
-    new[0] = True                           # the chunk's first record starts a run
-    starts = np.flatnonzero(new) + a
-    last = np.append(starts[1:], b) - 1
-    lo = span.off[starts].tolist()
-    hi = (span.off[last] + span.size[last]).tolist()
-    src = [span.sources[k] for k in span.src[starts].tolist()]
-    data = b''.join([s[x:y] for s, x, y in zip(src, lo, hi)])
-    offsets = np.concatenate([[0], np.cumsum(span.size[a:b - 1])])
-    writer.write_chunk(data, span.cid[a:b], span.log[a:b] + start_ns, offsets)
-
-
-def _write_block(writer, run, span, lo, hi):
-    """Write the records of ``span`` logged in [lo, hi) ns, the run description where it falls."""
-    a, b = np.searchsorted(span.log, [lo, hi]).tolist()
-    if a <= span.run_at < b:
-        # as the node's recorder: a metadata record, written at once; the chunk still
-        # open before the run description is closed after it
-        before = _pieces(span, a, span.run_at, writer.chunk_size, writer.open_bytes)
-        for x, y, closed in before:
-            if closed:
-                _write_piece(writer, span, x, y, run.start_ns)
-        writer.add_run(run.description())
-        for x, y, closed in before:
-            if not closed:
-                _write_piece(writer, span, x, y, run.start_ns)
-        a = span.run_at
-    for x, y, _ in _pieces(span, a, b, writer.chunk_size, writer.open_bytes):
-        _write_piece(writer, span, x, y, run.start_ns)
-
-
 def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
     """Write the run's bag to ``out_dir`` (created; must not exist or be empty); its path.
 
@@ -600,11 +466,11 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
     :class:`GenerationError` after the blocks before its own are written.
 
     The samples are evaluated :data:`EVAL_BLOCKS` blocks at a time, their records built
-    in arrays (:func:`_records`), and each block written as one chunk (a chunk closes at
-    its block's end or past 1 MiB of records) by :meth:`BagWriter.write_chunk`, which
-    compresses and writes it on a thread of its own (zstd and the file write release the
-    interpreter) while the next blocks are evaluated: the file of the block-by-block
-    writer, byte for byte.
+    in arrays (:mod:`rigidrot_ros.run.chunks`), and each block written as one chunk (a
+    chunk closes at its block's end or past 1 MiB of records) by
+    :meth:`BagWriter.write_chunk`, which compresses and writes it on a thread of its own
+    (zstd and the file write release the interpreter) while the next blocks are
+    evaluated: the file of the block-by-block writer, byte for byte.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -634,13 +500,13 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         step = round(BLOCK_S * _SEC)
         failures = []
         for elo, ehi, parts in run.blocks(EVAL_BLOCKS, failures):
-            span = _span(run, parts, cids, seq)
+            span = chunks.span_of(run, parts, cids, seq, _order(parts))
             for lo in range(elo, ehi, step):
                 hi = min(ehi, lo + step)
                 failed = [e for at, e in failures if at < hi]
                 if failed:                      # a sample of this block cannot be evaluated
                     raise failed[0]
-                _write_block(writer, run, span, lo, hi)
+                chunks.write_block(writer, run, span, lo, hi)
                 if progress is not None:
                     progress(min(hi, run.span_ns) * 1e-9 * run.time_scale, total)
                 if stop:

@@ -1,0 +1,157 @@
+"""A generated run's blocks as MCAP records, cut into chunks as the bag writer cuts them.
+
+The parts of a block (each topic's header stamps, log times and columns, from
+:mod:`rigidrot_ros.run.generate`) become MCAP Message records built in arrays
+(:func:`records`), merged in the order the node publishes them (:func:`span_of`), cut
+where :meth:`rigidrot_ros.bag.BagWriter.write_many` would close a chunk (:func:`pieces`)
+and handed to :meth:`BagWriter.write_chunk` a chunk at a time (:func:`write_piece`,
+:func:`write_block`): the file of the message-by-message writer, byte for byte.
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ['Span', 'records', 'span_of', 'pieces', 'write_piece', 'write_block']
+
+
+class Span(NamedTuple):
+    """A span's messages in the order the node publishes them, as slices of their records.
+
+    Message i is ``sources[src[i]][off[i]:off[i] + size[i]]``, an MCAP Message record
+    (head and CDR) of channel ``cid[i]`` logged at ``log[i]`` (ns, from the start);
+    ``cont[i]``: its record follows message i - 1's in the same source; ``run_at``: the
+    place of the run description (-1: none).
+    """
+
+    log: np.ndarray
+    cid: np.ndarray
+    src: np.ndarray
+    off: np.ndarray
+    size: np.ndarray
+    cont: np.ndarray
+    sources: list
+    run_at: int
+
+
+def records(run, parts, cids, seq):
+    """Build the MCAP Message records of a span's parts: ``(sources, src, off, size)`` per part.
+
+    The parts of one output share rows: where each topic's CDR is a fixed-size
+    :class:`~rigidrot_ros.msgs.cdr.Batch`, a row's records lie back to back in one array
+    (:func:`rigidrot_ros.bag.writer.record_dtype`), so the records of a sample's topics
+    and of consecutive samples are consecutive bytes. Other parts (the run description)
+    are joined message by message. ``seq`` (topic -> next sequence number) counts on.
+    """
+    from rigidrot_ros.bag.writer import MESSAGE_HEAD, fill_records, record_dtype
+    from rigidrot_ros.msgs.cdr import Batch
+    groups = {}
+    for i, p in enumerate(parts):
+        groups.setdefault(id(p.output), []).append(i)
+    sources, where = [], [None] * len(parts)
+    for idx in groups.values():
+        raws = [parts[i].output.encode_batch(parts[i].name, parts[i].stamps, parts[i].cols,
+                                             run.frames) for i in idx]
+        n = len(parts[idx[0]].stamps)
+        if all(isinstance(r, Batch) for r in raws):
+            rows = np.empty(n, dtype=record_dtype([r.size for r in raws]))
+            step = rows.dtype.itemsize
+            for j, (i, r) in enumerate(zip(idx, raws)):
+                p = parts[i]
+                fill_records(rows, j, cids[p.topic], seq[p.topic], p.log, r.data)
+                seq[p.topic] += n
+                at = rows.dtype.fields[f'm{j}'][1]
+                where[i] = (len(sources), np.arange(n, dtype=np.int64) * step + at,
+                            np.full(n, 31 + r.size, dtype=np.int64))
+            sources.append(memoryview(rows.view(np.uint8)) if n else b'')
+            continue
+        for i, r in zip(idx, raws):
+            p = parts[i]
+            datas = r.tolist() if isinstance(r, Batch) else list(r)
+            heads = np.zeros(n, dtype=MESSAGE_HEAD)
+            size = np.array([len(d) for d in datas], dtype=np.int64)
+            heads['op'], heads['len'], heads['cid'] = 0x05, 22 + size, cids[p.topic]
+            heads['seq'] = np.arange(seq[p.topic], seq[p.topic] + n)
+            heads['log'] = heads['pub'] = p.log
+            seq[p.topic] += n
+            flat = heads.tobytes()
+            sources.append(b''.join(b for k, d in enumerate(datas)
+                                    for b in (flat[31 * k:31 * k + 31], d)))
+            where[i] = (len(sources) - 1, np.concatenate([[0], np.cumsum(31 + size)[:-1]]),
+                        31 + size)
+    return sources, where
+
+
+def span_of(run, parts, cids, seq, order):
+    """Return a span's :class:`Span`: its parts' records, in the merge ``order``.
+
+    ``order``: ``(part index, row)`` arrays, the order the node publishes the parts'
+    messages in (:func:`rigidrot_ros.run.generate` merges them so).
+    """
+    sources, where = records(run, parts, cids, seq)
+    which, rows = order
+    if not len(which):
+        empty = np.empty(0, dtype=np.int64)
+        return Span(empty, empty, empty, empty, empty, np.empty(0, dtype=bool), sources, -1)
+    first = np.cumsum([0] + [len(p.stamps) for p in parts])[:-1]
+    pick = first[which] + rows
+    src = np.concatenate([np.full(len(p.stamps), w[0]) for p, w in zip(parts, where)])[pick]
+    off = np.concatenate([w[1] for w in where])[pick]
+    size = np.concatenate([w[2] for w in where])[pick]
+    cid = np.concatenate([np.full(len(p.stamps), cids[p.topic]) for p in parts])[pick]
+    log = np.concatenate([p.log for p in parts])[pick] - run.start_ns
+    cont = np.zeros(len(pick), dtype=bool)
+    cont[1:] = (src[1:] == src[:-1]) & (off[1:] == off[:-1] + size[:-1])
+    at = np.flatnonzero(cid == cids.get(run.run_topic, -1))
+    return Span(log, cid, src, off, size, cont, sources, int(at[0]) if len(at) else -1)
+
+
+def pieces(span, a, b, limit, base=0):
+    """Cut messages ``a:b`` of ``span`` into chunks as :meth:`BagWriter.write_many` does.
+
+    A chunk is closed right after the record that takes it past ``limit`` bytes, the
+    first counting ``base`` bytes already open (:attr:`BagWriter.open_bytes`); returns
+    ``[(lo, hi, closed), ...]``, ``closed`` False for a last piece left open (``flush``
+    closes it).
+    """
+    out = []
+    while a < b:
+        ends = base + np.cumsum(span.size[a:b])
+        over = np.flatnonzero(ends > limit)
+        c = a + int(over[0]) + 1 if len(over) else b
+        out.append((a, c, bool(len(over))))
+        a, base = c, 0
+    return out
+
+
+def write_piece(writer, span, a, b, start_ns):
+    """Write messages ``a:b`` of ``span`` as one chunk (their records joined run by run)."""
+    new = ~span.cont[a:b]
+    new[0] = True                           # the chunk's first record starts a run
+    starts = np.flatnonzero(new) + a
+    last = np.append(starts[1:], b) - 1
+    lo = span.off[starts].tolist()
+    hi = (span.off[last] + span.size[last]).tolist()
+    src = [span.sources[k] for k in span.src[starts].tolist()]
+    data = b''.join([s[x:y] for s, x, y in zip(src, lo, hi)])
+    offsets = np.concatenate([[0], np.cumsum(span.size[a:b - 1])])
+    writer.write_chunk(data, span.cid[a:b], span.log[a:b] + start_ns, offsets)
+
+
+def write_block(writer, run, span, lo, hi):
+    """Write the records of ``span`` logged in [lo, hi) ns, the run description where it falls."""
+    a, b = np.searchsorted(span.log, [lo, hi]).tolist()
+    if a <= span.run_at < b:
+        # as the node's recorder: a metadata record, written at once; the chunk still
+        # open before the run description is closed after it
+        before = pieces(span, a, span.run_at, writer.chunk_size, writer.open_bytes)
+        for x, y, closed in before:
+            if closed:
+                write_piece(writer, span, x, y, run.start_ns)
+        writer.add_run(run.description())
+        for x, y, closed in before:
+            if not closed:
+                write_piece(writer, span, x, y, run.start_ns)
+        a = span.run_at
+    for x, y, _ in pieces(span, a, b, writer.chunk_size, writer.open_bytes):
+        write_piece(writer, span, x, y, run.start_ns)
