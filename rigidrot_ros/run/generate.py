@@ -275,7 +275,8 @@ class _Run:
             return []
         b = output.sample(track, ks, self.time_scale)
         keep = b.keep
-        bad = next((i for i, e in enumerate(b.errors) if e is not None), None)
+        bad = None if b.errors.count(None) == len(b.errors) else \
+            next(i for i, e in enumerate(b.errors) if e is not None)
         if bad is not None:
             t = scene_time(int(b.true_ns[bad]), self.start_ns, self.time_scale)
             error = GenerationError(f'{output.name} sample {ks[bad]} (t = {t:.9g} s) cannot '

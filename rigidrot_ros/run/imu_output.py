@@ -95,7 +95,7 @@ class ImuOutput(SensorOutput):
         stream untouched; a failed accelerometer read makes the sample an error.
         """
         acc = self.accel
-        if all(e is None for e in errors):
+        if errors.count(None) == len(errors):
             try:
                 b = acc.read_many(times, budget=budget)
                 return {'f': b.specific_force, 'avar': b.variance, 'dv': b.delta_velocity,

@@ -268,9 +268,9 @@ def columns(rows, errors, width):
     ``rows`` maps a name to the array of the rows read (in order); ``errors`` has one
     entry per sample (None where read); ``width`` maps a name to its row shape.
     """
-    ok = np.array([e is None for e in errors], dtype=bool)
-    if ok.all():
+    if errors.count(None) == len(errors):       # every row read (no per-row Python)
         return rows
+    ok = np.array([e is None for e in errors], dtype=bool)
     out = {}
     for name, shape in width.items():
         full = np.full((len(errors),) + tuple(shape), np.nan)

@@ -130,6 +130,20 @@ def _closed_form_log(bound, hh, atm, a_rho, b_rho, log_c):
     return np.log(math.sqrt(2.0) * hh) + np.log(big) + log_cosh + log_c
 
 
+def _row_extreme(ufunc, a):
+    """``ufunc.reduce`` of each row of ``a`` (m, k): min or max, exact in any order.
+
+    Column by column where the rows are short (numpy reduces a short last axis row by
+    row, an order of magnitude slower); NaN propagates either way.
+    """
+    if a.shape[1] > 16 or a.shape[1] == 0:
+        return ufunc.reduce(a, axis=1)
+    out = a[:, 0].copy()
+    for j in range(1, a.shape[1]):
+        ufunc(out, a[:, j], out=out)
+    return out
+
+
 def _log_bound(bound, hh, tm):
     """``L`` (m, rho): the log of the truncation bound without the ``-(2n - 2) log rho``."""
     hh = hh[:, None]
@@ -161,7 +175,7 @@ def truncation_many(bound, t0, t1, n):
 def _truncation(log_l, n, log_rho=_LOG_RHO):
     log_err = log_l - (2.0 * n - 2.0)[:, None] * log_rho
     with np.errstate(over='ignore'):            # a bound beyond float64 is inf
-        return np.exp(np.min(log_err, axis=1))
+        return np.exp(_row_extreme(np.minimum, log_err))
 
 
 def _rules(bound, hh, tm, tol):
@@ -252,7 +266,7 @@ def rules_from_log(log_l, tol, log_rho=_LOG_RHO):
     """
     target = math.log(0.5 * tol)
     with np.errstate(invalid='ignore'):
-        need = np.min((log_l - target) / (2.0 * log_rho) + 1.0, axis=1)
+        need = _row_extreme(np.minimum, (log_l - target) / (2.0 * log_rho) + 1.0)
     nodes = np.array(_NODES)
     pick = np.minimum(np.searchsorted(nodes, np.where(np.isnan(need), np.inf, need)),
                       len(nodes) - 1)
@@ -332,7 +346,7 @@ def delta_angle_many(solution, t0, t1, tol, bound, deadline=None):
         for j in range(1, len(x)):
             total = total + wts[j] * om[:, j]
         da[idx] = h_i * total
-        w[idx] = np.max(norm3(om), axis=1)
+        w[idx] = _row_extreme(np.maximum, norm3(om))
     bnd = trunc + rounding_many(bound, t0, t1, n, w) + 3 * _EPS * norm3(da)
     for i in np.flatnonzero(n == 0):            # past 32 nodes: subintervals, alone
         if deadline is not None and time.perf_counter() > deadline:
