@@ -146,7 +146,7 @@ def _stages(duration, log):
     indexes, statistics) and ``compress + write`` (zstd, crc, the file).
     """
     from rigidrot_ros.bag import BagWriter
-    from rigidrot_ros.bag import writer as bag_writer
+    from rigidrot_ros.bag import chunks
     from rigidrot_ros.run import generate as gen
     values = dict(gen.parse_override(s) for s in SCENE)
     spent = dict.fromkeys(('set-up', 'truth', 'gyro', 'star tracker', 'pack', 'chunk',
@@ -161,8 +161,8 @@ def _stages(duration, log):
             clock[key] += time.perf_counter() - c
             return out
         return call
-    write_chunk = bag_writer._write_chunk
-    bag_writer._write_chunk = timed(write_chunk, 'compress + write')
+    write_chunk = chunks.write_detached
+    chunks.write_detached = timed(write_chunk, 'compress + write')
     try:
         with tempfile.TemporaryDirectory(prefix='rigidrot_bench_stages_') as tmp:
             t0 = time.perf_counter()
@@ -199,7 +199,7 @@ def _stages(duration, log):
             writer.close()
             spent['chunk'] += time.perf_counter() - c
     finally:
-        bag_writer._write_chunk = write_chunk
+        chunks.write_detached = write_chunk
     spent['truth'] -= clock['gyro'] + clock['star tracker']
     spent['chunk'] -= clock['compress + write']
     spent.update(clock)

@@ -9,7 +9,7 @@ import time
 import pytest
 
 from rigidrot_ros.bag import BagWriter, read_bag
-from rigidrot_ros.bag import writer as bagmod
+from rigidrot_ros.bag import chunks
 from rigidrot_ros.ros.recorder import Recorder
 
 from record_helpers import published_calls, publishing_node, rosbags_rows  # noqa: I100, I201
@@ -64,12 +64,12 @@ def test_a_disk_error_of_an_offloaded_chunk_stops_the_recording_with_one_event(t
 def test_the_node_at_1_khz_writes_its_chunks_in_its_worker(tmp_path, monkeypatch, offload):
     monkeypatch.setenv('RIGIDROT_RECORD_OFFLOAD', offload)
     threads = []
-    write_chunk = bagmod._write_chunk
+    write_chunk = chunks.write_detached
 
     def spy(*args):
         threads.append(threading.current_thread().name)
         return write_chunk(*args)
-    monkeypatch.setattr(bagmod, '_write_chunk', spy)
+    monkeypatch.setattr(chunks, 'write_detached', spy)
     node, ex, lis = node_and_listener(publish_rate=1000.0, record=True,
                                       record_path=str(tmp_path), **{'imu.enable': True,
                                                                     'imu.rate': 1000.0})
