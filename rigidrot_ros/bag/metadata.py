@@ -5,8 +5,11 @@ A bag is a directory holding ``<dir>_0.mcap`` (and ``_1``, ... when split) and a
 the node are described twice: by MCAP metadata records named ``rigidrot_run`` (written by
 the node's own recorder) and by ``std_msgs/msg/String`` messages whose JSON carries
 ``"rigidrot_run": 1`` (the node's transient-local ``~/run`` topic, which any recorder keeps).
+A new bag's directory is made by :func:`new_bag_dir` or :func:`exact_bag_dir`, never over
+another's.
 """
 
+import datetime
 import json
 import os
 import re
@@ -77,6 +80,33 @@ def uninterrupted(fn, *args, **kwargs):
     if signalled is not None:
         raise signalled
     return result[0]
+
+
+def new_bag_dir(root, name):
+    """Create and return a new directory ``<root>/<name>_<UTC time>`` (never one that exists).
+
+    Another writer's directory of the same microsecond gets ``_1``, ``_2``, ... appended:
+    nothing is overwritten.
+    """
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y%m%dT%H%M%S_%fZ')
+    base = os.path.join(root, f'{name}_{stamp}')
+    path, n = base, 1
+    while True:
+        try:
+            os.makedirs(path, exist_ok=False)        # never reuse: nothing is overwritten
+            return path
+        except FileExistsError:
+            path = f'{base}_{n}'
+            n += 1
+
+
+def exact_bag_dir(path):
+    """Create and return the directory ``path``; raise FileExistsError if it holds anything."""
+    if os.path.exists(path) and (not os.path.isdir(path) or os.listdir(path)):
+        raise FileExistsError(f'{path} exists and is not an empty directory; nothing is '
+                              f'overwritten: choose another output directory')
+    os.makedirs(path, exist_ok=True)
+    return path
 
 
 def write_metadata_yaml(path, files, topics, counts, first, last, per_file=None):

@@ -8,138 +8,21 @@ at least every ``flush_period`` seconds, so a killed writer loses at most that m
 
 import collections
 import contextlib
-import datetime
 import json
 import os
-import struct
 import threading
 import time
-import zlib
 
-from mcap.data_stream import RecordBuilder
-from mcap.opcode import Opcode
-from mcap.records import Chunk, ChunkIndex, MessageIndex
-from mcap.writer import CompressionType, IndexType, Writer
+from mcap.writer import CompressionType, Writer
 import numpy as np
-import zstandard
 
-from rigidrot_ros.bag.metadata import (MAX_PENDING_CHUNKS, qos_yaml, RUN_RECORD,
-                                       uninterrupted, write_metadata_yaml)
+from rigidrot_ros.bag import chunks
+# run.generate imports the record layout from here too
+from rigidrot_ros.bag.chunks import fill_records, MESSAGE_HEAD, record_dtype  # noqa: F401
+from rigidrot_ros.bag.metadata import (exact_bag_dir, MAX_PENDING_CHUNKS, new_bag_dir,
+                                       qos_yaml, RUN_RECORD, uninterrupted,
+                                       write_metadata_yaml)
 from rigidrot_ros.msgs.msgdefs import schema_text
-
-
-def _unique_dir(root, name):
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y%m%dT%H%M%S_%fZ')
-    base = os.path.join(root, f'{name}_{stamp}')
-    path, n = base, 1
-    while True:
-        try:
-            os.makedirs(path, exist_ok=False)        # never reuse: nothing is overwritten
-            return path
-        except FileExistsError:
-            path = f'{base}_{n}'
-            n += 1
-
-
-def _exact_dir(path):
-    if os.path.exists(path) and (not os.path.isdir(path) or os.listdir(path)):
-        raise FileExistsError(f'{path} exists and is not an empty directory; nothing is '
-                              f'overwritten: choose another output directory')
-    os.makedirs(path, exist_ok=True)
-    return path
-
-
-class _PackedRecords:
-    """Summary records kept as their bytes, in order (no Python object per record)."""
-
-    __slots__ = ('data',)
-
-    def __init__(self):
-        self.data = bytearray()
-
-    def add(self, record):
-        builder = RecordBuilder()
-        record.write(builder)
-        self.data += builder.end()
-
-    def write(self, builder):
-        builder.write(bytes(self.data))
-
-
-class _PackedIndex(MessageIndex):
-    """A chunk's message index for one channel, written with one pack (not 2 per entry)."""
-
-    def write(self, stream):
-        stream.start_record(Opcode.MESSAGE_INDEX)
-        stream.write2(self.channel_id)
-        stream.write4(len(self.records) * 16)
-        stream.write(np.array(self.records, dtype='<u8').tobytes())
-        stream.finish_record()
-
-
-class _RawIndex:
-    """A chunk's message index for one channel, as its finished record bytes."""
-
-    __slots__ = ('data',)
-
-    def __init__(self, data):
-        self.data = data
-
-    def write(self, stream):
-        stream.write(self.data)
-
-
-#: An MCAP Message record's head: opcode, record length, channel, sequence, log and
-#: publish times (31 bytes, packed, little endian); the payload follows.
-MESSAGE_HEAD = np.dtype([('op', 'u1'), ('len', '<u8'), ('cid', '<u2'), ('seq', '<u4'),
-                         ('log', '<u8'), ('pub', '<u8')])
-
-
-def record_dtype(sizes):
-    """Return the packed dtype of one row of message records, one per payload size.
-
-    Row field ``m<j>`` is message j's record: a :data:`MESSAGE_HEAD` then ``data``
-    (``sizes[j]`` bytes), the records back to back (an MCAP chunk's layout). An array of
-    such rows laid out in memory is the records of its rows' messages in row order.
-    """
-    fields, offset = {}, 0
-    for j, size in enumerate(sizes):
-        one = np.dtype(MESSAGE_HEAD.descr + [('data', 'u1', (int(size),))])
-        fields[f'm{j}'] = (one, offset)
-        offset += one.itemsize
-    return np.dtype({'names': list(fields), 'formats': [f[0] for f in fields.values()],
-                     'offsets': [f[1] for f in fields.values()], 'itemsize': offset})
-
-
-def fill_records(rows, j, cid, seq0, log_ns, payloads):
-    """Fill message j of each row of ``rows`` (a :func:`record_dtype` array) in place.
-
-    ``cid`` the channel, ``seq0`` the sequence number of the first row's message (the next
-    rows count up), ``log_ns`` (n,) the log times (the publish times too), ``payloads``
-    ``(n, size)`` uint8: the serialized messages.
-    """
-    rec = rows[f'm{j}']
-    n = len(rows)
-    size = payloads.shape[1]
-    rec['op'] = Opcode.MESSAGE
-    rec['len'] = 22 + size
-    rec['cid'] = cid
-    rec['seq'] = np.arange(seq0, seq0 + n, dtype=np.int64)
-    rec['log'] = log_ns
-    rec['pub'] = log_ns
-    rec['data'] = payloads
-
-
-def _message_heads(cids, seq, log, sizes):
-    """Return each MCAP Message record's head (opcode to publish time) as bytes."""
-    head = np.zeros(len(cids), dtype=np.dtype([('op', 'u1'), ('len', '<u8'), ('cid', '<u2'),
-                                               ('seq', '<u4'), ('log', '<u8'),
-                                               ('pub', '<u8')]))
-    head['op'] = 0x05                               # MCAP Message record
-    head['len'] = 22 + sizes
-    head['cid'], head['seq'], head['log'], head['pub'] = cids, seq, log, log
-    width = head.dtype.itemsize                     # 31 bytes
-    return head.view(f'V{width}').tolist()
 
 
 class BagWriter:
@@ -199,10 +82,10 @@ class BagWriter:
     def __init__(self, root, name, flush_period=0.5, path=None, split_seconds=3600.0,
                  offload=None, on_wait=None, max_pending=MAX_PENDING_CHUNKS):
         if path is not None:
-            self.path = _exact_dir(os.path.abspath(path))
+            self.path = exact_bag_dir(os.path.abspath(path))
         else:
             os.makedirs(root, exist_ok=True)
-            self.path = _unique_dir(root, name.strip('/').replace('/', '_') or 'bag')
+            self.path = new_bag_dir(root, name.strip('/').replace('/', '_') or 'bag')
         self._base = os.path.basename(self.path)
         self._files = []                  # file names, in order
         self._per_file = {}               # file name -> [first_ns, last_ns, count]
@@ -341,7 +224,7 @@ class BagWriter:
         cids = np.array([self._channels[t] for t in topics], dtype=np.int64)
         seq = self._sequence_numbers(topics, cids)
         sizes = np.fromiter(map(len, datas), dtype=np.int64, count=n)
-        heads = _message_heads(cids, seq, log, sizes)
+        heads = chunks.message_heads(cids, seq, log, sizes)
         width = len(heads[0])                           # 31 bytes
         ends = np.cumsum(width + sizes)                 # record ends from the first
         writer = self._writer
@@ -358,7 +241,7 @@ class BagWriter:
             parts = [b''] * (2 * (hi - lo))
             parts[0::2] = heads[lo:hi]
             parts[1::2] = datas[lo:hi]
-            self._add_to_chunk(b''.join(parts), cids[lo:hi], log[lo:hi], offsets)
+            chunks.add_records(writer, b''.join(parts), cids[lo:hi], log[lo:hi], offsets)
             writer._Writer__maybe_finalize_chunk()
             lo = hi
         self._note_times(int(log.min()), int(log.max()), n)
@@ -389,7 +272,8 @@ class BagWriter:
 
         The bulk path of :meth:`write_many` then :meth:`flush`, with the same bytes:
         ``records`` (bytes-like) are MCAP Message records back to back, as a chunk holds
-        them (:func:`record_dtype`, :func:`fill_records`); ``cids`` (n,) their channel ids
+        them (:func:`.chunks.record_dtype`, :func:`.chunks.fill_records`); ``cids`` (n,)
+        their channel ids
         (:meth:`channel_id`), ``log_times_ns`` (n,) their log times and ``offsets`` (n,)
         where each starts in ``records``. Their sequence numbers are the caller's: each
         channel's run on from :meth:`sequence`, in order. The chunk holds what was open
@@ -408,49 +292,17 @@ class BagWriter:
                              'record')
         if not self._begin(n):
             return
-        writer = self._writer
-        chunk = writer._Writer__chunk_builder
-        base = chunk.count
-        t_lo, t_hi = int(log.min()), int(log.max())
-        held = chunk.num_messages
-        if held:
-            t_lo = min(t_lo, chunk.message_start_time)
-            t_hi = max(t_hi, chunk.message_end_time)
-        data = chunk.end() + bytes(records) if base else bytes(records)
-        indices = {cid: index.records for cid, index in chunk.message_indices.items()}
-        chunk.message_indices = {}
-        chunk.message_start_time = chunk.message_end_time = 0
-        chunk.num_messages = 0
-        pairs = np.empty((n, 2), dtype='<u8')
-        pairs[:, 0] = log
-        pairs[:, 1] = offsets + base
-        stats = writer._Writer__statistics
         by_cid = {cid: topic for topic, cid in self._channels.items()}
-        rows_of = {}
-        for cid in np.flatnonzero(np.bincount(cids)).tolist():    # ascending: write_many's
-            rows_of[cid] = rows = np.flatnonzero(cids == cid)
-            stats.channel_message_counts[cid] += len(rows)
-            self._counts[by_cid[cid]] += len(rows)
-        for cid in sorted(rows_of, key=lambda c: rows_of[c][0]):   # in order of appearance
-            indices[cid] = (indices.get(cid) or []) + [pairs[rows_of[cid]].tobytes()]
-        for cid, got in indices.items():
-            raw = b''.join(x if isinstance(x, bytes) else struct.pack('<QQ', *x) for x in got)
-            indices[cid] = _RawIndex(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 6 + len(raw),
-                                                 cid, len(raw)) + raw)
-        if stats.message_count == 0:
-            stats.message_start_time = t_lo
-        else:
-            stats.message_start_time = min(stats.message_start_time, t_lo)
-        stats.message_end_time = max(stats.message_end_time, t_hi)
-        stats.message_count += n
-        stats.chunk_count += 1
-        item = (writer, data, t_lo, t_hi, indices)
+
+        def count(cid, k):
+            self._counts[by_cid[cid]] += k
+        item = chunks.close_with_records(self._writer, records, cids, log, offsets, count)
         if self._offload is None:
-            _write_chunk(*item)
+            chunks.write_detached(*item)
         else:
             self._pending.append(item)
             self._hand_over()
-        self._note_times(t_lo, t_hi, n)
+        self._note_times(item[2], item[3], n)
         self._closed_chunk()
 
     def _sequence_numbers(self, topics, cids):
@@ -461,38 +313,6 @@ class BagWriter:
             seq[mask] = self._counts[topic] + np.arange(int(np.count_nonzero(mask)))
             self._counts[topic] += int(np.count_nonzero(mask))
         return seq
-
-    def _add_to_chunk(self, records, block, times, offsets):
-        """Append packed message records to the open chunk: its indexes and the statistics.
-
-        ``block``: their channel ids, ``times``: log times, ``offsets``: where each record
-        starts in the chunk.
-        """
-        chunk = self._writer._Writer__chunk_builder
-        stats = self._writer._Writer__statistics
-        t_lo, t_hi = int(times.min()), int(times.max())
-        if chunk.num_messages == 0:
-            chunk.message_start_time = t_lo
-        else:
-            chunk.message_start_time = min(chunk.message_start_time, t_lo)
-        chunk.message_end_time = max(chunk.message_end_time, t_hi)
-        for cid in dict.fromkeys(block.tolist()):       # in order of first appearance
-            rows = np.flatnonzero(block == cid)
-            index = chunk.message_indices.get(cid)
-            if not index:
-                index = chunk.message_indices[cid] = _PackedIndex(channel_id=cid,
-                                                                  records=[])
-            index.records.extend(zip(times[rows].tolist(), offsets[rows].tolist()))
-        chunk.num_messages += len(block)
-        chunk.record_writer.write(records)
-        if stats.message_count == 0:
-            stats.message_start_time = t_lo
-        else:
-            stats.message_start_time = min(stats.message_start_time, t_lo)
-        stats.message_end_time = max(stats.message_end_time, t_hi)
-        for cid, count in zip(*np.unique(block, return_counts=True)):
-            stats.channel_message_counts[int(cid)] += int(count)
-        stats.message_count += len(block)
 
     def add_run(self, info):
         """Record a run (scene, start stamp, ...) as a ``rigidrot_run`` metadata record."""
@@ -524,7 +344,7 @@ class BagWriter:
         if self._offload is None:
             self._writer.flush()
             self._fh.flush()
-            _pack_indexes(self._chunk_list)
+            chunks.pack_indexes(self._chunk_list)
         else:
             self._detach()
         self._closed_chunk()
@@ -620,20 +440,13 @@ class BagWriter:
     def _detach(self):
         """Close the open chunk on the caller's thread; its write goes to ``offload``.
 
-        Takes the chunk builder's bytes (one copy), times and message indexes, and leaves
-        the builder empty for the next messages (the same object: :meth:`write_many` holds
-        it). The chunk count is mcap's statistics record's, as its own close counts it.
+        :func:`chunks.detach` takes the chunk out of the mcap writer (its builder stays
+        empty for the next messages: :meth:`write_many` holds it).
         """
-        writer = self._writer
-        chunk = writer._Writer__chunk_builder
-        if chunk.num_messages == 0:
+        item = chunks.detach(self._writer)
+        if item is None:
             return
-        writer._Writer__statistics.chunk_count += 1
-        self._pending.append((writer, chunk.end(), chunk.message_start_time,
-                              chunk.message_end_time, chunk.message_indices))
-        chunk.message_indices = {}
-        chunk.message_start_time = chunk.message_end_time = 0
-        chunk.num_messages = 0
+        self._pending.append(item)
         self._hand_over()
 
     def _hand_over(self):
@@ -659,7 +472,7 @@ class BagWriter:
         while self._pending and self._error is None:
             item = self._pending[0]
             try:
-                _write_chunk(*item)
+                chunks.write_detached(*item)
             except Exception as exc:    # noqa: B902 - any error: raised on the caller's thread
                 self._error = exc
                 self._pending.popleft()
@@ -670,68 +483,3 @@ class BagWriter:
         write_metadata_yaml(self.path, list(self._files), self._topics, self._counts,
                             self._first, self._last,
                             {f: tuple(v) for f, v in self._per_file.items()})
-
-
-_ZSTD = threading.local()
-
-
-def _compress(data):
-    """Return ``zstandard.compress(data)`` (level 3, mcap's): the same bytes, a kept context.
-
-    A compression context per thread, made once (``zstandard.compress`` makes one per
-    call, about a fifth of the time of a 0.5 MB chunk).
-    """
-    cctx = getattr(_ZSTD, 'cctx', None)
-    if cctx is None:
-        cctx = _ZSTD.cctx = zstandard.ZstdCompressor(level=3)
-    return cctx.compress(data)
-
-
-def _pack_indexes(chunk_list):
-    """Pack the mcap writer's new chunk indexes (``_Writer__chunk_indices``) into bytes."""
-    if chunk_list is None:
-        return
-    if not chunk_list or not isinstance(chunk_list[0], _PackedRecords):
-        chunk_list.insert(0, _PackedRecords())
-    packed = chunk_list[0]
-    for index in chunk_list[1:]:
-        packed.add(index)
-    del chunk_list[1:]
-
-
-def _write_chunk(writer, data, start, end, indices):
-    """Write a detached chunk into ``writer``'s file as mcap's own chunk close does.
-
-    The same records in the same order as ``Writer.__finalize_chunk`` (mcap 1.6): the Chunk
-    (zstd, crc of the uncompressed bytes), its MessageIndex records, the ChunkIndex kept
-    for the summary (then packed), and the stream flushed to the operating system. zstd
-    only: the compression :meth:`BagWriter._open_file` gives every file.
-    """
-    compressed = _compress(data)
-    chunk = Chunk(compression='zstd', data=compressed, message_start_time=start,
-                  message_end_time=end,
-                  uncompressed_crc=zlib.crc32(data) if writer._Writer__enable_crcs else 0,
-                  uncompressed_size=len(data))
-    flush = writer._Writer__flush
-    records = writer._Writer__record_builder
-    stream = writer._Writer__stream
-    flush()
-    offset = stream.tell()
-    chunk.write(records)
-    index = ChunkIndex(message_start_time=start, message_end_time=end,
-                       chunk_start_offset=offset, chunk_length=records.count,
-                       message_index_offsets={}, message_index_length=0,
-                       compression='zstd', compressed_size=len(compressed),
-                       uncompressed_size=len(data))
-    flush()
-    index_start = stream.tell()
-    if writer._Writer__index_types & IndexType.MESSAGE:
-        for cid, message_index in indices.items():
-            index.message_index_offsets[cid] = index_start + records.count
-            message_index.write(records)
-    index.message_index_length = records.count
-    flush()
-    chunk_list = writer._Writer__chunk_indices
-    chunk_list.append(index)
-    _pack_indexes(chunk_list)
-    stream.flush()

@@ -146,8 +146,8 @@ def _stages(duration, log):
     indexes, statistics) and ``compress + write`` (zstd, crc, the file).
     """
     from rigidrot_ros.bag import BagWriter
-    from rigidrot_ros.bag import writer as bag_writer
-    from rigidrot_ros.run import chunks, generate as gen
+    from rigidrot_ros.bag import chunks
+    from rigidrot_ros.run import generate as gen, spans
     values = dict(gen.parse_override(s) for s in SCENE)
     spent = dict.fromkeys(('set-up', 'truth', 'gyro', 'star tracker', 'pack', 'chunk',
                            'compress + write'), 0.0)
@@ -161,8 +161,8 @@ def _stages(duration, log):
             clock[key] += time.perf_counter() - c
             return out
         return call
-    write_chunk = bag_writer._write_chunk
-    bag_writer._write_chunk = timed(write_chunk, 'compress + write')
+    write_chunk = chunks.write_detached
+    chunks.write_detached = timed(write_chunk, 'compress + write')
     try:
         with tempfile.TemporaryDirectory(prefix='rigidrot_bench_stages_') as tmp:
             t0 = time.perf_counter()
@@ -184,13 +184,13 @@ def _stages(duration, log):
                     break
                 elo, ehi, parts = got
                 c1 = time.perf_counter()
-                span = chunks.span_of(run, parts, cids, seq, gen._order(parts))
+                span = spans.span_of(run, parts, cids, seq, gen._order(parts))
                 c2 = time.perf_counter()
                 for lo in range(elo, ehi, step):
                     a, b = np.searchsorted(span.log, [lo, min(ehi, lo + step)]).tolist()
-                    pieces = chunks.pieces(span, a, b, writer.chunk_size, writer.open_bytes)
+                    pieces = spans.pieces(span, a, b, writer.chunk_size, writer.open_bytes)
                     for x, y, _ in pieces:
-                        chunks.write_piece(writer, span, x, y, run.start_ns)
+                        spans.write_piece(writer, span, x, y, run.start_ns)
                 c3 = time.perf_counter()
                 spent['truth'] += c1 - c0
                 spent['pack'] += c2 - c1
@@ -199,7 +199,7 @@ def _stages(duration, log):
             writer.close()
             spent['chunk'] += time.perf_counter() - c
     finally:
-        bag_writer._write_chunk = write_chunk
+        chunks.write_detached = write_chunk
     spent['truth'] -= clock['gyro'] + clock['star tracker']
     spent['chunk'] -= clock['compress + write']
     spent.update(clock)

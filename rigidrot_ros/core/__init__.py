@@ -1,12 +1,17 @@
 """Exact attitude and angular velocity of a rotating rigid body.
 
 Romano's exact solutions (spherical and axisymmetric bodies, torque-free or under a
-constant torque fixed in the body or in the virtual sphere, :mod:`.models`) and the
-torque-free triaxial body (Euler-Poinsot, :mod:`.triaxial`). :func:`solve` classifies a
-:class:`Scene` and builds the solution class its model is registered with
-(:data:`SOLUTIONS`); every solution is a :class:`BaseSolution` with ``at``, ``omega_at``,
-``omega_dot_at``, ``torque_body_at``, ``rate_envelope``, ``model``, ``method``, ``tol`` and
-``scene``.
+constant torque fixed in the body or in the virtual sphere, :mod:`.models`, with their
+constants from :mod:`.constants`) and the torque-free triaxial body (Euler-Poinsot,
+:mod:`.triaxial`). :func:`solve` (:mod:`.registry`) classifies a :class:`Scene`
+(:mod:`.classify`) and builds the solution class its model is registered with
+(:data:`SOLUTIONS`); every solution is a :class:`BaseSolution` (:mod:`.solution`) with
+``at``, ``omega_at``, ``omega_dot_at``, ``torque_body_at``, ``rate_envelope``, ``model``,
+``method``, ``tol`` and ``scene``. Beneath them: the spherical-body kernel
+(:mod:`.kernel`; :mod:`.method` picks its evaluation: 1F1 with :mod:`.backends`,
+:mod:`.taylor`, :mod:`.adiabatic`), dense output (:mod:`.dense`, :mod:`.engine`,
+:mod:`.ddphase`), the :class:`Scene` (:mod:`.scene`) and quaternion helpers
+(:mod:`.quaternion`).
 
 Pure math (numpy, mpmath, optionally python-flint); nothing here imports rclpy.
 Conventions: frames N (inertial) and B (body); ``R_NB`` means ``v_N = R_NB @ v_B``;
@@ -14,8 +19,10 @@ quaternions are (x, y, z, w), active, ``q_NB``; angular velocity is of B relativ
 in B, rad/s.
 """
 
+from .classify import NoExactSolution
 from .kernel import available_backends, PrecisionError
-from .models import MIN_TOL, MODELS, NoExactSolution, Solution, SOLUTIONS, solve
+from .models import Solution
+from .registry import MIN_TOL, MODELS, SOLUTIONS, solve
 from .scene import Scene, TORQUE_FRAMES
 from .solution import BaseSolution, FLOAT_FLOOR, RateEnvelope, Samples
 from .triaxial import TriaxialSolution

@@ -1,10 +1,11 @@
-"""Model selection (:func:`solve`, the registry :data:`SOLUTIONS`) and Romano's models.
+"""Romano's models: :class:`Solution`, the exact motion of a spherical or axisymmetric body.
 
-:func:`solve` classifies a scene and builds the solution class registered for its model:
-:class:`Solution` here for Romano's spherical and axisymmetric bodies, and
-:class:`~.triaxial.TriaxialSolution` for the torque-free triaxial body (Jacobi elliptic
-functions, not reduced to the kernel below). Both keep the contract of
-:class:`~.solution.BaseSolution`.
+:func:`~.registry.solve` builds it for the models it is registered with
+(:data:`ROMANO_MODELS`); the torque-free triaxial body is
+:class:`~.triaxial.TriaxialSolution` (Jacobi elliptic functions, not reduced to the kernel
+below). Both keep the contract of :class:`~.solution.BaseSolution`. The scene's model and
+axis come from :func:`~.classify.classify`, its constants in the frames below from
+:mod:`.constants`.
 
 Frames: N inertial; B body (principal axes); B' the body axes cyclically permuted so that
 the symmetry axis is the third; S the paper's virtual sphere (Romano, CMDA 2008, Sec. 4),
@@ -20,9 +21,7 @@ with ``k(t)`` the spherical-body kernel in K (starting at the identity) and
 ``f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2)``, ``A = (I - I3)/I3`` (Eq. 27, 36, 50, 60).
 """
 
-from fractions import Fraction
 import math
-import reprlib
 
 import mpmath
 from mpmath import mp
@@ -30,22 +29,20 @@ import numpy as np
 
 from . import quaternion as quat
 from .adiabatic import AdiabaticKernel
+from .classify import classify
+from .constants import (check_accel, const, constants_at_prec, cyclic, mag,
+                        transverse_sq)
 from .dense import DenseSpinor
 from .kernel import (
-    angle_prec, available_backends, AxisKernel, ConstantKernel, HyperKernel, PolyAngle,
-    PrecisionError, SETUP_PREC,
+    angle_prec, AxisKernel, ConstantKernel, HyperKernel, PolyAngle, PrecisionError,
+    SETUP_PREC,
 )
 from .method import DELTA_SWITCH, spinor_kernel  # noqa: F401  (DELTA_SWITCH re-exported)
-from .scene import Scene
 from .solution import BaseSolution, FLOAT_FLOOR, RateEnvelope, Samples
 from .taylor import TaylorKernel
-from .triaxial import TriaxialSolution
 
-__all__ = ['solve', 'Solution', 'Samples', 'NoExactSolution', 'MODELS', 'FLOAT_FLOOR', 'MIN_TOL',
-           'MAX_PREC']
+__all__ = ['Solution', 'Samples', 'FLOAT_FLOOR', 'ROMANO_MODELS']
 
-#: The smallest tol accepted, rad: twice the float64 floor.
-MIN_TOL = 2 * FLOAT_FLOOR
 #: Batches of at least this many times use dense output (:mod:`.dense`) where the kernel
 #: suits it: one exact evaluation per checkpoint block, the exact solution's Taylor series
 #: in each window. 1, so that a sample has the same bits in a batch of any size as alone
@@ -61,10 +58,6 @@ CHUNK = 8192
 DROP_RATE = 1e-30
 _SPINOR_KERNELS = (HyperKernel, TaylorKernel, AdiabaticKernel)
 
-#: The highest precision ceiling ``solve`` accepts, bits: Arb's 1F1 at 65536 bits takes
-#: seconds to minutes a value; beyond that a request would effectively hang.
-MAX_PREC = 65536
-
 #: Romano's models (Solution evaluates these) and the paper's results they evaluate.
 ROMANO_MODELS = {
     'fixed-axis': 'rotation about one principal axis (omega0 and torque along it)',
@@ -78,93 +71,6 @@ ROMANO_MODELS = {
     'oblique-virtual': 'axisymmetric body, oblique torque fixed in the virtual sphere '
                        '(Theorems 2 and 3 combined by the reduction theorem, Eq. 22-25)',
 }
-
-
-class NoExactSolution(ValueError):
-    """The scene is outside every exact solution this package evaluates."""
-
-
-def _cyclic(k):
-    """Proper rotation ``R_B'B`` (rows e_{k+1}, e_{k+2}, e_k) moving axis k to the third."""
-    eye = np.eye(3)
-    return np.stack([eye[(k + 1) % 3], eye[(k + 2) % 3], eye[k]])
-
-
-def _q_from_e3(u):
-    """Return the unit quaternion (mpf, x y z w) of a rotation taking e3 to unit u."""
-    ux, uy, uz = u
-    if uz >= 0:
-        qv = [-uy, ux, mpmath.mpf(0), 1 + uz]
-    else:
-        # rotate e3 -> -e3 by pi about e1, then -e3 -> u
-        qa = [uy, -ux, mpmath.mpf(0), 1 - uz]
-        n = mpmath.sqrt(sum(c * c for c in qa))
-        qa = [c / n for c in qa]
-        ax, ay, az, aw = qa
-        qv = [aw, az, -ay, -ax]  # qa ⊗ (1, 0, 0, 0)
-    n = mpmath.sqrt(sum(c * c for c in qv))
-    return [c / n for c in qv]
-
-
-def _rotate_inverse(qv, v):
-    """``R(q)^T v`` at the current mp precision (q unit, x y z w)."""
-    x, y, z, w = qv
-    r = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-    return [sum(r[j][i] * v[j] for j in range(3)) for i in range(3)]
-
-
-def _classify(scene):
-    """Return (model, symmetry axis index) or raise NoExactSolution."""
-    inertia = scene.inertia
-    w0, m = scene.omega0, scene.torque
-    triaxial = len(set(inertia)) == 3
-    if triaxial and scene.torque_frame == 'virtual':
-        raise NoExactSolution(
-            f"torque_frame='virtual' needs an axisymmetric body (two equal moments); "
-            f"inertia {inertia} has three different moments. Use torque_frame='body'.")
-    # one principal axis carries all of omega0 and of the torque (any body)
-    for k in range(3):
-        others = [j for j in range(3) if j != k]
-        if all(w0[j] == 0.0 and m[j] == 0.0 for j in others):
-            return 'fixed-axis', k
-    if len(set(inertia)) == 1:
-        return ('torque-free-sphere' if not any(m) else 'sphere'), 2
-    sym = [k for k in range(3) if inertia[(k + 1) % 3] == inertia[(k + 2) % 3]]
-    if not sym and not any(m):
-        return 'torque-free-triaxial', None            # evaluated by core/triaxial.py
-    if not sym:
-        raise NoExactSolution(
-            f'inertia {inertia} has three different moments; with a torque such a body has '
-            f'no exact solution here (Romano treats spherical and axisymmetric bodies; the '
-            f'torque-free triaxial body is exact). Make two moments equal, remove the '
-            f'torque, or put omega0 and the torque along one principal axis.')
-    k = sym[0]
-    names = 'xyz'
-    m_ax = m[k]
-    m_tr = [m[j] for j in range(3) if j != k]
-    r0 = w0[k]
-    if not any(m):
-        return 'torque-free-axisymmetric', k
-    if not any(m_tr):
-        return 'axial-torque', k
-    if scene.torque_frame == 'virtual':
-        return ('transverse-virtual' if m_ax == 0.0 else 'oblique-virtual'), k
-    if m_ax != 0.0:
-        raise NoExactSolution(
-            f'a body-fixed torque {m} oblique to the symmetry axis ({names[k]}) of an '
-            f'axisymmetric body has no exact solution (Theorems 2-4 need it along or '
-            f'across the axis). Remove its axial or transverse part, or set '
-            f"torque_frame='virtual' to hold it fixed in the virtual sphere instead.")
-    if r0 != 0.0:
-        raise NoExactSolution(
-            f'a body-fixed torque across the symmetry axis ({names[k]}) has an exact '
-            f'solution only with no spin about that axis (Theorem 4: r0 = 0), but '
-            f'omega0[{k}] = {r0!r} rad/s. Set omega0[{k}] = 0, or set '
-            f"torque_frame='virtual' so the torque turns at -omega_e (Theorem 3).")
-    return 'transverse-body', k
-
 
 #: Dense output runs its Taylor recurrence in float64: it is used only where the kernel's
 #: rates (and sqrt U) stay within [DENSE_RATES[0], DENSE_RATES[1]] rad/s, so that its
@@ -187,79 +93,6 @@ def _dense_tmax(kernel):
     return (math.sqrt(top * top - d * d) - abs(r0)) / u * (1 - 1e-12) if u > 0 else math.inf
 
 
-def _transverse_sq(w0, m, i_t, i_3):
-    """Exact ``|omega_S x m|^2 / |m|^2`` (Fraction): the squared transverse rate in K."""
-    a = [Fraction(i_t) * Fraction(w0[0]), Fraction(i_t) * Fraction(w0[1]),
-         Fraction(i_3) * Fraction(w0[2])]                      # I omega_S
-    b = [Fraction(v) for v in m]
-    c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    return sum(x * x for x in c) / (sum(x * x for x in b) * Fraction(i_t) ** 2)
-
-
-def _mag(x):
-    """Return an integer e with ``|x| <= 2^e`` (a large negative one for zero)."""
-    return -100000 if x == 0 else int(mpmath.mag(x))
-
-
-def _constants_at_prec(i_t, i_3, w0f, mf):
-    """Return ``constants()``: the scene constants at the current mp precision, cached.
-
-    From the exact float inputs: the transverse and axial moments, omega0 and the torque
-    in B'.
-    """
-    cache = {}
-
-    def constants():
-        """Scene constants at the current mp precision, from the exact float inputs."""
-        c = cache.get(mp.prec)
-        if c is not None:
-            return c
-        mI, mI3 = mpmath.mpf(i_t), mpmath.mpf(i_3)
-        r0s = mI3 * w0f[2] / mI                            # omega_S3(0) = (I3/I) r0
-        w_s = [mpmath.mpf(w0f[0]), mpmath.mpf(w0f[1]), r0s]
-        ms = [mpmath.mpf(v) for v in mf]
-        mnorm = mpmath.sqrt(sum(v * v for v in ms))
-        c = cache[mp.prec] = {
-            'mI': mI, 'mI3': mI3, 'w_s': w_s, 'ms': ms, 'mnorm': mnorm,
-            # f(t) = A ((I3/I) r0 t + (m3/I) t^2 / 2), A = (I - I3) / I3; zero for a
-            # sphere and a fixed axis
-            'c1': (mI - mI3) * w0f[2] / mI,
-            'c2': (mI - mI3) * ms[2] / (2 * mI * mI3),
-            'r0': mpmath.mpf(w0f[2]), 'rdot': ms[2] / mI3,
-        }
-        if mnorm != 0:
-            q_sk = _q_from_e3([v / mnorm for v in ms])
-            c['q_sk'] = q_sk
-            c['wk'] = _rotate_inverse(q_sk, w_s)          # omega_K = R_KS omega_S
-            c['U'] = mnorm / mI
-        return c
-
-    return constants
-
-
-def _const(constants, name, i=None):
-    """Return a function giving one constant at the current mp precision."""
-    if i is None:
-        return lambda: constants()[name]
-    return lambda: constants()[name][i]
-
-
-def _check_accel(c, scene):
-    """Raise ValueError if torque / inertia is beyond float64's range (c: the constants)."""
-    ms = c['ms']
-    mI, mI3 = c['mI'], c['mI3']
-    accel = max(abs(v) for v in ms) / min(mI, mI3)
-    if accel > np.finfo(float).max:
-        raise ValueError(
-            f'torque / inertia reaches {mpmath.nstr(accel, 3)} rad/s^2: beyond the '
-            f'float64 range (1.8e308) of the body rates returned; scale torque '
-            f'{scene.torque} N m or inertia {scene.inertia} kg m^2 into range')
-
-
-def _default_backend():
-    return available_backends()[0]
-
-
 class Solution(BaseSolution):
     """The exact motion of a spherical or axisymmetric body (Romano's models).
 
@@ -269,7 +102,7 @@ class Solution(BaseSolution):
     ----------
     scene : Scene
     model : str
-        Which exact model covers the scene (a key of :data:`MODELS`).
+        Which exact model covers the scene (a key of :data:`ROMANO_MODELS`).
     method : str
         How the kernel is evaluated: 'closed-form', 'hypergeometric-flint',
         'hypergeometric-mpmath', 'taylor-series-flint' (certified Taylor continuation,
@@ -288,9 +121,9 @@ class Solution(BaseSolution):
         self.scene = scene
         self.tol = tol
         self.backend = backend
-        self.model, k = _classify(scene)
+        self.model, k = classify(scene)
         self._axis = k                                         # symmetry (or fixed) axis
-        perm = _cyclic(k)                                      # R_B'B
+        perm = cyclic(k)                                      # R_B'B
         self._perm_T = perm.T
         q_b1b = quat.from_matrix(perm)                         # q_B'B
         inertia = scene.inertia
@@ -301,11 +134,11 @@ class Solution(BaseSolution):
             i_t = i_3
         w0f = tuple(float(v) for v in w0)                 # exact: perm only permutes
         mf = tuple(float(v) for v in m)
-        constants = _constants_at_prec(i_t, i_3, w0f, mf)
+        constants = constants_at_prec(i_t, i_3, w0f, mf)
         with mp.workprec(SETUP_PREC):
             c = constants()
-            _check_accel(c, scene)
-            self._f = PolyAngle(_const(constants, 'c1'), _const(constants, 'c2'))
+            check_accel(c, scene)
+            self._f = PolyAngle(const(constants, 'c1'), const(constants, 'c2'))
             q_sk, kernel = self._kernel_for(constants, w0f, mf, i_t, i_3, max_prec)
             q_sk = np.array([float(v) for v in q_sk])
             ms, mI, mI3 = c['ms'], c['mI'], c['mI3']
@@ -324,10 +157,10 @@ class Solution(BaseSolution):
         kin = 0.0                        # rate of setup-rounding error, see _input_error
         if self.model == 'fixed-axis':
             q_sk = [mpmath.mpf(0)] * 3 + [mpmath.mpf(1)]
-            kernel = AxisKernel(_const(constants, 'r0'), _const(constants, 'rdot'))
+            kernel = AxisKernel(const(constants, 'r0'), const(constants, 'rdot'))
         elif c['mnorm'] == 0:
             q_sk = [mpmath.mpf(0)] * 3 + [mpmath.mpf(1)]
-            kernel = ConstantKernel(_const(constants, 'w_s'))
+            kernel = ConstantKernel(const(constants, 'w_s'))
         else:
             q_sk = c['q_sk']
             kernel, kin = self._torqued_kernel(constants, w0f, mf, i_t, i_3, max_prec)
@@ -346,11 +179,11 @@ class Solution(BaseSolution):
         wnorm = mpmath.sqrt(sum(v * v for v in wk))
         # the transverse rate |omega_S x m| / |m| in K, exactly (rationals): at
         # SETUP_PREC a tiny one would drown in the rounding of the K frame
-        d2 = _transverse_sq(w0f, mf, i_t, i_3)
+        d2 = transverse_sq(w0f, mf, i_t, i_3)
         dk = mpmath.sqrt(mpmath.mpf(d2.numerator) / d2.denominator)
         prec_in = SETUP_PREC
         if d2 and dk < wnorm * mpmath.mpf(2) ** (64 - SETUP_PREC):
-            prec_in = angle_prec(_mag(wnorm) - _mag(dk) + SETUP_PREC - 16)
+            prec_in = angle_prec(mag(wnorm) - mag(dk) + SETUP_PREC - 16)
             with mp.workprec(prec_in):
                 wk, U = constants()['wk'], constants()['U']
 
@@ -364,7 +197,7 @@ class Solution(BaseSolution):
         # 'dropped'), checked against tol at every sample
         tiny = mpmath.mpf(2) ** (-200) * max(wnorm, mpmath.sqrt(U))
         if d2 == 0 or (dk <= tiny and dk <= DROP_RATE):
-            kernel = AxisKernel(_const(constants, 'wk', 2), _const(constants, 'U'),
+            kernel = AxisKernel(const(constants, 'wk', 2), const(constants, 'U'),
                                 dropped=float(dk))
             return kernel, 0.0
         # the kernel quaternion may take 2/5 of the attitude budget
@@ -661,64 +494,3 @@ class Solution(BaseSolution):
         pi = self._perm_idx
         return Samples(np.asarray(t), np.array(q),
                        np.array((w_b1[pi[0]], w_b1[pi[1]], w_b1[pi[2]])), np.float64(err))
-
-
-#: The solution class of every model (as scipy's ``integrate._ivp`` METHODS): :func:`solve`
-#: classifies the scene and builds ``SOLUTIONS[model]``. Every class is a
-#: :class:`~.solution.BaseSolution` and lists its models in its ``MODELS``.
-SOLUTIONS = {**{name: Solution for name in Solution.MODELS},
-             **{name: TriaxialSolution for name in TriaxialSolution.MODELS}}
-#: Model names and the paper's results they evaluate.
-MODELS = {name: cls.MODELS[name] for name, cls in SOLUTIONS.items()}
-
-
-def solve(scene, tol=1e-12, backend=None, max_prec=4096):
-    """Choose the cheapest exact model for ``scene`` and prepare its constants.
-
-    Parameters
-    ----------
-    scene : Scene
-    tol : float
-        Attitude accuracy asked, rad (>= ``MIN_TOL`` = 2e-14, twice the float64 floor).
-    backend : {None, 'flint', 'mpmath'}
-        Special-function backend; None picks the fastest installed (flint, else mpmath).
-    max_prec : int
-        Ceiling on the working precision of the special functions, bits (64 to
-        ``MAX_PREC`` = 65536).
-
-    Returns
-    -------
-    Solution
-
-    Raises
-    ------
-    NoExactSolution
-        The scene is outside the exact models; the message says why and what would fix it.
-    PrecisionError
-        The per-scene constants cannot be evaluated to ``tol`` within ``max_prec`` bits.
-
-    References
-    ----------
-    Romano, M., "Exact analytic solutions for the rotation of an axially symmetric
-    rigid body subjected to a constant torque", Celest. Mech. Dyn. Astr. 101 (2008).
-    """
-    if not isinstance(scene, Scene):
-        raise TypeError(f'scene must be a rigidrot_ros.core.Scene, got {type(scene).__name__}')
-    try:
-        tol_f = float(tol) if isinstance(tol, (int, float)) else math.nan
-    except OverflowError:                                       # int(10**400)
-        tol_f = math.inf
-    if isinstance(tol, bool) or not math.isfinite(tol_f):
-        raise ValueError(f'tol must be a finite number of radians, got {reprlib.repr(tol)}')
-    if tol < MIN_TOL:
-        raise ValueError(f'tol = {tol!r} rad is below {MIN_TOL} rad, twice the float64 '
-                         f'floor of the returned samples')
-    if backend is None:
-        backend = _default_backend()
-    if backend not in ('flint', 'mpmath'):
-        raise ValueError(f"backend must be None, 'flint' or 'mpmath', got {backend!r}")
-    if isinstance(max_prec, bool) or not isinstance(max_prec, int) or \
-            not 64 <= max_prec <= MAX_PREC:
-        raise ValueError(f'max_prec must be an integer from 64 to {MAX_PREC} bits (a higher '
-                         f'ceiling could run for hours), got {max_prec!r}')
-    return SOLUTIONS[_classify(scene)[0]](scene, tol_f, backend, max_prec)

@@ -246,7 +246,10 @@ class AttitudeNode(Node):
         if call.groups:
             items = [self._pubs[topic] + (raw,) for topic, raw in call.items()]
             pub_ns = self._now_ns()
-            if not self._publish(items):
+            sent = self._publish(items)
+            if sent < len(items):       # shut down (SIGINT/SIGTERM) while this call ran
+                self._counters.published -= call.ticks - call.ticks_within(sent)
+                self._runs.tick(self, self._setup, sch.t_start_ns, now_ns, items[:sent])
                 return
             sch.published(pub_ns)
             c_publish = time.perf_counter_ns()
@@ -289,15 +292,22 @@ class AttitudeNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _publish(self, items):
-        """Publish ``(publisher, class, bytes)`` items (False: the context shut down meanwhile)."""
+        """Publish ``(publisher, class, bytes)`` items; return how many went out.
+
+        Fewer than all when the context shut down (SIGINT/SIGTERM) while this call ran:
+        those that went out are still recorded, and a truth tick none of whose messages went
+        out is not counted as published, so the bag holds every tick the node says it
+        published.
+        """
+        sent = 0
         try:
             for pub, _, raw in items:
                 pub.publish(raw)
+                sent += 1
         except _rclpy.RCLError:
             if self.context.ok():
                 raise
-            return False            # shut down (SIGINT/SIGTERM) while this callback ran
-        return True
+        return sent
 
     def _failed(self, t, exc):
         text = str(exc) if isinstance(exc, (PrecisionError, ValueError)) else \

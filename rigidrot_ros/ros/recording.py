@@ -11,6 +11,8 @@ publishing thread; the chunks' compression and writes run in the node's look-ahe
 import functools
 import sys
 
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
 from rigidrot_ros.bag import BagWriter
 from rigidrot_ros.ros.cli import SceneError
 from rigidrot_ros.ros.recorder import Recorder, type_name_of
@@ -68,26 +70,38 @@ class RunLog:
     def tick(self, node, setup, start_ns, now_ns, published):
         """After each publication: announce a new run if one is pending, record what went out.
 
-        ``published`` lists ``(publisher, msg, raw)`` for every message of this call, as
-        the node published them (``raw``: the serialized bytes if made already, else None);
-        their topic names are looked up only when there is a recorder. The run description
+        ``published`` lists ``(publisher, msg, raw)`` for every message of this call that
+        went out (all of them, unless ROS shut down during the call), in order (``raw``: the
+        serialized bytes if made already, else None); their topic names are looked up only
+        when there is a recorder. A pending run is announced with the first call that
+        published anything. The run description
         (:func:`outputs.run_description`: ``setup``, ``start_ns``, the node's publishers)
         is JSON in std_msgs/String.
         """
-        if self.pending:
+        if self.pending and published:
             self.pending = False
             self.index += 1
             info = outputs.run_description(
                 setup, start_ns, self.index, node.get_fully_qualified_name(),
                 {p.topic_name: type_name_of(p.msg_type) for p in node.publishers})
             msg = outputs.run_message(info)
-            self.pub_run.publish(msg)
-            published = list(published) + [(self.pub_run, msg, None)]
+            if self._announce(node, msg):
+                published = list(published) + [(self.pub_run, msg, None)]
             if self.recorder is not None:
                 self.recorder.add_run(info)
         if self.recorder is not None:
             self.recorder.record_published(
                 now_ns, [(pub.topic_name, m, raw) for pub, m, raw in published])
+
+    def _announce(self, node, msg):
+        """Publish ``msg`` on ``~/run``; False if the context shut down meanwhile."""
+        try:
+            self.pub_run.publish(msg)
+        except _rclpy.RCLError:
+            if node.context.ok():
+                raise
+            return False
+        return True
 
     def close(self, ticks):
         """Finish the bag (summary, index, metadata.yaml), if recording; ``ticks`` published."""

@@ -8,6 +8,6 @@ for the run description, all on the base classes of ``output``: topics, type, ra
 enabling parameter, reading a block of samples, encoding to CDR and to messages);
 ``schedule``, ``truth_ahead`` and ``sensor_ahead`` (the node's one timer: what each call
 publishes, its samples read and encoded ahead); ``generate`` (a whole run into a bag
-offline, byte-identical to the node's recording) and ``chunks`` (its blocks as MCAP
+offline, byte-identical to the node's recording) and ``spans`` (its blocks as MCAP
 records and chunks).
 """

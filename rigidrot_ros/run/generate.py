@@ -30,7 +30,7 @@ if its true time lies in ``[start_ns, start_ns + duration_s / time_scale)``
 Parameters are validated by the node's own code (:mod:`rigidrot_ros.run.settings`).
 :func:`generate_bag` encodes each block with the kinds' vectorised CDR
 (:mod:`rigidrot_ros.msgs.cdr`) and streams it to the bag, so memory stays bounded
-whatever the duration (its records and chunks: :mod:`rigidrot_ros.run.chunks`);
+whatever the duration (its records and chunks: :mod:`rigidrot_ros.run.spans`);
 :func:`iter_run` gives the same messages as ROS messages.
 """
 
@@ -45,7 +45,7 @@ import numpy as np
 import yaml
 
 from rigidrot_ros.bag import qos_yaml
-from rigidrot_ros.run import chunks, grid, table
+from rigidrot_ros.run import grid, spans, table
 from rigidrot_ros.run.output import scene_time
 from rigidrot_ros.run.scheduler import timing_of, Track
 from rigidrot_ros.run.truth_outputs import read_truth
@@ -191,7 +191,7 @@ def _check_span(duration_s, start_ns):
 class _Run:
     """The outputs of one run (the table's kinds it switches on), a block of clock at a time."""
 
-    #: where the run description goes (:func:`rigidrot_ros.run.chunks.span_of` finds it)
+    #: where the run description goes (:func:`rigidrot_ros.run.spans.span_of` finds it)
     run_topic = RUN_TOPIC
 
     def __init__(self, values, duration_s, start_ns):
@@ -467,7 +467,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
     :class:`GenerationError` after the blocks before its own are written.
 
     The samples are evaluated :data:`EVAL_BLOCKS` blocks at a time, their records built
-    in arrays (:mod:`rigidrot_ros.run.chunks`), and each block written as one chunk (a
+    in arrays (:mod:`rigidrot_ros.run.spans`), and each block written as one chunk (a
     chunk closes at its block's end or past 1 MiB of records) by
     :meth:`BagWriter.write_chunk`, which compresses and writes it on a thread of its own
     (zstd and the file write release the interpreter) while the next blocks are
@@ -501,13 +501,13 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         step = round(BLOCK_S * _SEC)
         failures = []
         for elo, ehi, parts in run.blocks(EVAL_BLOCKS, failures):
-            span = chunks.span_of(run, parts, cids, seq, _order(parts))
+            span = spans.span_of(run, parts, cids, seq, _order(parts))
             for lo in range(elo, ehi, step):
                 hi = min(ehi, lo + step)
                 failed = [e for at, e in failures if at < hi]
                 if failed:                      # a sample of this block cannot be evaluated
                     raise failed[0]
-                chunks.write_block(writer, run, span, lo, hi)
+                spans.write_block(writer, run, span, lo, hi)
                 if progress is not None:
                     progress(min(hi, run.span_ns) * 1e-9 * run.time_scale, total)
                 if stop:

@@ -31,17 +31,30 @@ class Call:
         Whether a truth tick was due.
     started : bool
         Whether this call started a run (its ``t_start``).
+    ticks : int
+        The truth ticks among ``groups`` (the first ``ticks`` of them, as collected).
     """
 
-    __slots__ = ('groups', 'owed', 'truth', 'started')
+    __slots__ = ('groups', 'owed', 'truth', 'started', 'ticks', '_tick_starts')
 
     def __init__(self):
         self.groups, self.owed, self.truth, self.started = [], [], False, False
+        self.ticks, self._tick_starts = 0, []
 
     def items(self):
         """Return every ``(topic, bytes)`` of the call in publishing order (stamp, rank)."""
-        self.groups.sort(key=lambda g: (g[0], g[1]))
-        return [it for g in self.groups for it in g[2]]
+        groups = self.groups
+        order = sorted(range(len(groups)), key=lambda i: (groups[i][0], groups[i][1]))
+        out, self._tick_starts = [], []
+        for i in order:
+            if i < self.ticks:
+                self._tick_starts.append(len(out))
+            out += groups[i][2]
+        return out
+
+    def ticks_within(self, n):
+        """Return how many truth ticks have a message among the first ``n`` of :meth:`items`."""
+        return sum(1 for start in self._tick_starts if start < n)
 
 
 class Schedule:
@@ -133,6 +146,7 @@ class Schedule:
             call.truth = True
             n, now = t.publish_due(due, now_ns, self.t_start_ns, call.groups, failed)
             call.owed.append(('truth', n, now))
+            call.ticks = n
         for s in self.sensors:
             n0, m0 = len(call.groups), s.ahead.misses
             s.due(now_ns, call.groups, failed)

@@ -9,7 +9,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from rigidrot_ros.bag import BagWriter
-from rigidrot_ros.bag.writer import fill_records, record_dtype
+from rigidrot_ros.bag.chunks import fill_records, record_dtype
 
 TOPICS = {'/a': 'geometry_msgs/msg/Vector3Stamped', '/b': 'sensor_msgs/msg/Imu',
           '/c': 'std_msgs/msg/String'}

@@ -12,7 +12,7 @@ from rosbags.highlevel import AnyReader
 
 from record_helpers import _Disk, _Thread
 from rigidrot_ros.bag import BagWriter, read_bag
-from rigidrot_ros.bag import writer as bagmod
+from rigidrot_ros.bag import chunks
 from rigidrot_ros.bag.metadata import MAX_PENDING_CHUNKS
 from rigidrot_ros.runtime.worker import BatchWorker
 
@@ -235,7 +235,7 @@ def test_at_most_a_few_chunks_wait_then_the_caller_writes_them(tmp_path):
 def test_without_offload_no_chunk_is_detached(tmp_path, monkeypatch):
     def never(*args):
         raise AssertionError('an inline writer detached a chunk')
-    monkeypatch.setattr(bagmod, '_write_chunk', never)
+    monkeypatch.setattr(chunks, 'write_detached', never)
     writer = _bag(tmp_path, 'plain')
     want = _scenario(writer, 600)
     writer.close()

@@ -14,6 +14,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rigidrot_ros.bench import leaderboard as lb
+from rigidrot_ros.bench import leaderboard_cells as cells
+from rigidrot_ros.bench.leaderboard_report import sign_test
 from rigidrot_ros.campaign.metrics import split_error, time_to_converge
 from rigidrot_ros.estimators import thirdparty
 from rigidrot_ros.run.generate import iter_run, run_arrays
@@ -69,7 +71,7 @@ def test_time_to_converge():
 
 
 def _values():
-    v = lb.cell_values('consumer', 'lever')
+    v = cells.cell_values('consumer', 'lever')
     v.update({'attitude0': [0.2, -0.4, 0.1, 0.8888194417315589], 'imu.seed': 4,
               'mag.seed': 9, 'star_tracker.seed': 2})
     return v
@@ -102,7 +104,7 @@ def test_run_arrays_are_the_messages():
 
 def test_every_filter_tracks_the_truth_in_its_own_frame():
     """A wrong Earth frame or quaternion convention shows as tens of degrees."""
-    s = lb.sensor_runs(lb.cell_spec('tactical', 'slow', 'test', 3), 1, 4.0)[0]
+    s = cells.sensor_runs(cells.cell_spec('tactical', 'slow', 'test', 3), 1, 4.0)[0]
     fl = thirdparty.filters()
     mekf = {'sigma_v': 1.2e-5, 'sigma_u': 2e-7, 'bias_sigma': 1.2e-6}
     for name, f in fl.items():
@@ -138,11 +140,11 @@ def test_tiny_cell_metrics_recomputed():
     """A cell of 2 training and 3 held-out runs; its metrics recomputed another way."""
     size = {'duration': 3.0, 'window': 1.0, 'train': 2, 'test': 3, 'default': 2, 'seed': 5}
     names = ['vqf', 'fusion', 'mekf']
-    cell = lb.run_cell('consumer', 'lever', size, names=names)
+    cell = cells.run_cell('consumer', 'lever', size, names=names)
     assert list(cell['filters']) == names
-    assert lb.cell_spec('consumer', 'lever', 'train', 5)['seed'] != \
-        lb.cell_spec('consumer', 'lever', 'test', 5)['seed']
-    test = lb.sensor_runs(lb.cell_spec('consumer', 'lever', 'test', 5), 3, 3.0)
+    assert cells.cell_spec('consumer', 'lever', 'train', 5)['seed'] != \
+        cells.cell_spec('consumer', 'lever', 'test', 5)['seed']
+    test = cells.sensor_runs(cells.cell_spec('consumer', 'lever', 'test', 5), 3, 3.0)
     fl = thirdparty.filters()
     for name in names:
         res = cell['filters'][name]
@@ -183,8 +185,8 @@ def test_tiny_cell_metrics_recomputed():
         assert summ['us_per_sample'] > 0
     md = lb.render_md({'leaderboard': {'cells': [cell], 'wall_s': 1.0, 'cpu_s': 1.0,
                                        'processes': 1, 'load_average': [0.1, 0.2],
-                                       'grades': lb.GRADES, 'motions': lb.MOTIONS,
-                                       'bias_tau_s': lb.BIAS_TAU_S},
+                                       'grades': cells.GRADES, 'motions': cells.MOTIONS,
+                                       'bias_tau_s': cells.BIAS_TAU_S},
                        'footer': {}})
     # three held-out runs cannot make a leader significant (sign test p >= 0.25)
     assert 'no covariance' in md and 'no clear leader' in md and '**(leads)**' not in md
@@ -193,4 +195,4 @@ def test_tiny_cell_metrics_recomputed():
 def test_sign_test_is_the_binomial_test():
     from scipy import stats
     for k, n in ((37, 50), (30, 50), (25, 50), (0, 7), (7, 7), (3, 4)):
-        assert lb.sign_test(k, n) == pytest.approx(stats.binomtest(k, n).pvalue, rel=1e-12)
+        assert sign_test(k, n) == pytest.approx(stats.binomtest(k, n).pvalue, rel=1e-12)

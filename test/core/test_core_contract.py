@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rigidrot_ros.core import BaseSolution, MODELS, RateEnvelope, Scene, SOLUTIONS, solve
-from rigidrot_ros.core.models import NoExactSolution
+from rigidrot_ros.core.classify import NoExactSolution
 from rigidrot_ros.sensors.increments import RateBound
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

@@ -39,11 +39,11 @@ def records(run, parts, cids, seq):
 
     The parts of one output share rows: where each topic's CDR is a fixed-size
     :class:`~rigidrot_ros.msgs.cdr.Batch`, a row's records lie back to back in one array
-    (:func:`rigidrot_ros.bag.writer.record_dtype`), so the records of a sample's topics
+    (:func:`rigidrot_ros.bag.chunks.record_dtype`), so the records of a sample's topics
     and of consecutive samples are consecutive bytes. Other parts (the run description)
     are joined message by message. ``seq`` (topic -> next sequence number) counts on.
     """
-    from rigidrot_ros.bag.writer import MESSAGE_HEAD, fill_records, record_dtype
+    from rigidrot_ros.bag.chunks import fill_records, MESSAGE_HEAD, record_dtype
     from rigidrot_ros.msgs.cdr import Batch
     groups = {}
     for i, p in enumerate(parts):
