@@ -381,7 +381,7 @@ def delta_velocity_many(solution, t0, t1, lever_arm, gravity, tol=DV_TOL, bound=
     n, trunc = rules_from_log(_log_truncation_many(bound, t0, t1, lever, grav), tol)
     total = tangential.copy()
     err = err + trunc
-    for rule in sorted(set(n.tolist()) - {0}):
+    for rule in np.unique(n[n != 0]).tolist():
         _add_rule(solution, rule, np.flatnonzero(n == rule), t0, t1, r, g, total, err)
     for i in np.flatnonzero(n == 0):            # past 32 nodes: subintervals, alone
         total[i], err[i] = delta_velocity(solution, float(t0[i]), float(t1[i]), r, g,

@@ -336,7 +336,7 @@ def delta_angle_many(solution, t0, t1, tol, bound, deadline=None):
     n, trunc = _rules(bound, hh, tm, tol)
     da = np.empty((m, 3))
     w = np.zeros(m)
-    for rule in sorted(set(n.tolist()) - {0}):
+    for rule in np.unique(n[n != 0]).tolist():
         idx = np.flatnonzero(n == rule)
         x, wts = _RULES[rule]
         h_i, m_i = hh[idx, None], tm[idx, None]
