@@ -191,7 +191,7 @@ def _rules(bound, hh, tm, tol):
 
 
 #: Consecutive intervals whose ellipses are pruned together (:func:`_pruned_rules`).
-_GROUP = 32
+_GROUP = 128
 #: Slack on the log bounds of a group, relative (and absolute): far above their rounding.
 _SLACK = 1e-9
 
