@@ -17,8 +17,6 @@ from mcap.writer import CompressionType, Writer
 import numpy as np
 
 from rigidrot_ros.bag import chunks
-# run.generate imports the record layout from here too
-from rigidrot_ros.bag.chunks import fill_records, MESSAGE_HEAD, record_dtype  # noqa: F401
 from rigidrot_ros.bag.metadata import (exact_bag_dir, MAX_PENDING_CHUNKS, new_bag_dir,
                                        qos_yaml, RUN_RECORD, uninterrupted,
                                        write_metadata_yaml)
