@@ -21,6 +21,7 @@ is within the stated bound of it:
 """
 
 import math
+import re
 import signal
 import time
 
@@ -587,7 +588,19 @@ def test_dense_output_stays_out_of_float_overflow():
 
 @pytest.mark.parametrize('r0', [1e160, 1e250])
 def test_mpmath_backend_refuses_huge_spin_with_a_reason(r0):
-    """The mpmath 1F1 path's refusal reports |z^2| without overflowing a float."""
+    """The mpmath 1F1 path's refusal reports |z^2| without overflowing a float.
+
+    Under a low ceiling it refuses at once, naming the bits it would need; given just
+    those (not the default 4096, whose climb costs some 10 s of mpmath gamma functions
+    and ends the same way) it tries, reaches no bound, and reports |z^2| = inf.
+    """
     scene = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, r0))
-    with pytest.raises(PrecisionError, match='mpmath 1F1'):
-        solve(scene, backend='mpmath')
+    with pytest.raises(PrecisionError, match=r'mpmath 1F1 evaluation would need about '
+                                             r'(\d+) bits \(ceiling 128\)') as early:
+        solve(scene, backend='mpmath', max_prec=128)
+    need = int(re.search(r'about (\d+) bits', str(early.value)).group(1))
+    assert 128 < need <= 4096
+    with pytest.raises(PrecisionError, match=r'mpmath 1F1 evaluation reached only .* '
+                                             r'with %d bits: .* \|z\^2\| = '
+                                             r'\(r0 \+ U t\)\^2 / \(2U\) = inf ' % need):
+        solve(scene, backend='mpmath', max_prec=need)

@@ -199,20 +199,41 @@ def test_far_query_by_cheap_1f1_seed_equals_stepping():
 
 _CROSSING = Scene(inertia=(1.0, 1.0, 1.0), torque=(0.0, 0.0, 5 / 42000),
                   omega0=(2.0, 1.0, -3.0))
+#: Just past 2^15 s: from a checkpoint a few seconds before it, the kernel steps (a turn
+#: under 40 rad is not seeded) and one of its steps crosses 2^15, where the float time's
+#: last bit goes; a fresh kernel seeds 32770 s directly (a certified 1F1), no step taken.
+_PAST = 32770.0
 
 
 @functools.lru_cache(maxsize=1)
-def _fresh_answer():
-    """The crossing scene at t = 37950 s from a solution asked nothing before."""
-    return solve(_CROSSING, tol=1e-13).at(np.array([37950.0]))
+def _fresh_kernel_answer():
+    """The crossing scene's kernel at 32770 s, asked nothing before: (spinor, bound)."""
+    return solve(_CROSSING, tol=1e-13)._kernel.evaluate(_PAST)
 
 
-@pytest.mark.parametrize('first', [30000.3, 30000.7, 32000.01])
+@pytest.mark.parametrize('first', [32760.3, 32760.7, 32767.99])
 def test_taylor_answer_does_not_depend_on_earlier_queries(first):
-    """A checkpoint at an arbitrary t whose step crosses 2^15 s keeps the time it reached."""
-    fresh = _fresh_answer()
+    """A checkpoint at an arbitrary t whose step crosses 2^15 s keeps the time it reached.
+
+    Asked ``first`` (seeded there: a checkpoint at an arbitrary t), then 32770 s (stepped
+    from it, across 2^15), the kernel agrees with one asked 32770 s alone within the two
+    bounds. Before the continuation stepped to the time it stores, a step across 2^15
+    dropped the time's last bit unaccounted: 4.4e-12 rad apart under a 9.2e-16 bound.
+    """
+    a, ea = _fresh_kernel_answer()
+    kernel = solve(_CROSSING, tol=1e-13)._kernel
+    kernel.evaluate(first)
+    assert kernel.seeded == 1 and first in kernel._ck[1][0]   # a checkpoint at ``first``
+    b, eb = kernel.evaluate(_PAST)
+    assert kernel.seeded == 1                                  # stepped there, not seeded
+    assert np.linalg.norm(a - b) <= ea + eb
+
+
+def test_taylor_answer_through_the_solution_does_not_depend_on_earlier_queries():
+    """The same through ``Solution.at``: 32770 s after 32760.3 s, against the kernel alone."""
+    fresh, bound = _fresh_kernel_answer()
     sol = solve(_CROSSING, tol=1e-13)
-    sol.at(np.array([first]))
-    later = sol.at(np.array([37950.0]))
-    err = quat.angle_between(later.quaternion, fresh.quaternion)
-    assert np.all(err <= later.error_bound + fresh.error_bound)
+    sol.at(np.array([32760.3]))
+    later = sol.at(np.array([_PAST]))
+    err = quat.angle_between(later.quaternion, fresh)
+    assert np.all(err <= later.error_bound + bound)

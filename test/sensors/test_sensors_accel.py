@@ -95,17 +95,26 @@ def _mp_specific_force_by_differences(motion, t, r, g):
 
 
 def _mp_delta_v(motion, rhs, t0, t1, r, g):
-    """∫ f_B dt by mpmath.quad at 30 digits, f_B from the 30-digit motion."""
+    """∫ f_B dt by mpmath.quad at 30 digits, f_B from the 30-digit motion.
+
+    The three components' quadratures share their nodes: f_B is computed once a node.
+    """
+    seen = {}
+
     def f(t, i):
-        y = motion(t)
-        w, dw = y[:3], rhs(t, y)[:3]
-        wr = [w[1] * r[2] - w[2] * r[1], w[2] * r[0] - w[0] * r[2], w[0] * r[1] - w[1] * r[0]]
-        cen = [w[1] * wr[2] - w[2] * wr[1], w[2] * wr[0] - w[0] * wr[2],
-               w[0] * wr[1] - w[1] * wr[0]]
-        tan = [dw[1] * r[2] - dw[2] * r[1], dw[2] * r[0] - dw[0] * r[2],
-               dw[0] * r[1] - dw[1] * r[0]]
-        rm = _mp_matrix(y[3:7])
-        return tan[i] + cen[i] - sum(rm[j][i] * g[j] for j in range(3))
+        if t not in seen:
+            y = motion(t)
+            w, dw = y[:3], rhs(t, y)[:3]
+            wr = [w[1] * r[2] - w[2] * r[1], w[2] * r[0] - w[0] * r[2],
+                  w[0] * r[1] - w[1] * r[0]]
+            cen = [w[1] * wr[2] - w[2] * wr[1], w[2] * wr[0] - w[0] * wr[2],
+                   w[0] * wr[1] - w[1] * wr[0]]
+            tan = [dw[1] * r[2] - dw[2] * r[1], dw[2] * r[0] - dw[0] * r[2],
+                   dw[0] * r[1] - dw[1] * r[0]]
+            rm = _mp_matrix(y[3:7])
+            seen[t] = [tan[k] + cen[k] - sum(rm[j][k] * g[j] for j in range(3))
+                       for k in range(3)]
+        return seen[t][i]
     with mp.workdps(30):
         return [mpmath.quad(lambda t, i=i: f(t, i), [mpmath.mpf(t0), mpmath.mpf(t1)])
                 for i in range(3)]

@@ -177,7 +177,7 @@ def test_replay_into_the_filter_and_record_its_answer(tmp_path):
                   '-p', f'imu.gyro_bias:={BIAS}', '-p', f'imu.gyro_noise_density:={NOISE}',
                   '-p', 'imu.gyro_random_walk:=0.0', '-p', 'record:=true',
                   '-p', f'record_path:={root}'], env)
-    time.sleep(6.0)
+    time.sleep(3.0)                                  # some 300 ticks, replayed in as long
     code, _, err = stop(node, signal.SIGINT)
     assert code == 0, err
     node_bag = next(root.iterdir())

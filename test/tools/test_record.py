@@ -51,7 +51,7 @@ ESTIMATOR = textwrap.dedent('''
 
 # records everything it receives with arrival times (ns, monotonic) and the raw values
 CAPTURE = textwrap.dedent('''
-    import json, sys, time
+    import json, signal, sys, time
     import rclpy
     from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
     rclpy.init()
@@ -63,21 +63,28 @@ CAPTURE = textwrap.dedent('''
             v = m.quaternion if kind == 'q' else m.vector
             vals = [v.x, v.y, v.z] + ([v.w] if kind == 'q' else [])
             got.append([kind, st, time.monotonic(), vals])
+            heard[0] = time.monotonic()
             if len(got) == 1:
                 print('first', flush=True)
         return cb
     node.create_subscription(QuaternionStamped, '/attitude', add('q'), 1000)
     node.create_subscription(Vector3Stamped, '/angular_velocity', add('w'), 1000)
+    # until told that the publishers are done (SIGUSR1), then until 0.5 s pass with nothing
+    # new (what was in flight); at most argv[1] s
+    done, heard = [], [time.monotonic()]
+    signal.signal(signal.SIGUSR1, lambda *_: done.append(time.monotonic()))
     print('ready', flush=True)
     end = time.monotonic() + float(sys.argv[1])
-    while time.monotonic() < end:
+    while time.monotonic() < end and not (
+            done and time.monotonic() - max(done[0], heard[0]) > 0.5):
         rclpy.spin_once(node, timeout_sec=0.01)
     print(json.dumps(got))
 ''')
 
 
 def _captured(cap):
-    """The JSON list a CAPTURE process prints last."""
+    """Tell a CAPTURE process that the publishers are done; the JSON list it prints last."""
+    cap.send_signal(signal.SIGUSR1)
     return json.loads(cap.communicate(timeout=60)[0].splitlines()[-1])
 
 
@@ -100,9 +107,19 @@ def _record(tmp_path, env, seconds, sig=signal.SIGTERM, extra=(), cap=None):
     return bags[0], code, err
 
 
+@pytest.fixture(scope='module')
+def plain_bag(tmp_path_factory):
+    """A finished bag of about 1.5 s of the default node, recorded once for the tests that
+    only read it (replay, its clock, bad inputs beside it)."""
+    tmp = tmp_path_factory.mktemp('plain')
+    bag, code, err = _record(tmp, ros_env(next_domain_id()), 1.5)
+    assert code == 0 and 'Traceback' not in err, err
+    return bag
+
+
 def test_round_trip_read_by_rosbags_and_mcap(tmp_path):
     env = ros_env(next_domain_id())
-    cap = start([sys.executable, '-c', CAPTURE, '8'], env)
+    cap = start([sys.executable, '-c', CAPTURE, '30'], env)
     assert cap.stdout.readline().strip() == 'ready'
     bag, code, err = _record(tmp_path, env, 2.5, cap=cap)
     assert code == 0 and 'Traceback' not in err, err
@@ -179,7 +196,7 @@ def _run(cmd, env, **kw):
 
 def test_sigkill_loses_at_most_about_half_a_second(tmp_path):
     env = ros_env(next_domain_id())
-    cap = start([sys.executable, '-c', CAPTURE, '8'], env)
+    cap = start([sys.executable, '-c', CAPTURE, '30'], env)
     assert cap.stdout.readline().strip() == 'ready'
     bag, code, err = _record(tmp_path, env, 3.0, sig=signal.SIGKILL, cap=cap)
     assert code == -signal.SIGKILL
@@ -248,12 +265,11 @@ def test_compare_scores_a_perturbed_estimator(tmp_path, typed):
 
 
 @pytest.mark.parametrize('rate', [1.0, 2.0])
-def test_replay_into_another_process(tmp_path, rate):
-    env = ros_env(next_domain_id())
-    bag, code, err = _record(tmp_path, env, 1.5)
+def test_replay_into_another_process(plain_bag, rate):
+    bag = plain_bag
     original = [m for m in read_bag(str(bag)).messages]
     env2 = ros_env(next_domain_id())            # a quiet domain for the replay
-    cap = start([sys.executable, '-c', CAPTURE, '8'], env2)
+    cap = start([sys.executable, '-c', CAPTURE, '30'], env2)
     assert cap.stdout.readline().strip() == 'ready'
     rep = _run(['rigidrot_replay', str(bag), '--rate', str(rate), '--quiet'], env2)
     assert rep.returncode == 0, rep.stderr
@@ -268,7 +284,7 @@ def test_replay_into_another_process(tmp_path, rate):
     assert span_got == pytest.approx(span_log / rate, rel=0.1, abs=0.05)
 
 
-def test_bad_inputs_get_one_line_and_status_2(tmp_path):
+def test_bad_inputs_get_one_line_and_status_2(tmp_path, plain_bag):
     env = ros_env(next_domain_id())
     empty = tmp_path / 'empty'
     empty.mkdir()
@@ -281,7 +297,7 @@ def test_bad_inputs_get_one_line_and_status_2(tmp_path):
     w.close()
     other = Path(w.path)
     # a truncated file: cut a finished bag in its middle, past the header
-    good_bag, _, _ = _record(tmp_path, env, 1.0)
+    good_bag = plain_bag
     src = next(good_bag.glob('*.mcap'))
     torn = tmp_path / 'torn.mcap'
     torn.write_bytes(src.read_bytes()[:40])
@@ -346,32 +362,38 @@ def test_compare_honours_resets_in_the_log(tmp_path):
 
 
 CLOCK_LISTENER = textwrap.dedent('''
-    import json, sys, time
+    import json, signal, sys, time
     import rclpy
     from rosgraph_msgs.msg import Clock
     rclpy.init()
     node = rclpy.create_node('clock_listener')
     got = []
-    node.create_subscription(Clock, '/clock',
-                             lambda m: got.append(m.clock.sec * 10**9 + m.clock.nanosec), 100)
+    def cb(m):
+        got.append(m.clock.sec * 10**9 + m.clock.nanosec)
+        heard[0] = time.monotonic()
+    node.create_subscription(Clock, '/clock', cb, 100)
+    # until told that the publishers are done (SIGUSR1), then until 0.5 s pass with nothing
+    # new (what was in flight); at most argv[1] s
+    done, heard = [], [time.monotonic()]
+    signal.signal(signal.SIGUSR1, lambda *_: done.append(time.monotonic()))
     print('ready', flush=True)
     end = time.monotonic() + float(sys.argv[1])
-    while time.monotonic() < end:
+    while time.monotonic() < end and not (
+            done and time.monotonic() - max(done[0], heard[0]) > 0.5):
         rclpy.spin_once(node, timeout_sec=0.01)
     print(json.dumps(got))
 ''')
 
 
-def test_replay_publishes_clock_from_the_log(tmp_path):
-    env = ros_env(next_domain_id())
-    bag, code, err = _record(tmp_path, env, 1.0)
+def test_replay_publishes_clock_from_the_log(plain_bag):
+    bag = plain_bag
     log_times = [m[2] for m in read_bag(str(bag)).messages]
     env2 = ros_env(next_domain_id())
-    lis = start([sys.executable, '-c', CLOCK_LISTENER, '6'], env2)
+    lis = start([sys.executable, '-c', CLOCK_LISTENER, '30'], env2)
     assert lis.stdout.readline().strip() == 'ready'
     rep = _run(['rigidrot_replay', str(bag), '--clock', '--quiet', '--duration', '0.5'], env2)
     assert rep.returncode == 0, rep.stderr
-    clock = json.loads(lis.communicate(timeout=60)[0])
+    clock = _captured(lis)
     assert len(clock) > 50
     assert set(clock) <= set(log_times)               # the log's own times
     assert clock == sorted(clock)
