@@ -215,7 +215,7 @@ def render_md(results):
         f'other seeds, {common.fmt(c0["duration_s"])} s each at 100 Hz, errors scored from '
         f't = {common.fmt(c0["window_s"])} s',
         f'the whole leaderboard took {lb["wall_s"]:.0f} s on {lb["processes"]} '
-        f'processes ({lb["cpu_s"]:.0f} CPU s; load average '
+        f'process{"es" if lb["processes"] != 1 else ""} ({lb["cpu_s"]:.0f} CPU s; load average '
         f'{common.fmt(lb["load_average"][0], 2)} at the start, '
         f'{common.fmt(lb["load_average"][1], 2)} at the end)',
         'leader: lowest total RMSE among the filters on gyro + accelerometer + magnetometer '
