@@ -28,7 +28,6 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -246,7 +245,7 @@ class AttitudeNode(Node):
         if call.groups:
             items = [self._pubs[topic] + (raw,) for topic, raw in call.items()]
             pub_ns = self._now_ns()
-            sent = self._publish(items)
+            sent = recording.publish_all(self, [(pub, raw) for pub, _, raw in items])
             if sent < len(items):       # shut down (SIGINT/SIGTERM) while this call ran
                 self._counters.published -= call.ticks - call.ticks_within(sent)
                 self._runs.tick(self, self._setup, sch.t_start_ns, now_ns, items[:sent])
@@ -290,24 +289,6 @@ class AttitudeNode(Node):
         if self._time_source is not None and not self._time_source.ros_time_is_active:
             return time.time_ns()
         return self.get_clock().now().nanoseconds
-
-    def _publish(self, items):
-        """Publish ``(publisher, class, bytes)`` items; return how many went out.
-
-        Fewer than all when the context shut down (SIGINT/SIGTERM) while this call ran:
-        those that went out are still recorded, and a truth tick none of whose messages went
-        out is not counted as published, so the bag holds every tick the node says it
-        published.
-        """
-        sent = 0
-        try:
-            for pub, _, raw in items:
-                pub.publish(raw)
-                sent += 1
-        except _rclpy.RCLError:
-            if self.context.ok():
-                raise
-        return sent
 
     def _failed(self, t, exc):
         text = str(exc) if isinstance(exc, (PrecisionError, ValueError)) else \

@@ -19,11 +19,29 @@ from rigidrot_ros.ros.recorder import Recorder, type_name_of
 from rigidrot_ros.run import outputs
 from rigidrot_ros.runtime import switches
 
-__all__ = ['RunLog', 'open_recorder', 'RECORD_FLUSH_S']
+__all__ = ['RunLog', 'open_recorder', 'publish_all', 'RECORD_FLUSH_S']
 
 #: Seconds between the recorder's chunk flushes: a flush's cost grows with the chunk, and
 #: a flush of 0.4 s of kHz streams took 1.5 ms (p99 3.7 ms, under load), past a period.
 RECORD_FLUSH_S = 0.1
+
+
+def publish_all(node, items):
+    """Publish ``node``'s ``(publisher, message or its bytes)`` items in order; how many went out.
+
+    Fewer than all when the context shut down (SIGINT/SIGTERM) meanwhile: the node records
+    those that went out and counts as published no truth tick none of whose messages did,
+    so its bag holds every tick it says it published. Any other error is raised.
+    """
+    sent = 0
+    try:
+        for pub, payload in items:
+            pub.publish(payload)
+            sent += 1
+    except _rclpy.RCLError:
+        if node.context.ok():
+            raise
+    return sent
 
 
 def open_recorder(node, values, worker=None):
@@ -85,23 +103,13 @@ class RunLog:
                 setup, start_ns, self.index, node.get_fully_qualified_name(),
                 {p.topic_name: type_name_of(p.msg_type) for p in node.publishers})
             msg = outputs.run_message(info)
-            if self._announce(node, msg):
+            if publish_all(node, [(self.pub_run, msg)]):
                 published = list(published) + [(self.pub_run, msg, None)]
             if self.recorder is not None:
                 self.recorder.add_run(info)
         if self.recorder is not None:
             self.recorder.record_published(
                 now_ns, [(pub.topic_name, m, raw) for pub, m, raw in published])
-
-    def _announce(self, node, msg):
-        """Publish ``msg`` on ``~/run``; False if the context shut down meanwhile."""
-        try:
-            self.pub_run.publish(msg)
-        except _rclpy.RCLError:
-            if node.context.ok():
-                raise
-            return False
-        return True
 
     def close(self, ticks):
         """Finish the bag (summary, index, metadata.yaml), if recording; ``ticks`` published."""
