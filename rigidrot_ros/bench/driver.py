@@ -157,7 +157,7 @@ def run_parts(names, opts, log):
         results.update(res)
         if hasattr(mod, 'write'):
             mod.write(res, opts.out, foot, log)
-    common.write_json(merged, results)
+        common.write_json(merged, results)     # a later part that fails loses nothing
     every = {n: m for n, m in registry.available(needs=False).items()
              if not isinstance(m, registry.Unavailable)}
     write_outputs(every, results, opts.out, log)

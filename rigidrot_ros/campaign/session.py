@@ -47,6 +47,7 @@ import tempfile
 import time
 
 from rigidrot_ros.campaign.failure import RunFailed
+from rigidrot_ros.campaign.spec import command_path
 from rigidrot_ros.campaign.workdir import claim_domain
 
 __all__ = ['run_paced', 'Session', 'SENSORS', 'SCORED_TYPES', 'feed_topics', 'claim_domain',
@@ -170,7 +171,7 @@ class Session:
     def _environment(self):
         from rigidrot_ros.ros.paced import fast_dds
         env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain), PYTHONUNBUFFERED='1',
-                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                   PATH=command_path(), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                    FASTDDS_BUILTIN_TRANSPORTS='UDPv4')
         env.pop('ROS_LOCALHOST_ONLY', None)
         fast_dds(env)

@@ -53,12 +53,13 @@ import os
 import reprlib
 import shlex
 import shutil
+import sys
 
 import numpy as np
 import yaml
 
-__all__ = ['SpecError', 'load_spec', 'check_spec', 'draw_run', 'run_values', 'MAX_REDRAWS',
-           'load_factory', 'DISPERSIONS']
+__all__ = ['SpecError', 'command_path', 'load_spec', 'check_spec', 'draw_run', 'run_values',
+           'MAX_REDRAWS', 'load_factory', 'DISPERSIONS']
 
 MAX_REDRAWS = 1000
 #: The last ROS domain ID (ROS 2's "Domain ID" guide: 0-232 on Linux, the highest whose DDS
@@ -257,6 +258,18 @@ def _inproc_estimator(est):
             'topic': topic if topic.startswith('/') else '/' + topic}
 
 
+def command_path():
+    """Return the ``PATH`` an estimator's command is looked up in and started with.
+
+    The environment's ``PATH``, then the directory of this interpreter's console scripts:
+    ``rigidrot_mekf`` is found beside ``.venv/bin/rigidrot_campaign`` run without
+    activating the environment.
+    """
+    here = os.path.dirname(sys.executable)
+    path = os.environ.get('PATH', os.defpath)
+    return path if here in path.split(os.pathsep) else path + os.pathsep + here
+
+
 def _ros_estimator(est):
     """Check a ROS program's estimator (``command``): its command, topics and feed."""
     extra = sorted(k for k in est if k not in ROS_KEYS)
@@ -273,7 +286,7 @@ def _ros_estimator(est):
             not all(isinstance(c, str) and c and '\0' not in c for c in cmd):
         raise SpecError(f'estimator.command must be a command line, got '
                         f'{_short(est["command"])}')
-    if shutil.which(cmd[0]) is None:
+    if shutil.which(cmd[0], path=command_path()) is None:
         raise SpecError(f'estimator.command: {cmd[0]}: command not found')
     topics = est.get('topics', ['/estimator/odom'])
     if isinstance(topics, str):

@@ -240,3 +240,27 @@ def test_dask_local_cluster_and_tls_scheduler_match_the_process_pool(
             except subprocess.TimeoutExpired:
                 p.kill()
     assert _bytes(tmp_path / 'pool') == _bytes(tmp_path / 'cluster')
+
+
+def test_a_ros_estimator_of_this_package_is_found_without_the_environment_activated(
+        monkeypatch):
+    """``.venv/bin/rigidrot_campaign`` run with a PATH that lacks ``.venv/bin`` (not activated)
+    finds ``rigidrot_mekf`` beside the interpreter, checks and starts it from there; an
+    unknown command is still refused by name."""
+    from rigidrot_ros.campaign.spec import command_path
+    here = os.path.dirname(sys.executable)
+    bare = os.pathsep.join(p for p in os.environ.get('PATH', '').split(os.pathsep)
+                           if p != here) or os.defpath
+    monkeypatch.setenv('PATH', bare)
+    assert shutil.which('rigidrot_mekf') is None or \
+        os.path.dirname(shutil.which('rigidrot_mekf')) != here
+    import yaml
+    path = Path(__file__).resolve().parents[2] / 'doc' / 'campaigns' / 'mekf_ros.yaml'
+    doc = yaml.safe_load(path.read_text())
+    spec = check_spec(doc, str(path.parent))
+    assert spec['estimator']['command'][0] == 'rigidrot_mekf'
+    assert shutil.which('rigidrot_mekf', path=command_path()) == \
+        os.path.join(here, 'rigidrot_mekf')
+    doc['estimator']['command'] = 'rigidrot_no_such_filter --x'
+    with pytest.raises(SpecError, match='rigidrot_no_such_filter: command not found'):
+        check_spec(doc, str(path.parent))
