@@ -93,7 +93,7 @@ class LiveView:
     """
 
     def __init__(self, node, rec, ns='', estimators=None, run_topic='/attitude_node/run',
-                 max_rate=50.0, period=0.2, wait_run=3.0, say=print):
+                 max_rate=50.0, period=0.2, wait_run=10.0, say=print):
         from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile,
                                ReliabilityPolicy)
         self.node, self.rec, self.max_rate, self.say = node, rec, max_rate, say
