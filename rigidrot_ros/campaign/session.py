@@ -11,7 +11,8 @@ claimed for the run (no replay or recorder process):
    domain to itself), ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and Fast DDS on UDP;
 3. once its subscriptions to ``inputs`` (default: every sensor topic of the run) have
    matched, and its output topics (``topics``) have a publisher (1 s more at most),
-   the run description goes out on ``/attitude_node/run`` (transient local) and the
+   and 0.3 s more (:data:`~rigidrot_ros.ros.paced.MATCH_SETTLE_S`: the command's
+   publishers match the worker's answer subscriptions on their own time), the run description goes out on ``/attitude_node/run`` (transient local) and the
    sensor messages in log-time order, with ``/clock`` stepped with them, paced by its
    answers (:class:`rigidrot_ros.ros.paced.PacedPlayer`); at the end every message must
    be acknowledged by its subscriptions, or the run fails;
@@ -249,11 +250,12 @@ class Session:
             player.poll_outputs()
             self._check_types()
             now = time.monotonic()
-            if not missing:
+            if not missing and not player.unmatched():
                 matched_at = matched_at or now
                 outputs = player.outputs_matched() or now - matched_at > OUTPUT_GRACE_S
                 service = self.reset_client is None or self.reset_client.service_is_ready()
                 if outputs and service:
+                    self._settle_match(limit)
                     return
             if now > limit:
                 if missing:
@@ -262,6 +264,18 @@ class Session:
                 raise RunFailed(f'the estimator offers no reset service {self.est["reset"]} '
                                 f'(std_srvs/srv/Trigger) {within}', _tail(self.log_path))
             player.spin(0.02)
+
+    def _settle_match(self, limit):
+        """Spin :data:`~rigidrot_ros.ros.paced.MATCH_SETTLE_S` more (at most to ``limit``).
+
+        The command's answer publishers match this worker's subscriptions on their own
+        time, which this side cannot see; an answer published before then is lost.
+        """
+        from rigidrot_ros.ros.paced import MATCH_SETTLE_S
+        end = min(time.monotonic() + MATCH_SETTLE_S, limit)
+        while time.monotonic() < end:
+            self._check('before the run', startup=True)
+            self.player.spin(0.02)
 
     def _check_types(self):
         topic = self.player.output_topics[0]
