@@ -12,10 +12,11 @@ claimed for the run (no replay or recorder process):
 3. once its subscriptions to ``inputs`` (default: every sensor topic of the run) have
    matched, and its output topics (``topics``) have a publisher (1 s more at most),
    and 0.3 s more (:data:`~rigidrot_ros.ros.paced.MATCH_SETTLE_S`: the command's
-   publishers match the worker's answer subscriptions on their own time), the run description goes out on ``/attitude_node/run`` (transient local) and the
-   sensor messages in log-time order, with ``/clock`` stepped with them, paced by its
-   answers (:class:`rigidrot_ros.ros.paced.PacedPlayer`); at the end every message must
-   be acknowledged by its subscriptions, or the run fails;
+   publishers match the worker's answer subscriptions on their own time), the run
+   description goes out on ``/attitude_node/run`` (transient local) and the sensor
+   messages in log-time order, with ``/clock`` stepped with them, paced by its answers
+   (:class:`rigidrot_ros.ros.paced.PacedPlayer`); at the end every message must be
+   acknowledged by its subscriptions, or the run fails;
 4. once no answer has come for ``settle`` seconds (0.2 by default), it gets SIGINT and
    must exit (5 s at most); its answers, with the run description, make the bag that is
    scored.
