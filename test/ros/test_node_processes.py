@@ -121,14 +121,20 @@ QUIET_SIGINT = textwrap.dedent('''
     import rclpy
     from rigidrot_ros.ros.spin import init_ros, SIGNAL_MERGE_S
     assert init_ros('probe', []) is None
-    t0 = time.monotonic()
     os.kill(os.getpid(), signal.SIGINT)             # rclpy shuts down, nothing is raised
     os.kill(os.getpid(), signal.SIGINT)             # at once: the same request
     deadline = time.monotonic() + 10
     while rclpy.ok() and time.monotonic() < deadline:
         time.sleep(0.01)
     print('shut down' if not rclpy.ok() else 'still up', flush=True)
-    time.sleep(max(0.0, t0 + SIGNAL_MERGE_S + 0.1 - time.monotonic()))
+    # the merge window opens when the Python handler runs, which under load can be well
+    # after the kill: read that moment from the handler itself
+    handler = signal.getsignal(signal.SIGINT)
+    cells = dict(zip(handler.__code__.co_freevars, handler.__closure__))
+    while not cells['first'].cell_contents and time.monotonic() < deadline:
+        time.sleep(0.01)
+    first = cells['first'].cell_contents[0]
+    time.sleep(max(0.0, first + SIGNAL_MERGE_S + 0.1 - time.monotonic()))
     try:
         os.kill(os.getpid(), signal.SIGINT)         # a second Ctrl-C, later, raises
         time.sleep(1.0)
