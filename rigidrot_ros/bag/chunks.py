@@ -168,6 +168,13 @@ def detach(writer):
     return item
 
 
+def _frozen(records):
+    """Whether ``records`` can be kept as is: ``bytes``, or a memoryview of ``bytes``."""
+    return isinstance(records, bytes) or (isinstance(records, memoryview)
+                                          and isinstance(records.obj, bytes)
+                                          and records.contiguous)
+
+
 def close_with_records(writer, records, cids, log, offsets, count):
     """Close ``writer``'s open chunk with message records appended; return it, detached.
 
@@ -177,7 +184,8 @@ def close_with_records(writer, records, cids, log, offsets, count):
     them; their message index per channel in order of first appearance; the statistics
     count them and the chunk. ``count(cid, k)`` is called once per channel, in ascending
     channel id, with its k records. Returns what :func:`detach` returns (the builder is
-    left empty).
+    left empty). ``records`` that cannot change (``bytes``, a memoryview of ``bytes``)
+    are kept as they are when nothing was open before them; others are copied.
     """
     n = len(cids)
     chunk = writer._Writer__chunk_builder
@@ -187,22 +195,36 @@ def close_with_records(writer, records, cids, log, offsets, count):
     if held:
         t_lo = min(t_lo, chunk.message_start_time)
         t_hi = max(t_hi, chunk.message_end_time)
-    data = chunk.end() + bytes(records) if base else bytes(records)
+    if base:
+        data = chunk.end() + bytes(records)
+    else:
+        data = records if _frozen(records) else bytes(records)
     indices = {cid: index.records for cid, index in chunk.message_indices.items()}
     chunk.message_indices = {}
     chunk.message_start_time = chunk.message_end_time = 0
     chunk.num_messages = 0
+    # the records of each channel together, in their order (a stable sort by channel)
+    by = np.argsort(cids, kind='stable')
     pairs = np.empty((n, 2), dtype='<u8')
-    pairs[:, 0] = log
-    pairs[:, 1] = offsets + base
+    pairs[:, 0] = log[by]
+    pairs[:, 1] = offsets[by]
+    if base:
+        pairs[:, 1] += base
+    counts = np.bincount(cids)
+    present = np.flatnonzero(counts)
+    ends = np.cumsum(counts[present])
+    starts = ends - counts[present]
     stats = writer._Writer__statistics
     rows_of = {}
-    for cid in np.flatnonzero(np.bincount(cids)).tolist():    # ascending: write_many's
-        rows_of[cid] = rows = np.flatnonzero(cids == cid)
-        stats.channel_message_counts[cid] += len(rows)
-        count(cid, len(rows))
-    for cid in sorted(rows_of, key=lambda c: rows_of[c][0]):   # in order of appearance
-        indices[cid] = (indices.get(cid) or []) + [pairs[rows_of[cid]].tobytes()]
+    for cid, k, a, b in zip(present.tolist(), counts[present].tolist(), starts.tolist(),
+                            ends.tolist()):                 # ascending: write_many's
+        rows_of[cid] = (a, b)
+        stats.channel_message_counts[cid] += k
+        count(cid, k)
+    appear = present[np.argsort(by[starts], kind='stable')].tolist()
+    for cid in appear:                                       # in order of appearance
+        a, b = rows_of[cid]
+        indices[cid] = (indices.get(cid) or []) + [pairs[a:b].tobytes()]
     for cid, got in indices.items():
         raw = b''.join(x if isinstance(x, bytes) else struct.pack('<QQ', *x) for x in got)
         indices[cid] = RawIndex(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 6 + len(raw),
