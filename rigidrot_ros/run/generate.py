@@ -62,10 +62,12 @@ RUN_TOPIC = table.resolve('~/run', NODE_NAME)
 BLOCK_S = 1.0
 #: Blocks :func:`generate_bag` evaluates at once: the same samples, bit for bit, as block by
 #: block (each kind's reading is independent of how its samples are batched, as the node's
-#: look-ahead batches rely on), with fewer calls per sample. 4: the per-call costs paid a
-#: quarter as often, about 13 MB more peak memory than 1 block on the benchmark scene
-#: (36 MB at 10).
-EVAL_BLOCKS = 4
+#: look-ahead batches rely on), with fewer calls per sample. A span of blocks pays about
+#: 2.4 ms of per-call costs on the benchmark scene (1.8 ms CPU per scene second less at 4
+#: blocks than at 1). 8: about 0.3 ms per scene second less than at 4 (about a tenth of
+#: the CPU), for about 9 MB more peak memory (the peak: about 200 MB at 4 blocks, most of
+#: it numba and LLVM, loaded before the first sample; 6 blocks: +3 MB, 16: +25 MB).
+EVAL_BLOCKS = 8
 _SEC = 1_000_000_000
 
 
