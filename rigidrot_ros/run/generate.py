@@ -516,6 +516,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         failures = []
         for elo, ehi, parts in run.blocks(EVAL_BLOCKS, failures):
             span = spans.span_of(run, parts, cids, seq, _order(parts))
+            del parts                           # only its records are written
             for lo in range(elo, ehi, step):
                 hi = min(ehi, lo + step)
                 failed = [e for at, e in failures if at < hi]
@@ -526,6 +527,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
                     progress(min(hi, run.span_ns) * 1e-9 * run.time_scale, total)
                 if stop:
                     break
+            del span            # freed before the next span is evaluated: one span at a time
             if stop:
                 break
     finally:
