@@ -168,6 +168,13 @@ def detach(writer):
     return item
 
 
+def _frozen(records):
+    """Whether ``records`` can be kept as is: ``bytes``, or a memoryview of ``bytes``."""
+    return isinstance(records, bytes) or (isinstance(records, memoryview)
+                                          and isinstance(records.obj, bytes)
+                                          and records.contiguous)
+
+
 def close_with_records(writer, records, cids, log, offsets, count):
     """Close ``writer``'s open chunk with message records appended; return it, detached.
 
@@ -177,7 +184,8 @@ def close_with_records(writer, records, cids, log, offsets, count):
     them; their message index per channel in order of first appearance; the statistics
     count them and the chunk. ``count(cid, k)`` is called once per channel, in ascending
     channel id, with its k records. Returns what :func:`detach` returns (the builder is
-    left empty).
+    left empty). ``records`` that cannot change (``bytes``, a memoryview of ``bytes``)
+    are kept as they are when nothing was open before them; others are copied.
     """
     n = len(cids)
     chunk = writer._Writer__chunk_builder
@@ -187,22 +195,36 @@ def close_with_records(writer, records, cids, log, offsets, count):
     if held:
         t_lo = min(t_lo, chunk.message_start_time)
         t_hi = max(t_hi, chunk.message_end_time)
-    data = chunk.end() + bytes(records) if base else bytes(records)
+    if base:
+        data = chunk.end() + bytes(records)
+    else:
+        data = records if _frozen(records) else bytes(records)
     indices = {cid: index.records for cid, index in chunk.message_indices.items()}
     chunk.message_indices = {}
     chunk.message_start_time = chunk.message_end_time = 0
     chunk.num_messages = 0
+    # the records of each channel together, in their order (a stable sort by channel)
+    by = np.argsort(cids, kind='stable')
     pairs = np.empty((n, 2), dtype='<u8')
-    pairs[:, 0] = log
-    pairs[:, 1] = offsets + base
+    pairs[:, 0] = log[by]
+    pairs[:, 1] = offsets[by]
+    if base:
+        pairs[:, 1] += base
+    counts = np.bincount(cids)
+    present = np.flatnonzero(counts)
+    ends = np.cumsum(counts[present])
+    starts = ends - counts[present]
     stats = writer._Writer__statistics
     rows_of = {}
-    for cid in np.flatnonzero(np.bincount(cids)).tolist():    # ascending: write_many's
-        rows_of[cid] = rows = np.flatnonzero(cids == cid)
-        stats.channel_message_counts[cid] += len(rows)
-        count(cid, len(rows))
-    for cid in sorted(rows_of, key=lambda c: rows_of[c][0]):   # in order of appearance
-        indices[cid] = (indices.get(cid) or []) + [pairs[rows_of[cid]].tobytes()]
+    for cid, k, a, b in zip(present.tolist(), counts[present].tolist(), starts.tolist(),
+                            ends.tolist()):                 # ascending: write_many's
+        rows_of[cid] = (a, b)
+        stats.channel_message_counts[cid] += k
+        count(cid, k)
+    appear = present[np.argsort(by[starts], kind='stable')].tolist()
+    for cid in appear:                                       # in order of appearance
+        a, b = rows_of[cid]
+        indices[cid] = (indices.get(cid) or []) + [pairs[a:b].tobytes()]
     for cid, got in indices.items():
         raw = b''.join(x if isinstance(x, bytes) else struct.pack('<QQ', *x) for x in got)
         indices[cid] = RawIndex(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 6 + len(raw),
@@ -244,14 +266,69 @@ def pack_indexes(chunk_list):
     del chunk_list[1:]
 
 
+#: A Chunk record's fixed fields: opcode, record length, start and end times, uncompressed
+#: size and crc, the compression name ('zstd', length-prefixed), the compressed size.
+_CHUNK_HEAD = struct.Struct('<BQQQQII4sQ')
+#: A ChunkIndex record's fields before its message index offsets, and after them.
+_INDEX_HEAD = struct.Struct('<BQQQQQI')
+_INDEX_TAIL = struct.Struct('<QI4sQQ')
+
+
+def _index_bytes(index):
+    """Return a message index record's bytes (a :class:`RawIndex`'s as they are)."""
+    if isinstance(index, RawIndex):
+        return index.data
+    builder = RecordBuilder()
+    index.write(builder)
+    return builder.end()
+
+
 def write_detached(writer, data, start, end, indices):
     """Write a detached chunk into ``writer``'s file as mcap's own chunk close does.
 
     The same records in the same order as ``Writer.__finalize_chunk`` (mcap 1.6): the Chunk
     (zstd, crc of the uncompressed bytes), its MessageIndex records, the ChunkIndex kept
-    for the summary (then packed), and the stream flushed to the operating system. zstd
-    only: the compression :class:`~rigidrot_ros.bag.writer.BagWriter` gives every file.
+    for the summary (packed as bytes), and the stream flushed to the operating system.
+    zstd only: the compression :class:`~rigidrot_ros.bag.writer.BagWriter` gives every
+    file. The records are packed by ``struct`` and written straight to the stream (the
+    compressed bytes are not copied into mcap's record builder), except where the writer
+    keeps a crc of its data section (:func:`_write_detached_records`, mcap's own way).
     """
+    if writer._Writer__enable_data_crcs:
+        return _write_detached_records(writer, data, start, end, indices)
+    compressed = _compress(data)
+    crc = zlib.crc32(data) if writer._Writer__enable_crcs else 0
+    stream = writer._Writer__stream
+    writer._Writer__flush()                         # what the record builder holds
+    offset = stream.tell()
+    head = _CHUNK_HEAD.pack(Opcode.CHUNK, _CHUNK_HEAD.size - 9 + len(compressed), start, end,
+                            len(data), crc, 4, b'zstd', len(compressed))
+    stream.write(head)
+    stream.write(compressed)
+    chunk_length = len(head) + len(compressed)
+    at = offset + chunk_length                      # the message indexes start here
+    offsets, raws = [], []
+    if writer._Writer__index_types & IndexType.MESSAGE:
+        for cid, message_index in indices.items():
+            raw = _index_bytes(message_index)
+            offsets.append((cid, at))
+            raws.append(raw)
+            at += len(raw)
+        stream.write(b''.join(raws))
+    length = at - offset - chunk_length
+    pairs = b''.join(struct.pack('<HQ', cid, off) for cid, off in offsets)
+    record = (_INDEX_HEAD.pack(Opcode.CHUNK_INDEX, 0, start, end, offset, chunk_length,
+                               len(pairs)) + pairs
+              + _INDEX_TAIL.pack(length, 4, b'zstd', len(compressed), len(data)))
+    record = record[:1] + struct.pack('<Q', len(record) - 9) + record[9:]
+    chunk_list = writer._Writer__chunk_indices
+    pack_indexes(chunk_list)
+    chunk_list[0].data += record
+    stream.flush()
+
+
+def _write_detached_records(writer, data, start, end, indices):
+    """:func:`write_detached` through mcap's records and record builder."""
     compressed = _compress(data)
     chunk = Chunk(compression='zstd', data=compressed, message_start_time=start,
                   message_end_time=end,

@@ -70,13 +70,16 @@ def _generate(duration, log, baseline=None, repeats=1):
     ``baseline``: a checkout of the previous code, run alternately with this one in the same
     benchmark run (same machine, same load): its figures go under ``'baseline'``. Each code
     first generates one scene second untimed (numba's compiled kernels cached on disk, as
-    after any first run).
+    after any first run); that child's peak RSS is the floor of the set-up
+    (``setup_rss_mb``: the imports, numba's kernels, the scene and its first samples),
+    what the generation itself adds is the rest of the peak.
     """
     runs = {'now': [], 'baseline': []}
+    setup_rss = {}
     with tempfile.TemporaryDirectory(prefix='rigidrot_bench_gen_') as tmp:
         for key, root in (('baseline', baseline), ('now', None)):
             if key == 'now' or baseline is not None:     # compiled code cached, not timed
-                _child(1.0, root, os.path.join(tmp, f'warm_{key}', 'bag'))
+                setup_rss[key] = _child(1.0, root, os.path.join(tmp, f'warm_{key}', 'bag'))[2]
         for i in range(repeats):
             for key, root in (('baseline', baseline), ('now', None)):
                 if key == 'baseline' and baseline is None:
@@ -95,13 +98,15 @@ def _generate(duration, log, baseline=None, repeats=1):
         wall, cpu, rss_mb, size, load = min(got)
         res[key] = {'scene_s': duration, 'wall_s': wall, 'cpu_s': cpu,
                     'speedup': duration / wall, 'peak_rss_mb': max(g[2] for g in got),
+                    'setup_rss_mb': setup_rss[key],
                     'bag_mb': size / 1e6, 'load_average': load, 'cores': os.cpu_count(),
                     'runs': len(got)}
         label = ' (previous code)' if key == 'baseline' else ''
         log(f'generate{label}: {duration:g} scene s (100 Hz truth, 1 kHz gyro + increments, '
             f'10 Hz star tracker) in {wall:.3g} s wall ({cpu:.3g} s CPU; best of '
             f'{len(got)}): {duration / wall:.3g}x real time, peak RSS '
-            f'{res[key]["peak_rss_mb"]:.0f} MB, bag {size / 1e6:.3g} MB (load average '
+            f'{res[key]["peak_rss_mb"]:.0f} MB ({setup_rss[key]:.0f} MB for 1 scene s), bag '
+            f'{size / 1e6:.3g} MB (load average '
             f'{load:.2f} on {os.cpu_count()} cores)')
     out = res['now']
     if baseline is not None:
@@ -324,6 +329,13 @@ def failed(results):
     return []
 
 
+def _setup(gen):
+    """Return `` (S MB for 1 scene s: ...)``, the set-up's peak RSS, where the results hold it."""
+    if gen.get('setup_rss_mb') is None:
+        return ''
+    return f' ({common.fmt(gen["setup_rss_mb"])} MB for 1 scene s: imports, numba, set-up)'
+
+
 def render_md(results):
     """Return the part's table from merged results (``'generate'``), or None without them.
 
@@ -344,7 +356,7 @@ def render_md(results):
                      f'{fmt(gen["wall_s"])} s wall, {fmt(gen["cpu_s"])} s CPU: '
                      f'**{fmt(gen["speedup"])}× real time** '
                      f'({fmt(gen["scene_s"] / gen["cpu_s"])} scene s per CPU s), peak RSS '
-                     f'{fmt(gen["peak_rss_mb"])} MB, bag {fmt(gen["bag_mb"])} MB'))
+                     f'{fmt(gen["peak_rss_mb"])} MB{_setup(gen)}, bag {fmt(gen["bag_mb"])} MB'))
         base = gen.get('baseline')
         if base:
             rows.append((f'the same, the previous code (commit {base["commit"][:12]}), '
@@ -352,7 +364,7 @@ def render_md(results):
                          f'{fmt(base["wall_s"])} s wall, {fmt(base["cpu_s"])} s CPU: '
                          f'{fmt(base["speedup"])}× real time '
                          f'({fmt(base["scene_s"] / base["cpu_s"])} scene s per CPU s), peak RSS '
-                         f'{fmt(base["peak_rss_mb"])} MB; now '
+                         f'{fmt(base["peak_rss_mb"])} MB{_setup(base)}; now '
                          f'**{fmt(gen["speedup"] / base["speedup"])}×** its speed and '
                          f'{fmt(base["cpu_s"] / gen["cpu_s"])}× less CPU; the bag '
                          + ('byte for byte the same' if base['same_bag'] else

@@ -62,10 +62,12 @@ RUN_TOPIC = table.resolve('~/run', NODE_NAME)
 BLOCK_S = 1.0
 #: Blocks :func:`generate_bag` evaluates at once: the same samples, bit for bit, as block by
 #: block (each kind's reading is independent of how its samples are batched, as the node's
-#: look-ahead batches rely on), with fewer calls per sample. 4: the per-call costs paid a
-#: quarter as often, about 13 MB more peak memory than 1 block on the benchmark scene
-#: (36 MB at 10).
-EVAL_BLOCKS = 4
+#: look-ahead batches rely on), with fewer calls per sample. A span of blocks pays about
+#: 2.4 ms of per-call costs on the benchmark scene (1.8 ms CPU per scene second less at 4
+#: blocks than at 1). 8: about 0.3 ms per scene second less than at 4 (about a tenth of
+#: the CPU), for about 9 MB more peak memory (the peak: about 200 MB at 4 blocks, most of
+#: it numba and LLVM, loaded before the first sample; 6 blocks: +3 MB, 16: +25 MB).
+EVAL_BLOCKS = 8
 _SEC = 1_000_000_000
 
 
@@ -325,15 +327,27 @@ def _order(parts):
 
     By log time, then true sample time, then the table's rank of the topic, then row:
     the order an executor that calls the node's timer at every due time publishes in.
+    Where the parts' ranks differ (every run: a topic is one part of a block), the parts
+    taken in rank order and sorted stably by (log time, true time) give that order (two
+    sort keys instead of four).
     """
     if not parts:
         return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
-    which = np.concatenate([np.full(len(p.stamps), i) for i, p in enumerate(parts)])
-    row = np.concatenate([np.arange(len(p.stamps)) for p in parts])
-    log = np.concatenate([p.log for p in parts])
-    true = np.concatenate([p.true for p in parts])
-    rank = np.concatenate([np.full(len(p.stamps), p.rank, dtype=float) for p in parts])
-    order = np.lexsort((row, rank, true, log))
+    ranks = [p.rank for p in parts]
+    if len(set(ranks)) < len(ranks):
+        which = np.concatenate([np.full(len(p.stamps), i) for i, p in enumerate(parts)])
+        row = np.concatenate([np.arange(len(p.stamps)) for p in parts])
+        log = np.concatenate([p.log for p in parts])
+        true = np.concatenate([p.true for p in parts])
+        rank = np.concatenate([np.full(len(p.stamps), p.rank, dtype=float) for p in parts])
+        order = np.lexsort((row, rank, true, log))
+        return which[order], row[order]
+    by = sorted(range(len(parts)), key=ranks.__getitem__)
+    lens = [len(parts[i].stamps) for i in by]
+    which = np.repeat(np.array(by, dtype=np.int64), lens)
+    row = np.arange(sum(lens), dtype=np.int64) - np.repeat(np.cumsum([0] + lens[:-1]), lens)
+    order = np.lexsort((np.concatenate([parts[i].true for i in by]),
+                        np.concatenate([parts[i].log for i in by])))
     return which[order], row[order]
 
 
@@ -502,6 +516,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         failures = []
         for elo, ehi, parts in run.blocks(EVAL_BLOCKS, failures):
             span = spans.span_of(run, parts, cids, seq, _order(parts))
+            del parts                           # only its records are written
             for lo in range(elo, ehi, step):
                 hi = min(ehi, lo + step)
                 failed = [e for at, e in failures if at < hi]
@@ -512,6 +527,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
                     progress(min(hi, run.span_ns) * 1e-9 * run.time_scale, total)
                 if stop:
                     break
+            del span            # freed before the next span is evaluated: one span at a time
             if stop:
                 break
     finally:
