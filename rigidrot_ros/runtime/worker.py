@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 
+from rigidrot_ros.runtime import interrupt
 from rigidrot_ros.runtime.gate import SlackGate
 
 __all__ = ['BatchWorker', 'SWITCH_INTERVAL_S']
@@ -117,7 +118,11 @@ class BatchWorker:
                 return
             # the gate's checks cost the worker about its own time again: only while the
             # scheduler holds it to deadlines (none at short periods, nor before its first)
-            sys.setprofile(self.gate.profile if self.gate.deadline != SlackGate.FREE else None)
+            if self.gate.deadline != SlackGate.FREE:
+                # profiled, a thread spins at its next call while the interpreter's flag
+                # of a pending asynchronous exception is left up (interrupt): down first
+                interrupt.settle()
+                sys.setprofile(self.gate.profile)
             if getattr(job, 'evaluates', True):
                 with self.lock:
                     job.run()
