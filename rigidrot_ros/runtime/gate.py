@@ -93,9 +93,13 @@ class SlackGate:
 
     def open_until(self, deadline_ns):
         """Let the worker run until ``deadline_ns`` (``clock``; the publishing thread)."""
-        self._deadline = int(deadline_ns) if self.on else self.FREE
+        deadline = int(deadline_ns) if self.on else self.FREE
+        self._deadline = deadline
         if self._waiting:
             with self._cond:
+                # again under the lock: a held worker that timed out between its reading
+                # of the deadline and its own new one (_hold) would else overwrite this
+                self._deadline = deadline
                 self._cond.notify_all()
 
     def open(self):

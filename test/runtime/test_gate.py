@@ -167,3 +167,34 @@ def test_a_gated_worker_runs_its_calls_though_a_taken_back_exception_left_the_fl
         interrupt.settle()              # the flag down for the tests after this one
         gate.open()
         worker.stop()
+
+
+def test_an_open_that_meets_a_hold_timing_out_is_not_lost():
+    """The worker's hold timed out (it sets a deadline of its own) just as the publishing
+    thread opened the gate: the open wins. Forced interleaving: the publishing thread's
+    write lands between the worker's reading of the deadline and its own write."""
+    import inspect
+    gate = SlackGate(hold_max_s=0.0, on=True)       # any hold times out at once
+    gate.open_until(0)
+    lines, first = inspect.getsourcelines(SlackGate._hold)
+    own = first + next(i for i, text in enumerate(lines) if 'self._deadline = now' in text)
+    opener = threading.Thread(target=gate.open)
+    met = []
+
+    def tracer(frame, event, arg):
+        if frame.f_code is not SlackGate._hold.__code__:
+            return None
+        if event == 'line' and frame.f_lineno == own and not met:
+            met.append(True)
+            opener.start()                          # the publishing thread opens ...
+            until(lambda: gate.deadline == SlackGate.FREE)
+            # ... and meets this thread holding the gate's lock: it waits for it
+        return tracer
+    sys.settrace(tracer)
+    try:
+        gate.check()
+    finally:
+        sys.settrace(None)
+    opener.join(10.0)
+    assert met and not opener.is_alive()
+    assert gate.deadline == SlackGate.FREE          # open for good, as the opener asked
