@@ -65,9 +65,15 @@ class SlackGate:
     now (a sample whose batch still runs, the evaluation lock, a drain) it opens the gate
     first (:meth:`open`). A worker held for :data:`GATE_HOLD_MAX_S` (the scheduler stopped
     calling) goes on, for as long again. The gate is off unless ``RIGIDROT_WORKER_GATE``
-    is set (and not ``0``): with it on, the publishing thread of in-process test nodes
-    waited for a batch that never came, three times in three runs of the node tests under
-    load (never with it off); the cause is not found.
+    is set (and not ``0``): measured on and off alternately at 1 kHz (30 s, six rounds
+    each, beside another process's load: late gyro samples 45 to 1252 on, 144 to 731
+    off), it did not win.
+
+    With it on, the publishing thread of in-process test nodes once waited for a batch
+    that never came: an in-process campaign in the same test process had left the
+    interpreter's flag of a pending asynchronous exception up, and the worker, profiled,
+    spun at its call's first instruction (:mod:`~rigidrot_ros.runtime.interrupt`; the
+    worker takes the flag down before it installs :meth:`profile`).
 
     ``clock``: ns, monotonic (the deadlines' clock). :attr:`holds` counts the waits,
     :attr:`held_ns` sums them.
