@@ -15,7 +15,9 @@ and in the same test process the node's worker sat at its call's first line hold
 interpreter while the publishing thread waited for its batch (pytest-timeout ended it).
 
 :func:`settle` takes the flag down from the calling thread: it sets an exception of its
-own on that thread and raises it at once.
+own on that thread and raises it at once. The worker settles before it installs the
+gate's profile, and the publishing thread before it waits for the worker (a flag that
+went up while a profiled call ran); any thread's settle lets a spinning thread go on.
 """
 
 import ctypes

@@ -84,14 +84,14 @@ class BatchWorker:
         """Wait until every job queued so far has run; False if ``timeout`` s passed first."""
         done = threading.Event()
         self.call(done.set)
-        self.gate.open()
+        self._let_go()
         return done.wait(timeout)
 
     @contextlib.contextmanager
     def locked(self):
         """Hold :attr:`lock` (from the publishing thread: a held worker is let go first)."""
         if not self.lock.acquire(blocking=False):
-            self.gate.open()
+            self._let_go()
             self.lock.acquire()
         try:
             yield
@@ -101,8 +101,19 @@ class BatchWorker:
     def wait_for(self, job):
         """Wait until ``job`` has run (from the publishing thread: the gate is opened)."""
         if not job.done.is_set():
-            self.gate.open()
+            self._let_go()
             job.done.wait()
+
+    def _let_go(self):
+        """Open the gate before the publishing thread waits for the worker.
+
+        With the gate on, also take down the interpreter's flag of a pending asynchronous
+        exception (:func:`~rigidrot_ros.runtime.interrupt.settle`) in case it went up while a
+        profiled job ran: the worker would spin at its next call until someone does.
+        """
+        self.gate.open()
+        if self.gate.on:
+            interrupt.settle()
 
     def submit(self, job):
         """Queue a :class:`_Job` (anything with ``run()``)."""

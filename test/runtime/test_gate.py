@@ -198,3 +198,32 @@ def test_an_open_that_meets_a_hold_timing_out_is_not_lost():
     opener.join(10.0)
     assert met and not opener.is_alive()
     assert gate.deadline == SlackGate.FREE          # open for good, as the opener asked
+
+
+def test_a_wait_for_the_worker_takes_down_a_flag_left_up_while_its_call_ran():
+    """The flag goes up while a profiled call runs (no settle at its start helps): the
+    publishing thread, about to wait for the worker, takes it down."""
+    gate, worker = gated_worker(20.0)
+    go, entered, done = threading.Event(), threading.Event(), threading.Event()
+
+    def call():
+        return None
+
+    def body():
+        entered.set()
+        go.wait()
+        for _ in range(100):
+            call()                  # profiled calls: each spins while the flag is up
+        done.set()
+    try:
+        gate.open_until(time.perf_counter_ns() + 10**11)    # a deadline: the gate profiles
+        worker.call(body)
+        assert entered.wait(10.0)
+        ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(threading.get_ident()),
+                                                   None)
+        go.set()
+        assert worker.drain(timeout=10.0) and done.is_set()
+    finally:
+        interrupt.settle()
+        gate.open()
+        worker.stop()
