@@ -37,7 +37,6 @@ its thread, which takes effect at its next Python instruction; a call blocked in
 outside the main thread is not interrupted).
 """
 
-import ctypes
 import json
 import os
 import signal
@@ -48,6 +47,7 @@ import traceback
 import numpy as np
 
 from rigidrot_ros.campaign.failure import RunFailed
+from rigidrot_ros.runtime import interrupt
 
 __all__ = ['run_inproc', 'Estimates', 'logged_run']
 
@@ -95,8 +95,7 @@ class _Watchdog:
         with self._lock:
             if self._armed:
                 self._fired = True
-                ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(self._tid),
-                                                           ctypes.py_object(_Hung))
+                interrupt.raise_in(self._tid, _Hung)
 
     def __exit__(self, *exc):
         if self._main:
@@ -107,8 +106,8 @@ class _Watchdog:
             with self._lock:
                 self._armed = False
                 if self._fired:           # set, maybe not raised yet: take it back
-                    ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(self._tid),
-                                                               None)
+                    # (settle, not None: that leaves the interpreter's flag up, runtime.interrupt)
+                    interrupt.settle()
             self._timer.cancel()
         return False
 

@@ -5,6 +5,8 @@ that runs those batches off the publishing thread), ``gate`` (that worker held t
 publishing thread's slack), ``collector`` (the garbage collector held out of the hot path),
 ``realtime`` (real-time scheduling policy where permitted), ``diagnostics`` (timing
 windows reported on ``/diagnostics``), ``switches`` (every environment variable the
-package reads, read there alone) and ``processes`` (a console script found and a child
-process stopped as Ctrl-C would, for the tools that start nodes).
+package reads, read there alone), ``processes`` (a console script found and a child
+process stopped as Ctrl-C would, for the tools that start nodes) and ``interrupt`` (an
+exception raised into a running thread without leaving the interpreter's flag up, which
+stalls a profiled thread: the gated worker).
 """

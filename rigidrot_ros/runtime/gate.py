@@ -65,9 +65,15 @@ class SlackGate:
     now (a sample whose batch still runs, the evaluation lock, a drain) it opens the gate
     first (:meth:`open`). A worker held for :data:`GATE_HOLD_MAX_S` (the scheduler stopped
     calling) goes on, for as long again. The gate is off unless ``RIGIDROT_WORKER_GATE``
-    is set (and not ``0``): with it on, the publishing thread of in-process test nodes
-    waited for a batch that never came, three times in three runs of the node tests under
-    load (never with it off); the cause is not found.
+    is set (and not ``0``): measured on and off alternately at 1 kHz (30 s, six rounds
+    each, beside another process's load: late gyro samples 45 to 1252 on, 144 to 731
+    off), it did not win.
+
+    With it on, the publishing thread of in-process test nodes once waited for a batch
+    that never came: an in-process campaign in the same test process had left the
+    interpreter's flag of a pending asynchronous exception up, and the worker, profiled,
+    spun at its call's first instruction (:mod:`~rigidrot_ros.runtime.interrupt`; the
+    worker takes the flag down before it installs :meth:`profile`).
 
     ``clock``: ns, monotonic (the deadlines' clock). :attr:`holds` counts the waits,
     :attr:`held_ns` sums them.
@@ -93,9 +99,13 @@ class SlackGate:
 
     def open_until(self, deadline_ns):
         """Let the worker run until ``deadline_ns`` (``clock``; the publishing thread)."""
-        self._deadline = int(deadline_ns) if self.on else self.FREE
+        deadline = int(deadline_ns) if self.on else self.FREE
+        self._deadline = deadline
         if self._waiting:
             with self._cond:
+                # again under the lock: a held worker that timed out between its reading
+                # of the deadline and its own new one (_hold) would else overwrite this
+                self._deadline = deadline
                 self._cond.notify_all()
 
     def open(self):

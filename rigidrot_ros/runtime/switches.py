@@ -60,8 +60,9 @@ def lookahead_worker(environ=None):
 def worker_gate(environ=None):
     """Whether the worker runs only in the scheduler's slack (``RIGIDROT_WORKER_GATE`` set).
 
-    Set and not ``0``; off by default: with it, in-process nodes of the test suite
-    deadlocked under load (:class:`~rigidrot_ros.runtime.gate.SlackGate`).
+    Set and not ``0``; off by default: measured on and off alternately at 1 kHz beside
+    another process's load, it did not lower the late gyro samples
+    (:class:`~rigidrot_ros.runtime.gate.SlackGate`).
     """
     return _text('RIGIDROT_WORKER_GATE', environ) not in ('', '0')
 

@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 
+from rigidrot_ros.runtime import interrupt
 from rigidrot_ros.runtime.gate import SlackGate
 
 __all__ = ['BatchWorker', 'SWITCH_INTERVAL_S']
@@ -83,14 +84,14 @@ class BatchWorker:
         """Wait until every job queued so far has run; False if ``timeout`` s passed first."""
         done = threading.Event()
         self.call(done.set)
-        self.gate.open()
+        self._let_go()
         return done.wait(timeout)
 
     @contextlib.contextmanager
     def locked(self):
         """Hold :attr:`lock` (from the publishing thread: a held worker is let go first)."""
         if not self.lock.acquire(blocking=False):
-            self.gate.open()
+            self._let_go()
             self.lock.acquire()
         try:
             yield
@@ -100,8 +101,19 @@ class BatchWorker:
     def wait_for(self, job):
         """Wait until ``job`` has run (from the publishing thread: the gate is opened)."""
         if not job.done.is_set():
-            self.gate.open()
+            self._let_go()
             job.done.wait()
+
+    def _let_go(self):
+        """Open the gate before the publishing thread waits for the worker.
+
+        With the gate on, also take down the interpreter's flag of a pending asynchronous
+        exception (:func:`~rigidrot_ros.runtime.interrupt.settle`) in case it went up while a
+        profiled job ran: the worker would spin at its next call until someone does.
+        """
+        self.gate.open()
+        if self.gate.on:
+            interrupt.settle()
 
     def submit(self, job):
         """Queue a :class:`_Job` (anything with ``run()``)."""
@@ -117,7 +129,11 @@ class BatchWorker:
                 return
             # the gate's checks cost the worker about its own time again: only while the
             # scheduler holds it to deadlines (none at short periods, nor before its first)
-            sys.setprofile(self.gate.profile if self.gate.deadline != SlackGate.FREE else None)
+            if self.gate.deadline != SlackGate.FREE:
+                # profiled, a thread spins at its next call while the interpreter's flag
+                # of a pending asynchronous exception is left up (interrupt): down first
+                interrupt.settle()
+                sys.setprofile(self.gate.profile)
             if getattr(job, 'evaluates', True):
                 with self.lock:
                     job.run()
