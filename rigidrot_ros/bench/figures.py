@@ -347,6 +347,16 @@ def _gen_vs_previous(res):
             f'alternately in the same run, {number(base["cpu_s"] / gen["cpu_s"])}× less CPU')
 
 
+for _variant in ('replay_5x', 'paced_process', 'paced_long_lived'):
+    figure(f'campaign_ros.{_variant}', RESULTS)(
+        lambda res, v=_variant: number(res['campaign_ros']['variants'][v]['runs_per_min']))
+
+
+@figure('campaign_ros.in_process', RESULTS)
+def _ros_in_process(res):
+    return number(res['campaign_ros']['in_process']['runs_per_min'])
+
+
 for _sensor in ('gyro', 'accel'):
     for _how, _key in (('single', 'single_us'), ('block', 'block_us')):
         figure(f'generate.{_sensor}_{_how}_us', RESULTS)(
