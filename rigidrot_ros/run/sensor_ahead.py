@@ -15,9 +15,17 @@ from rigidrot_ros.run import scheduler
 from rigidrot_ros.run.output import scene_time
 from rigidrot_ros.run.settings import SAMPLE_BUDGET_S
 from rigidrot_ros.runtime import diagnostics
-from rigidrot_ros.runtime.ahead import SensorAhead
+from rigidrot_ros.runtime.ahead import AHEAD_MIN, SensorAhead
 
-__all__ = ['Sensor']
+__all__ = ['Sensor', 'PASS_OVER_MAX_S']
+
+#: Samples a skip leaves out (a backlog beyond a second: the process was held, or the
+#: clock jumped) are still read, up to this many seconds of them, and not published: a
+#: sensor's noise and its timing draws run on in sample order, so that the samples after
+#: the skip are the ones offline generation gives (byte for byte). Beyond it (a clock
+#: jump of minutes), or with the look-ahead off (each read alone would cost more than the
+#: backlog), they are not read, and the samples after differ from generation's.
+PASS_OVER_MAX_S = 60.0
 
 
 class Sensor:
@@ -100,7 +108,9 @@ class Sensor:
         """
         ks, skipped = self.track.due(now_ns)
         self.counters.skipped += skipped
-        if len(ks) > 1:
+        if skipped:
+            self._pass_over(range(ks.start - skipped, ks.start), ks.stop - 1)
+        elif len(ks) > 1:
             self.ahead.fill_to(ks.start, ks.stop - 1)     # a catch-up: as one batch
         for k in ks:
             try:
@@ -117,6 +127,21 @@ class Sensor:
                 continue
             groups.append((true_ns, self.rank, built or self.build_one(sample)))
             self.pending.append(true_ns)
+
+    def _pass_over(self, passed, newest):
+        """Read the skipped samples ``passed`` (a range) and let them go.
+
+        Up to :data:`PASS_OVER_MAX_S` of them, with the look-ahead on; ``newest`` is the
+        last sample due, read in the same batch.
+        """
+        if self.ahead.size < AHEAD_MIN or len(passed) > PASS_OVER_MAX_S * self.output.rate:
+            return
+        self.ahead.fill_to(passed.start, newest)        # with the samples due: one batch
+        for k in passed:
+            try:
+                self.ahead.get(k)
+            except Exception:   # noqa: B902 - a sample that cannot be read is left out anyway
+                pass
 
     # -- accounting --------------------------------------------------------------------------
     def published(self, pub_ns):
