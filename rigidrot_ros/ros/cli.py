@@ -115,6 +115,8 @@ def main(args=None, node_class=None):
         rclpy.try_shutdown()
         return 0
     except Exception as exc:            # e.g. an invalid remapped name: one line, status 2
+        if not rclpy.ok():              # a Ctrl-C or SIGTERM while it started shut ROS down
+            return 0
         print(f'{PROG}: cannot start: {type(exc).__name__}: {_one_line(exc)}',
               file=sys.stderr)
         rclpy.try_shutdown()
