@@ -54,9 +54,32 @@ class _Progress:
               f'{speed:.4g}x real time, {left:.0f} s left', file=self.stream, flush=True)
 
 
+#: glibc's ``mallopt`` parameters (``<malloc.h>``) and the values this tool sets: blocks up
+#: to 64 MiB from the heap rather than a fresh ``mmap`` each (zeroed, faulted in page by
+#: page, unmapped when freed), and freed heap kept up to 256 MiB. Generation allocates
+#: and frees arrays of a few MiB per block; with glibc's defaults (its mmap threshold
+#: grows only up to 32 MiB, and trimming returns the heap's top) that cost ~280 000 page
+#: faults per 900 scene s. The bytes written do not change.
+_MALLOPT = ((-3, 64 << 20), (-1, 256 << 20))          # M_MMAP_THRESHOLD, M_TRIM_THRESHOLD
+
+
+def _malloc_for_blocks():
+    """Ask glibc's allocator to keep block-sized arrays on the heap (nothing elsewhere)."""
+    import ctypes
+    import ctypes.util
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library('c') or 'libc.so.6')
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):       # not glibc: its defaults stay
+        return
+    for param, value in _MALLOPT:
+        mallopt(param, value)
+
+
 def main(argv=None):
     """Entry point of ``rigidrot_generate``; returns the exit status."""
     opts = _parser().parse_args(sys.argv[1:] if argv is None else list(argv))
+    _malloc_for_blocks()
     from rigidrot_ros.run.generate import (
         generate_bag, GenerationError, load_values, parse_override,
     )
