@@ -251,7 +251,8 @@ class Session:
             player.poll_outputs()
             self._check_types()
             now = time.monotonic()
-            if not missing and not player.unmatched():
+            unmatched = player.unmatched() if not missing else []
+            if not missing and not unmatched:
                 matched_at = matched_at or now
                 outputs = player.outputs_matched() or now - matched_at > OUTPUT_GRACE_S
                 service = self.reset_client is None or self.reset_client.service_is_ready()
@@ -262,6 +263,9 @@ class Session:
                 if missing:
                     raise RunFailed(f'the estimator did not subscribe to {", ".join(missing)} '
                                     f'{within}', _tail(self.log_path))
+                if unmatched:
+                    raise RunFailed(f'a subscription to {", ".join(unmatched)} is listed but '
+                                    f'not matched {within}', _tail(self.log_path))
                 raise RunFailed(f'the estimator offers no reset service {self.est["reset"]} '
                                 f'(std_srvs/srv/Trigger) {within}', _tail(self.log_path))
             player.spin(0.02)
