@@ -39,6 +39,14 @@ else:
     _LAST_WORDS = sys.__stderr__
 faulthandler.register(signal.SIGTERM, file=_LAST_WORDS, all_threads=True, chain=True)
 
+# A suite started in the background by a shell without job control inherits SIGINT
+# ignored, and so would every program a test starts: Python then installs no
+# KeyboardInterrupt, and a test's Ctrl-C would find a program that cannot hear it. A
+# handler here (reset to the default action at exec) gives the programs what a terminal
+# gives them.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
 
 # The process controlling ``-n 2`` adopts what a test process leaves running when it dies
 # (a node, a probe): the kernel reparents such orphans to it rather than to init, and it

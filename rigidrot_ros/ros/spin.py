@@ -196,6 +196,8 @@ def make_executor():
 
 
 def _spin(node):
+    if not rclpy.ok():          # shut down while the node was made: nothing to spin (an
+        return                  # executor made now fails half-built, and says so at exit)
     executor = make_executor()
     try:
         executor.add_node(node)
