@@ -28,12 +28,11 @@ def _guarded(script):
 
 @pytest.mark.ros
 @pytest.mark.parametrize('script, delay, status', [
-    ('attitude_node', 0.3, 0), ('attitude_node', 1.0, 0), ('attitude_node', 2.0, 0),
-    ('rigidrot_generate', 0.3, 130),
+    ('attitude_node', 0.3, 0), ('attitude_node', 1.0, 0), ('rigidrot_generate', 0.3, 130),
 ])
 def test_ctrl_c_while_starting_ends_it_without_a_traceback(tmp_path, script, delay, status):
-    """A Ctrl-C in the imports, in the node's construction or once it runs: the status a
-    Ctrl-C gives the program, never a traceback."""
+    """A Ctrl-C in the imports or in the node's construction: the status a Ctrl-C gives
+    the program, never a traceback (once it runs: the node's own tests)."""
     args = ['--duration', '600', '-o', str(tmp_path / 'bag')] if script != 'attitude_node' \
         else []
     proc = start(_guarded(script) + args, ros_env(next_domain_id()))
