@@ -257,7 +257,8 @@ class Session:
                 outputs = player.outputs_matched() or now - matched_at > OUTPUT_GRACE_S
                 service = self.reset_client is None or self.reset_client.service_is_ready()
                 if outputs and service:
-                    self._settle_match(limit)
+                    player.settle_match(
+                        limit, lambda: self._check('before the run', startup=True))
                     return
             if now > limit:
                 if missing:
@@ -269,18 +270,6 @@ class Session:
                 raise RunFailed(f'the estimator offers no reset service {self.est["reset"]} '
                                 f'(std_srvs/srv/Trigger) {within}', _tail(self.log_path))
             player.spin(0.02)
-
-    def _settle_match(self, limit):
-        """Spin :data:`~rigidrot_ros.ros.paced.MATCH_SETTLE_S` more (at most to ``limit``).
-
-        The command's answer publishers match this worker's subscriptions on their own
-        time, which this side cannot see; an answer published before then is lost.
-        """
-        from rigidrot_ros.ros.paced import MATCH_SETTLE_S
-        end = min(time.monotonic() + MATCH_SETTLE_S, limit)
-        while time.monotonic() < end:
-            self._check('before the run', startup=True)
-            self.player.spin(0.02)
 
     def _check_types(self):
         topic = self.player.output_topics[0]

@@ -236,6 +236,19 @@ class PacedPlayer:
                 out.append(topic)
         return out
 
+    def settle_match(self, limit, check=None):
+        """Spin :data:`MATCH_SETTLE_S` more once matched (at most to ``limit``, monotonic).
+
+        The subscriber's answer publishers match this player's subscriptions on their own
+        time, which this side cannot see; an answer published before then is lost.
+        ``check()`` (raises to stop) is called at each round.
+        """
+        end = min(time.monotonic() + MATCH_SETTLE_S, limit)
+        while time.monotonic() < end:
+            if check is not None:
+                check()
+            self.spin(0.02)
+
     def missing(self, topics=None):
         """Return the played topics (default: all) with no matched subscription yet."""
         return [t for t in (topics or self.pubs) if not self.pubs[t].get_subscription_count()]

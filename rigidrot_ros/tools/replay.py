@@ -227,7 +227,7 @@ def _paced(node, opts, bag, classes, msgs):
     """Play ``msgs`` at the pace of the answers on ``--paced-by``; exit status."""
     from rclpy.executors import SingleThreadedExecutor
 
-    from rigidrot_ros.ros.paced import MATCH_SETTLE_S, PacedPlayer, PlayError, write_answers
+    from rigidrot_ros.ros.paced import PacedPlayer, PlayError, write_answers
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     qos = {t: qos_from_yaml(bag.topics[t][1]) for t in classes
@@ -242,9 +242,7 @@ def _paced(node, opts, bag, classes, msgs):
                                       or not all(p.get_subscription_count() for p in required)
                                       or player.unmatched()):
         player.spin(0.02)
-    settled = min(time.monotonic() + MATCH_SETTLE_S, end)
-    while time.monotonic() < settled:       # the subscriber's side matches the answers'
-        player.spin(0.02)
+    player.settle_match(end)
     missing = [t for t in player.output_topics if t not in player.output_types]
     alone = [t for t in opts.wait_for if t in player.pubs and player.missing([t])]
     if missing or alone:
