@@ -14,7 +14,6 @@ thread, as on a Dask worker: interrupted by an exception set on the thread).
 """
 
 import os
-import sys
 import tempfile
 import threading
 import time
@@ -28,6 +27,7 @@ from rigidrot_ros.runtime import interrupt
 from rigidrot_ros.tools.campaign import main
 
 from campaign_helpers import _write, SPEC  # noqa: I100, I201 - a helper module beside it
+from thread_helpers import profiled_calls
 
 
 def _spec(tmp_path, factory, params=None, timeout=60):
@@ -164,19 +164,7 @@ def test_a_filter_spinning_in_a_worker_thread_is_interrupted(tmp_path):
         'timeout: the run took longer than 2 s (in receive() on /imu'), got
     # the exception taken back leaves no flag up: a profiled thread (a node's gated
     # look-ahead worker in the same process) is not stalled at its next call
-    done = threading.Event()
-
-    def call():
-        return None
-
-    def profiled():
-        sys.setprofile(lambda frame, event, arg: None)
-        for _ in range(1000):
-            call()                  # each Python call: the profile's check of the breaker
-        sys.setprofile(None)
-        done.set()
-    threading.Thread(target=profiled, daemon=True).start()
     try:
-        assert done.wait(10.0)
+        assert profiled_calls().wait(10.0)
     finally:
         interrupt.settle()

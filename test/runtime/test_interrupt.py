@@ -7,25 +7,7 @@ import threading
 import pytest
 
 from rigidrot_ros.runtime import interrupt
-
-
-def _profiled_calls(n=2000):
-    """Start a thread that makes ``n`` Python calls under a profile function; its end event."""
-    done = threading.Event()
-
-    def call():
-        return None
-
-    def body():
-        sys.setprofile(lambda frame, event, arg: None)
-        try:
-            for _ in range(n):
-                call()
-        finally:
-            sys.setprofile(None)
-        done.set()
-    threading.Thread(target=body, daemon=True).start()
-    return done
+from thread_helpers import profiled_calls
 
 
 def _take_back_with_none():
@@ -38,7 +20,7 @@ def test_a_request_taken_back_with_none_stalls_a_profiled_thread_until_settled()
     """The mechanism of the node's hang: the flag stays up, a profiled thread spins at a call."""
     _take_back_with_none()
     try:
-        done = _profiled_calls()
+        done = profiled_calls()
         assert not done.wait(0.5)           # spinning at its first call's first instruction
     finally:
         interrupt.settle()
@@ -48,7 +30,7 @@ def test_a_request_taken_back_with_none_stalls_a_profiled_thread_until_settled()
 def test_after_settle_a_profiled_thread_runs():
     _take_back_with_none()
     interrupt.settle()
-    assert _profiled_calls().wait(30.0)
+    assert profiled_calls().wait(30.0)
 
 
 def test_raise_in_raises_in_the_thread_and_leaves_no_flag_up():
@@ -70,5 +52,5 @@ def test_raise_in_raises_in_the_thread_and_leaves_no_flag_up():
     assert interrupt.raise_in(th.ident, Stop) == 1
     th.join(30.0)
     assert caught == [True] and not th.is_alive()
-    assert _profiled_calls().wait(30.0)
+    assert profiled_calls().wait(30.0)
     assert interrupt.raise_in(th.ident, Stop) == 0          # no such thread any more
