@@ -4,8 +4,8 @@ A program's imports (rclpy, numpy, scipy) take up to a second or two on a loaded
 and Python's default answer to a Ctrl-C then is a KeyboardInterrupt traceback. Each entry
 here imports its program's ``main`` and calls it; a Ctrl-C the program does not handle
 itself (while it imports) ends it with one line and the status a Ctrl-C gives it once it
-runs: 0 for the ROS
-programs (a node stops cleanly on Ctrl-C), 130 for the batch tools (interrupted).
+runs: 0 for the ROS programs (a node stops cleanly on Ctrl-C), 130 for the batch tools
+(interrupted).
 """
 
 import importlib
