@@ -238,20 +238,34 @@ def start_method(spec):
     return 'fork'
 
 
-def _warm():
-    """Load what an in-process run uses, once, in the client, before the pool forks."""
+def _warm(spec):
+    """Load what an in-process run uses, once, in the client, before the pool forks.
+
+    The modules, and what each estimator's ``warm()`` loads, if its object has one (the
+    reference MEKF's compiled filter): the workers start with it instead of each loading
+    it at its first run. A factory or ``warm()`` that fails here is left to the runs,
+    which report it.
+    """
     import rigidrot_ros.campaign.inproc  # noqa: F401
     import rigidrot_ros.campaign.session  # noqa: F401
     import rigidrot_ros.run.feed  # noqa: F401
     import rigidrot_ros.run.generate  # noqa: F401
     import rigidrot_ros.scoring.score  # noqa: F401
+    from rigidrot_ros.campaign.spec import load_factory
+    for est in _estimators(spec):
+        try:
+            warm = getattr(load_factory(est['factory'])(dict(est['params'])), 'warm', None)
+            if callable(warm):
+                warm()
+        except Exception:  # noqa: B902 - the runs make it again and report its failure
+            pass
 
 
 def _pool(spec, todo, bag_root, workers):
     method = start_method(spec)
     frozen = method == 'fork'
     if frozen:
-        _warm()
+        _warm(spec)
         sys.stdout.flush()          # nothing buffered is written again by a worker
         sys.stderr.flush()
         gc.freeze()                 # the client's objects: no worker's collector walks them

@@ -20,7 +20,10 @@ description) with the order its messages would arrive in
 (:func:`rigidrot_ros.run.feed.sensor_feed`), and returns its estimates as arrays
 (``type``, ``stamps_ns``, ``orientation`` (n, 4) and ``orientation_cov`` (n, 3, 3) or
 None; the reference MEKF's :meth:`~rigidrot_ros.estimators.mekf.MEKF.receive_arrays`): no
-message is built. It must give the estimates its messages would carry, bit for bit.
+message is built. It must give the estimates its messages would carry, bit for bit. An
+object with a ``warm()`` method has it called once in the campaign's client before the
+local pool forks its workers (:func:`rigidrot_ros.campaign.engine.start_method`), for
+what every run would otherwise load again in each worker (the MEKF's compiled filter).
 
 **Bags kept** (``rigidrot_campaign --keep-bags DIR``): the messages are fed and the
 estimates bagged on ``estimator.topic`` with their header stamps as log times, with the
