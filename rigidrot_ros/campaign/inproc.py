@@ -329,8 +329,9 @@ def _feed_arrays(filt, spec, values, topic, timing, t0, where):
     from rigidrot_ros.campaign.session import SCORED_TYPES, SENSORS
     from rigidrot_ros.run.feed import sensor_feed
     from rigidrot_ros.run.generate import run_arrays
+    from rigidrot_ros.campaign.spec import take_prepared
     from rigidrot_ros.scoring.decode import ORIENTATION
-    arrays = run_arrays(values, spec['duration'])
+    arrays = run_arrays(values, spec['duration'], setup=take_prepared(values))
     feed, order = sensor_feed(arrays, SENSORS)
     feed['run'] = arrays['run']
     where[0] = 'receive_arrays()'

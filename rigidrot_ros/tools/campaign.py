@@ -87,7 +87,8 @@ def main(argv=None):
     try:
         security = dask_security(opts.tls_ca_file, opts.tls_cert, opts.tls_key) \
             if opts.scheduler else None
-        spec = load_spec(opts.spec, progress=None if opts.quiet else _CheckProgress())
+        spec = load_spec(opts.spec, progress=None if opts.quiet else _CheckProgress(),
+                         keep=opts.workers is None and not opts.scheduler)
         if opts.bags:
             try:
                 os.makedirs(opts.bags, exist_ok=True)
