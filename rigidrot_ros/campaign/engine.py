@@ -38,7 +38,7 @@ import time
 
 from rigidrot_ros.campaign.aggregate import aggregate, csv_rows
 from rigidrot_ros.campaign.run import run_one
-from rigidrot_ros.campaign.spec import SpecError
+from rigidrot_ros.campaign.spec import forget_prepared, SpecError
 from rigidrot_ros.campaign.workdir import sweep_work_dirs
 
 __all__ = ['run_campaign', 'DASK_MISSING', 'write_atomic', 'WINDOW_PER_WORKER',
@@ -461,6 +461,7 @@ def run_campaign(spec, out_dir, workers=None, scheduler=None, dask_local=False,
             for result in gen:
                 if charts is None:      # the workers are running (forked): import meanwhile
                     charts = _preload_charts()
+                    forget_prepared()   # the workers have their copies
                 if result.get('fatal') and not ok:   # the estimator cannot start: stop
                     gen.close()
                     raise SpecError(result['fatal'])
@@ -471,6 +472,7 @@ def run_campaign(spec, out_dir, workers=None, scheduler=None, dask_local=False,
             bar.close()
             gen.close()
             sweep_work_dirs()           # those of workers killed on this machine
+            forget_prepared()
             if charts is not None:
                 charts.join()
     else:

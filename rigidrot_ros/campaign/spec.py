@@ -59,7 +59,8 @@ import numpy as np
 import yaml
 
 __all__ = ['SpecError', 'command_path', 'load_spec', 'check_spec', 'draw_run', 'run_values',
-           'MAX_REDRAWS', 'load_factory', 'DISPERSIONS', 'take_prepared']
+           'MAX_REDRAWS', 'load_factory', 'DISPERSIONS', 'take_prepared',
+           'forget_prepared']
 
 MAX_REDRAWS = 1000
 #: The last ROS domain ID (ROS 2's "Domain ID" guide: 0-232 on Linux, the highest whose DDS
@@ -434,6 +435,11 @@ def take_prepared(values):
     by the worker forked from it.
     """
     return _PREPARED.pop(_values_key(values), None) if _PREPARED else None
+
+
+def forget_prepared():
+    """Drop the set-ups :func:`check_draws` kept (the workers forked have their copies)."""
+    _PREPARED.clear()
 
 
 def check_draws(spec, limit=None, progress=None, keep=False):

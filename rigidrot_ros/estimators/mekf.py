@@ -165,7 +165,8 @@ class MEKF:
     first); :meth:`finish` returns the last ones. The in-process campaign API.
     :meth:`receive_arrays` takes a whole run as arrays instead and returns the same
     estimates as arrays, bit for bit (the same operations on the same values, without
-    building a message).
+    building a message), compiled where it can be
+    (:mod:`rigidrot_ros.estimators.mekf_kernel`: about 30 times faster, the same bits).
     """
 
     #: The type of the estimates (:meth:`receive_arrays` says it too).

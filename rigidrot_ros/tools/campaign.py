@@ -82,6 +82,15 @@ def main(argv=None):
         except ImportError:
             from rigidrot_ros.campaign.engine import DASK_MISSING
             return fail('rigidrot_campaign', DASK_MISSING)
+    from rigidrot_ros.campaign.spec import forget_prepared
+    try:
+        return _run(opts)
+    finally:
+        forget_prepared()           # what the draws' check kept for the runs
+
+
+def _run(opts):
+    """Run the campaign ``opts`` say; the exit status."""
     from rigidrot_ros.campaign.engine import CampaignStopped, dask_security, run_campaign
     from rigidrot_ros.campaign.spec import load_spec, SpecError
     try:

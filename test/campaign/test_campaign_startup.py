@@ -14,6 +14,7 @@ import numpy as np
 from rigidrot_ros.campaign import charts, engine, spec as spec_mod
 from rigidrot_ros.campaign.run import run_one
 from rigidrot_ros.campaign.spec import draw_run, load_spec, run_values, take_prepared
+from rigidrot_ros.tools.campaign import main
 
 from campaign_helpers import _write, SPEC  # noqa: I100, I201 - a helper module beside it
 
@@ -43,6 +44,7 @@ def warm_factory(params):
 
 def test_a_kept_setup_gives_the_run_of_a_fresh_one(tmp_path):
     path = _write(tmp_path, dict(SPEC, runs=2, duration=1.5))
+    spec_mod.forget_prepared()
     try:
         spec = load_spec(path, keep=True)
         assert len(spec_mod._PREPARED) == 2
@@ -60,6 +62,7 @@ def test_a_kept_setup_gives_the_run_of_a_fresh_one(tmp_path):
 def test_a_ros_estimator_keeps_no_setup(tmp_path):
     est = {'command': 'rigidrot_mekf --ros-args -p use_sim_time:=true',
            'topics': ['/estimator/odom']}
+    spec_mod.forget_prepared()
     try:
         load_spec(_write(tmp_path, dict(SPEC, runs=2, estimator=est)), keep=True)
         assert not spec_mod._PREPARED
@@ -103,3 +106,10 @@ def test_charts_drawn_in_two_processes_are_the_same_files(tmp_path, monkeypatch)
         f'{n}.{e}' for n in ('nees', 'rms_error', 'anees_hist') for e in ('png', 'svg'))
     for name in os.listdir(one):
         assert (one / name).read_bytes() == (two / name).read_bytes(), name
+
+
+def test_the_command_keeps_no_setup_after_it(tmp_path):
+    spec_mod.forget_prepared()
+    path = _write(tmp_path, dict(SPEC, runs=2, duration=1.0))
+    assert main([path, '-o', str(tmp_path / 'out'), '--quiet', '--processes', '1']) == 0
+    assert not spec_mod._PREPARED
