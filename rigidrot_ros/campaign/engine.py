@@ -46,6 +46,10 @@ __all__ = ['run_campaign', 'DASK_MISSING', 'write_atomic', 'WINDOW_PER_WORKER',
 
 #: Runs submitted ahead per worker (thread): enough to keep every worker busy.
 WINDOW_PER_WORKER = 4
+#: Threads of the client that save results (their fsyncs overlap), and the results that
+#: may wait to be saved.
+SAVE_THREADS = 4
+SAVE_WINDOW = 64
 #: How long the client tries to reach a Dask scheduler.
 CONNECT_TIMEOUT = '20s'
 _PR_SET_PDEATHSIG = 1                       # <linux/prctl.h>
@@ -456,28 +460,79 @@ def run_campaign(spec, out_dir, workers=None, scheduler=None, dask_local=False,
         gen = _dask(spec, todo, bag_root, workers, client) \
             if (scheduler or dask_local) else _pool(spec, todo, bag_root, workers)
         ok = False
-        charts = None
+        charts = saver = None
         try:
             for result in gen:
-                if charts is None:      # the workers are running (forked): import meanwhile
+                if charts is None:      # the workers are running (forked): start the threads
                     charts = _preload_charts()
+                    saver = _Saver(out_dir, bar)
                     forget_prepared()   # the workers have their copies
                 if result.get('fatal') and not ok:   # the estimator cannot start: stop
                     gen.close()
                     raise SpecError(result['fatal'])
                 ok = ok or result['row']['status'] == 'ok'
-                _save_run(out_dir, result)
-                bar.add(result['row']['status'] != 'ok')
+                saver.put(result)
         finally:
-            bar.close()
-            gen.close()
-            sweep_work_dirs()           # those of workers killed on this machine
-            forget_prepared()
-            if charts is not None:
-                charts.join()
+            try:
+                if saver is not None:
+                    saver.close()       # every result received is saved, even on an error
+            finally:
+                bar.close()
+                gen.close()
+                sweep_work_dirs()       # those of workers killed on this machine
+                forget_prepared()
+                if charts is not None:
+                    charts.join()
     else:
         bar.close()
     return finish(spec, out_dir)
+
+
+class _Saver:
+    """Save results (:func:`_save_run`) in :data:`SAVE_THREADS` threads: their fsyncs overlap.
+
+    On a disk busy with other writes an fsync can take 10 ms or more, longer than a short
+    run of the pool takes: one after the other, they held up the client between results,
+    and with it the submission of new runs. A save's error (a full disk) is raised by the
+    next :meth:`put` or by :meth:`close`; at most :data:`SAVE_WINDOW` results wait to be
+    saved.
+    """
+
+    def __init__(self, out_dir, bar):
+        self.out_dir, self.bar = out_dir, bar
+        self.ex = cf.ThreadPoolExecutor(max_workers=SAVE_THREADS,
+                                        thread_name_prefix='rigidrot-campaign-save')
+        self.pending = collections.deque()
+
+    def put(self, result):
+        """Save ``result`` in a thread; count the saves done."""
+        self.pending.append((self.ex.submit(_save_run, self.out_dir, result),
+                             result['row']['status'] != 'ok'))
+        self._reap(len(self.pending) > SAVE_WINDOW)
+
+    def _reap(self, wait):
+        while self.pending and (wait or self.pending[0][0].done()):
+            f, failed = self.pending.popleft()
+            f.result()              # a save's error
+            self.bar.add(failed)
+            wait = False
+
+    def close(self):
+        """Wait for every save; then raise the first save's error, if any."""
+        first = None
+        try:
+            while self.pending:
+                f, failed = self.pending.popleft()
+                try:
+                    f.result()
+                except Exception as exc:  # noqa: B902 - the others are saved first
+                    first = first or exc
+                    continue
+                self.bar.add(failed)
+        finally:
+            self.ex.shutdown(wait=True)
+        if first is not None:
+            raise first
 
 
 def _preload_charts():

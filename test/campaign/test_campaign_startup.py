@@ -4,6 +4,8 @@
   and taken by the run, gives the row and series of a run prepared afresh.
 - An estimator's ``warm()`` is called by the client before the pool forks.
 - The charts drawn in two processes are the files drawn in one, byte for byte.
+- Results saved in threads: a save that fails stops the campaign with its error once the
+  others are saved, and the same command continues it to the report of one never stopped.
 """
 
 import os
@@ -113,3 +115,29 @@ def test_the_command_keeps_no_setup_after_it(tmp_path):
     path = _write(tmp_path, dict(SPEC, runs=2, duration=1.0))
     assert main([path, '-o', str(tmp_path / 'out'), '--quiet', '--processes', '1']) == 0
     assert not spec_mod._PREPARED
+
+
+def test_a_failed_save_stops_the_campaign_and_a_rerun_continues(tmp_path, monkeypatch):
+    spec = load_spec(_write(tmp_path, dict(SPEC, runs=3, duration=0.5)))
+    real = engine._save_run
+
+    def save(out_dir, result):
+        if result['row']['run'] == 1:
+            raise OSError(28, 'No space left on device')
+        real(out_dir, result)
+
+    monkeypatch.setattr(engine, '_save_run', save)
+    out = tmp_path / 'out'
+    try:
+        engine.run_campaign(spec, str(out), workers=1, progress=False)
+    except OSError as exc:
+        assert exc.errno == 28
+    else:
+        raise AssertionError('the failed save was not raised')
+    saved = sorted(n for n in os.listdir(out / 'runs') if n.endswith('.time.json'))
+    assert '000001.time.json' not in saved and '000000.time.json' in saved
+    monkeypatch.setattr(engine, '_save_run', real)
+    report = engine.run_campaign(spec, str(out), workers=1, progress=False)
+    whole = engine.run_campaign(spec, str(tmp_path / 'whole'), workers=1, progress=False)
+    assert report == whole and report['runs_ok'] == 3
+    assert (out / 'report.json').read_bytes() == (tmp_path / 'whole' / 'report.json').read_bytes()
