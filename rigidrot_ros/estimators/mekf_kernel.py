@@ -26,6 +26,7 @@ not constants of the code.
 """
 
 import ctypes
+import math
 import os
 
 import numpy as np
@@ -156,6 +157,12 @@ class RunArrays:
         code.pop(None, None)
         self.kinds = np.array([code.get(t, 2) for t, _ in order], dtype=np.int64)
         self.rows = np.array([r for _, r in order], dtype=np.int64)
+        for kind, n in ((0, len(self.imu_t)), (1, len(self.star_t))):
+            mine = self.kinds == kind           # rows as Python indexes them: -1 the last
+            rows = self.rows[mine]
+            if len(rows) and (rows.min() < -n or rows.max() >= n):
+                raise IndexError('list index out of range')
+            self.rows[mine] = np.where(rows < 0, rows + n, rows)
 
 
 def run(filt, data):
@@ -171,7 +178,11 @@ def run(filt, data):
         raise RuntimeError(f'the compiled MEKF is not available: {_STATE["reason"]}')
     p = filt.p
     m = len(data.star_t)
-    ok = np.array([filt._usable(data.cov6[k, 3:, 3:]) for k in range(m)], dtype=np.bool_)
+    ok = np.zeros(m, dtype=np.bool_)    # R checked where the filter checks it: q usable
+    for k in range(m):
+        q_m = data.star_q[4 * k:4 * k + 4]
+        if np.isfinite(q_m).all() and abs(math.sqrt(float(q_m.dot(q_m))) - 1) < 1e-6:
+            ok[k] = filt._usable(data.cov6[k, 3:, 3:])
     cap = len(data.imu_t) // p.output_every + 1
     out_t = np.zeros(cap, dtype=np.int64)
     out_q, out_p = np.zeros(cap * 4), np.zeros(cap * 36)

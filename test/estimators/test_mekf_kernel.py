@@ -153,3 +153,15 @@ def test_no_jit_keeps_the_filter_interpreted():
                          env=dict(os.environ, RIGIDROT_NO_JIT='1'), timeout=120)
     assert res.returncode == 0, res.stderr[-2000:]
     assert res.stdout.split(None, 1) == ['False', 'RIGIDROT_NO_JIT is set\n']
+
+
+def test_rows_are_indexed_as_python_indexes_them():
+    feed, order = _synthetic(np.random.default_rng(7))
+    n = len(feed['/imu']['stamps_ns'])
+    order = [(t, k - n if t == '/imu' and k % 2 else k) for t, k in order]
+    a, b = _both(PARAMS, feed, order)
+    _same(a, b)
+    bad = order[:30] + [('/imu', n)]
+    for compiled in (False, True):
+        with pytest.raises(IndexError):
+            make(PARAMS).receive_arrays(feed, bad, compiled=compiled)
