@@ -143,11 +143,14 @@ class Estimates:
     """An in-process run's estimates in memory: what the scorer would read from their bag.
 
     ``rows`` as :func:`rigidrot_ros.scoring.decode.message_rows` gives them, in the order
-    the estimator returned them; ``run`` the run description as the bag's reader gives it.
+    the estimator returned them; ``run`` the run description as the bag's reader gives it;
+    ``solutions`` the run's exact solution where the generator's is at hand (``{(node,
+    start_ns): solution}``, for :func:`rigidrot_ros.scoring.score.score_against_runs`).
     """
 
-    def __init__(self, topic, type_name, rows, run):
+    def __init__(self, topic, type_name, rows, run, solutions=None):
         self.topic, self.type, self.rows, self.run = topic, type_name, rows, run
+        self.solutions = solutions
 
 
 def logged_run(description):
@@ -330,8 +333,10 @@ def _feed_arrays(filt, spec, values, topic, timing, t0, where):
     from rigidrot_ros.run.feed import sensor_feed
     from rigidrot_ros.run.generate import run_arrays
     from rigidrot_ros.campaign.spec import take_prepared
+    from rigidrot_ros.run.generate import prepare_run
     from rigidrot_ros.scoring.decode import ORIENTATION
-    arrays = run_arrays(values, spec['duration'], setup=take_prepared(values))
+    setup = take_prepared(values) or prepare_run(values)
+    arrays = run_arrays(values, spec['duration'], setup=setup)
     feed, order = sensor_feed(arrays, SENSORS)
     feed['run'] = arrays['run']
     where[0] = 'receive_arrays()'
@@ -365,4 +370,6 @@ def _feed_arrays(filt, spec, values, topic, timing, t0, where):
     covs = [None] * n if cov is None else list(cov)
     rows = [(s, [(ORIENTATION, tuple(v), c, frame)])
             for s, v, c in zip(stamps.tolist(), q.tolist(), covs)]
-    return Estimates(topic, name, rows, logged_run(json.loads(json.dumps(arrays['run']))))
+    run = logged_run(json.loads(json.dumps(arrays['run'])))
+    return Estimates(topic, name, rows, run,
+                     {(str(run.get('node', '')), int(run['start_ns'])): setup.solution})

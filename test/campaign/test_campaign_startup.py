@@ -3,6 +3,8 @@
 - The set-up :func:`~rigidrot_ros.campaign.spec.check_draws` prepared for a run, kept
   and taken by the run, gives the row and series of a run prepared afresh.
 - An estimator's ``warm()`` is called by the client before the pool forks.
+- Estimates scored against the generator's own solution of the run score as against the
+  solution the scorer makes from the run description.
 - The charts drawn in two processes are the files drawn in one, byte for byte.
 - Results saved in threads: a save that fails stops the campaign with its error once the
   others are saved, and the same command continues it to the report of one never stopped.
@@ -141,3 +143,15 @@ def test_a_failed_save_stops_the_campaign_and_a_rerun_continues(tmp_path, monkey
     whole = engine.run_campaign(spec, str(tmp_path / 'whole'), workers=1, progress=False)
     assert report == whole and report['runs_ok'] == 3
     assert (out / 'report.json').read_bytes() == (tmp_path / 'whole' / 'report.json').read_bytes()
+
+
+def test_the_generators_solution_scores_as_the_descriptions(tmp_path):
+    from rigidrot_ros.campaign.inproc import run_inproc
+    from rigidrot_ros.campaign.run import score_estimates
+    spec = load_spec(_write(tmp_path, dict(SPEC, runs=1, duration=2.0)))
+    est = run_inproc(spec, run_values(spec, draw_run(spec, 0)[0]), None, {})
+    assert len(est.solutions) == 1
+    own = score_estimates(est)
+    est.solutions = None
+    assert own == score_estimates(est)
+    assert own[0]['nees_count'] > 10
