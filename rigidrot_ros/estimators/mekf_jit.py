@@ -183,15 +183,7 @@ def filter_run(fp, imu_t, imu_w, imu_var, star_t, star_q, star_r6, star_ok, kind
         # _flush(t)
         if due and t > due_t:
             due = False
-            out_t[n_out] = due_t
-            for i in range(4):
-                out_q[n_out * 4 + i] = q[i]
-            for i in range(36):
-                out_p[n_out * 36 + i] = P[i]
-            for i in range(3):
-                out_w[n_out * 3 + i] = omega[i] - beta[i]
-            for i in range(9):
-                out_gv[n_out * 9 + i] = gvar[i]
+            _emit(n_out, due_t, q, P, omega, beta, gvar, out_t, out_q, out_p, out_w, out_gv)
             n_out += 1
         if kind == 1:                           # _on_star
             qo = k * 4
@@ -273,15 +265,7 @@ def filter_run(fp, imu_t, imu_w, imu_var, star_t, star_q, star_r6, star_ok, kind
             due = True
             due_t = t
     if status == 0 and due:                     # _flush(None)
-        out_t[n_out] = due_t
-        for i in range(4):
-            out_q[n_out * 4 + i] = q[i]
-        for i in range(36):
-            out_p[n_out * 36 + i] = P[i]
-        for i in range(3):
-            out_w[n_out * 3 + i] = omega[i] - beta[i]
-        for i in range(9):
-            out_gv[n_out * 9 + i] = gvar[i]
+        _emit(n_out, due_t, q, P, omega, beta, gvar, out_t, out_q, out_p, out_w, out_gv)
         n_out += 1
     counts[0] = n_out
     counts[1] = updates
@@ -303,6 +287,19 @@ def filter_run(fp, imu_t, imu_w, imu_var, star_t, star_q, star_r6, star_ok, kind
     istate[4] = npend
     for i in range(npend):
         istate[5 + i] = pend[i]
+
+
+def _emit(n, t, q, P, omega, beta, gvar, out_t, out_q, out_p, out_w, out_gv):
+    """Write estimate ``n`` (``_flush``): its stamp, q, P, the rate less the bias, gyro var."""
+    out_t[n] = t
+    for i in range(4):
+        out_q[n * 4 + i] = q[i]
+    for i in range(36):
+        out_p[n * 36 + i] = P[i]
+    for i in range(3):
+        out_w[n * 3 + i] = omega[i] - beta[i]
+    for i in range(9):
+        out_gv[n * 9 + i] = gvar[i]
 
 
 def _propagate(fp, dt, P, tmp, phi, W, WW, w, v, q, qn, omega, beta, sv2, su2):
@@ -441,7 +438,7 @@ def _update(fp, P, q, beta, star_q, qo, star_r6, ro, qe, zq, a_s, b_s, X, ipiv, 
 def make_jit(cache):
     """Return :func:`filter_run` compiled (``cache``: on disk), its helpers compiled first."""
     g = globals()
-    for name in ('_qmul', '_propagate', '_update'):
+    for name in ('_qmul', '_emit', '_propagate', '_update'):
         fn = g[name]
         g[name] = njit(cache=cache, fastmath=False)(getattr(fn, 'py_func', fn))
     return njit(cache=cache, fastmath=False)(filter_run)
