@@ -89,11 +89,12 @@ def placed(run, parts, cids, seq, order):
     compiled placing loop is at hand (:func:`rigidrot_ros.bag.chunks.can_place`): each
     message's offset is the sum of the record sizes before it in ``order``, and each part's
     records (head and CDR) are written there at once
-    (:func:`~rigidrot_ros.bag.chunks.place_records`), so the span is one read-only buffer,
+    (:func:`~rigidrot_ros.bag.chunks.place_batch`: from the CDR's plan, never built
+    as an array of its own), so the span is one read-only buffer,
     its messages back to back: the bytes of :func:`span_of`'s records in its order, with
     one copy fewer and no join. None otherwise (nothing counted in ``seq``).
     """
-    from rigidrot_ros.bag.chunks import can_place, place_records
+    from rigidrot_ros.bag.chunks import can_place, place_batch
     from rigidrot_ros.msgs.cdr import Batch
     which, rows = order
     if not len(which) or not can_place():
@@ -108,12 +109,15 @@ def placed(run, parts, cids, seq, order):
     off = np.zeros(len(which), dtype=np.int64)
     np.cumsum(size[:-1], out=off[1:])
     buf = np.empty(int(off[-1] + size[-1]), dtype=np.uint8)
+    # each part's places in the order, grouped by part (a stable sort of small keys)
+    by = np.argsort(which.astype(np.int16) if len(parts) < 1 << 15 else which, kind='stable')
+    ends = np.cumsum([len(p.stamps) for p in parts])
     for i, (p, r) in enumerate(zip(parts, raws)):
         n = len(p.stamps)
+        mine = by[ends[i] - n:ends[i]]
         dst = np.empty(n, dtype=np.int64)
-        mine = which == i
         dst[rows[mine]] = off[mine]
-        place_records(buf, dst, cids[p.topic], seq[p.topic], p.log, r.data)
+        place_batch(buf, dst, cids[p.topic], seq[p.topic], p.log, r)
         seq[p.topic] += n
     buf.flags.writeable = False                 # frozen: chunks are slices of it
     cid = np.array([cids[p.topic] for p in parts], dtype=np.int64)[which]
@@ -182,11 +186,13 @@ def write_piece(writer, span, a, b, start_ns):
     lo = span.off[starts].tolist()
     hi = (span.off[last] + span.size[last]).tolist()
     src = [span.sources[k] for k in span.src[starts].tolist()]
-    if len(src) == 1 and isinstance(src[0], memoryview):
-        data = src[0][lo[0]:hi[0]]              # one run: its bytes as they are
+    if len(src) == 1:                       # one run: its bytes as they are, in place
+        data = src[0][lo[0]:hi[0]] if isinstance(src[0], memoryview) else \
+            memoryview(src[0])[lo[0]:hi[0]]
+        offsets = span.off[a:b] - lo[0]
     else:
         data = b''.join([s[x:y] for s, x, y in zip(src, lo, hi)])
-    offsets = np.concatenate([[0], np.cumsum(span.size[a:b - 1])])
+        offsets = np.concatenate([[0], np.cumsum(span.size[a:b - 1])])
     writer.write_chunk(data, span.cid[a:b], span.log[a:b] + start_ns, offsets)
 
 
