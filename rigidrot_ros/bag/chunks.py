@@ -189,13 +189,13 @@ def place_batch(buf, dst, cid, seq0, log, batch):
     """
     if not batch.planned:
         return place_records(buf, dst, cid, seq0, log, batch.data)
-    raw = np.ascontiguousarray(batch.values, dtype='<f8').view(np.uint8)
+    values, slots = batch.plan()
     _placer('plan')(buf, np.ascontiguousarray(dst, dtype=np.int64),
                     _head(cid, batch.size), int(seq0),
                     np.ascontiguousarray(log, dtype=np.int64), batch.row,
                     np.ascontiguousarray(batch.sec, dtype=np.int64),
-                    np.ascontiguousarray(batch.nsec, dtype=np.int64), raw,
-                    np.ascontiguousarray(batch.slots, dtype=np.int64))
+                    np.ascontiguousarray(batch.nsec, dtype=np.int64),
+                    values.view(np.uint8), slots)
 
 
 def message_heads(cids, seq, log, sizes):

@@ -114,17 +114,17 @@ class Batch:
     ``batch[i]`` and iteration give each message's ``bytes``; :attr:`data` is the
     ``(n, size)`` uint8 array. The builders make it from its plan, written out on first
     use: :attr:`row` (one message's bytes, uint8 (size,), the constant fields in place),
-    the stamps' ``sec``, ``nsec`` (int64 (n,)) and :attr:`values` (float64 (n, m)),
-    value j of a message at byte :attr:`slots` ``[j]`` of it; a writer that places the
-    messages elsewhere (:func:`rigidrot_ros.bag.chunks.place_batch`) reads the plan and
-    never builds :attr:`data`.
+    the stamps' ``sec``, ``nsec`` (int64 (n,)) and :attr:`columns` (``[(byte, float64
+    (n, k)), ...]``: k doubles of each message from that byte on); a writer that places
+    the messages elsewhere (:func:`rigidrot_ros.bag.chunks.place_batch`) reads the plan
+    (:meth:`plan`) and never builds :attr:`data`.
     """
 
-    __slots__ = ('_data', 'row', 'sec', 'nsec', 'values', 'slots')
+    __slots__ = ('_data', 'row', 'sec', 'nsec', 'columns')
 
-    def __init__(self, data=None, row=None, sec=None, nsec=None, values=None, slots=None):
+    def __init__(self, data=None, row=None, sec=None, nsec=None, columns=None):
         self._data = data
-        self.row, self.sec, self.nsec, self.values, self.slots = row, sec, nsec, values, slots
+        self.row, self.sec, self.nsec, self.columns = row, sec, nsec, columns
 
     @property
     def data(self):
@@ -135,15 +135,8 @@ class Batch:
             out[:] = self.row
             out[:, 4:8] = self.sec.astype('<i4').view(np.uint8).reshape(n, 4)
             out[:, 8:12] = self.nsec.astype('<u4').view(np.uint8).reshape(n, 4)
-            raw = self.values.view(np.uint8).reshape(n, -1)
-            slots = self.slots.tolist()
-            j = 0
-            while j < len(slots):           # runs of consecutive doubles at once
-                k = j + 1
-                while k < len(slots) and slots[k] == slots[k - 1] + 8:
-                    k += 1
-                out[:, slots[j]:slots[j] + 8 * (k - j)] = raw[:, 8 * j:8 * k]
-                j = k
+            for at, v in self.columns:
+                out[:, at:at + 8 * v.shape[1]] = v.view(np.uint8)
             self._data = out
         return self._data
 
@@ -151,6 +144,22 @@ class Batch:
     def planned(self):
         """Whether the batch has its plan (:attr:`row`, ...) and not only :attr:`data`."""
         return self.row is not None
+
+    def plan(self):
+        """Return ``(values, slots)``: the columns' doubles side by side, and their bytes.
+
+        ``values`` float64 (n, m), ``slots`` int64 (m,): value j of a message goes at its
+        byte ``slots[j]``.
+        """
+        n = len(self.sec)
+        values = np.empty((n, sum(v.shape[1] for _, v in self.columns)), dtype='<f8')
+        slots, j = [], 0
+        for at, v in self.columns:
+            k = v.shape[1]
+            values[:, j:j + k] = v
+            slots += [at + 8 * i for i in range(k)]
+            j += k
+        return values, np.array(slots, dtype=np.int64)
 
     def __len__(self):
         return len(self.sec) if self._data is None else self._data.shape[0]
@@ -171,20 +180,6 @@ class Batch:
         blob = self.data.tobytes()
         m = self.data.shape[1]
         return [blob[i:i + m] for i in range(0, len(blob), m)]
-
-
-def _planned(row, sec, nsec, columns):
-    """Return the Batch of ``row`` with the stamps and ``columns`` ``[(byte, (n, k)), ...]``."""
-    n = len(sec)
-    values = np.empty((n, sum(c.shape[1] for _, c in columns)), dtype='<f8')
-    slots, j = [], 0
-    for at, c in columns:
-        k = c.shape[1]
-        values[:, j:j + k] = c
-        slots += [at + 8 * i for i in range(k)]
-        j += k
-    return Batch(row=row, sec=sec, nsec=nsec, values=values,
-                 slots=np.array(slots, dtype=np.int64))
 
 
 def serialize_batch(kind, stamps_ns, values, frame_id, child_frame_id=None):
@@ -210,7 +205,7 @@ def serialize_batch(kind, stamps_ns, values, frame_id, child_frame_id=None):
     """
     layout = KINDS[kind]
     stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
-    vals = np.asarray(values, dtype=float)
+    vals = np.ascontiguousarray(values, dtype='<f8')
     n = len(stamps)
     if vals.shape != (n, layout.doubles):
         raise ValueError(f'{kind} needs values shaped ({n}, {layout.doubles}), '
@@ -219,7 +214,7 @@ def serialize_batch(kind, stamps_ns, values, frame_id, child_frame_id=None):
     if n and not (_INT32[0] <= sec.min() and sec.max() <= _INT32[1]):
         raise ValueError('a stamp lies beyond the int32 seconds of builtin_interfaces/Time')
     tpl, offset = _template(kind, frame_id, child_frame_id)
-    return _planned(tpl, sec, nsec, [(offset, vals)])
+    return Batch(row=tpl, sec=sec, nsec=nsec, columns=[(offset, vals)])
 
 
 _ROWS = {}
@@ -254,10 +249,10 @@ def _serialize_columns(kind, stamps_ns, n, fixed, columns, frame_id, child_frame
         _ROWS[key] = got = (row, offset)
     row, offset = got
     cols = [(offset + 8 * first,
-             np.broadcast_to(np.asarray(values, dtype=float),
-                             (m,) + np.shape(values)[1:]).reshape(m, -1))
+             np.ascontiguousarray(np.broadcast_to(values, (m,) + np.shape(values)[1:]),
+                                  dtype='<f8').reshape(m, -1))
             for first, values in columns]
-    return _planned(row, sec, nsec, cols)
+    return Batch(row=row, sec=sec, nsec=nsec, columns=cols)
 
 
 #: The Imu doubles without an accelerometer: orientation (0, 0, 0, 1) and
