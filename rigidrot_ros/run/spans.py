@@ -1,8 +1,10 @@
 """A generated run's blocks as MCAP records, cut into chunks as the bag writer cuts them.
 
 The parts of a block (each topic's header stamps, log times and columns, from
-:mod:`rigidrot_ros.run.generate`) become MCAP Message records built in arrays
-(:func:`records`), merged in the order the node publishes them (:func:`span_of`), cut
+:mod:`rigidrot_ros.run.generate`) become MCAP Message records, written straight into one
+buffer in the order the node publishes them (:func:`placed`) or, where that cannot be
+(the run description's span, no numba), built in arrays (:func:`records`) and merged in
+that order (:func:`span_of`), cut
 where :meth:`rigidrot_ros.bag.BagWriter.write_many` would close a chunk (:func:`pieces`)
 and handed to :meth:`BagWriter.write_chunk` a chunk at a time (:func:`write_piece`,
 :func:`write_block`): the file of the message-by-message writer, byte for byte.
@@ -12,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ['Span', 'records', 'span_of', 'pieces', 'write_piece', 'write_block']
+__all__ = ['Span', 'records', 'placed', 'span_of', 'pieces', 'write_piece', 'write_block']
 
 
 class Span(NamedTuple):
@@ -89,10 +91,11 @@ def placed(run, parts, cids, seq, order):
     compiled placing loop is at hand (:func:`rigidrot_ros.bag.chunks.can_place`): each
     message's offset is the sum of the record sizes before it in ``order``, and each part's
     records (head and CDR) are written there at once
-    (:func:`~rigidrot_ros.bag.chunks.place_batch`: from the CDR's plan, never built
-    as an array of its own), so the span is one read-only buffer,
-    its messages back to back: the bytes of :func:`span_of`'s records in its order, with
-    one copy fewer and no join. None otherwise (nothing counted in ``seq``).
+    (:func:`~rigidrot_ros.bag.chunks.place_batch`: from each CDR batch's plan, whose
+    ``(n, size)`` array is never built), so the span is one read-only buffer, its
+    messages back to back: the bytes of :func:`span_of`'s records in its order, with two
+    copies fewer and no join; a chunk is a slice of it. None otherwise (nothing counted
+    in ``seq``).
     """
     from rigidrot_ros.bag.chunks import can_place, place_batch
     from rigidrot_ros.msgs.cdr import Batch
