@@ -214,6 +214,11 @@ class _Run:
         self.rate = float(setup.publish_rate)
         self.truth_k = _grid_count(self.rate, self.span_ns)
         self.outputs = table.make(setup)
+        #: the solution's ``at`` for the truth ticks, answered from the gyro's attitudes at
+        #: its interval ends where the times are the same (:class:`_KnownAt`)
+        self.known = self.sol
+        if setup.gyro is not None and any(o.name == 'imu' for o in self.outputs):
+            self.known = _KnownAt(self.sol, setup.gyro)
         # each sensor's grid and timing model, by the node's own Track (same seeded draws)
         self.sensors = [(o, Track(o.name, self.start_ns, o.rate, o.first,
                                   timing_of(self.p, o.name)),
@@ -267,35 +272,8 @@ class _Run:
         return parts
 
     def _truth(self, times):
-        """:func:`read_truth` at scene ``times``, reusing the gyro's attitudes at its ends.
-
-        The gyro evaluates the attitude at its interval ends (``Gyro.last_ends``, one
-        ``solution.at`` a block, read before the truth); a truth tick on the same time
-        takes that sample's rows, which are the bits ``solution.at`` gives at that time
-        (a sample's bits depend on its time alone). Ticks the gyro did not evaluate (off
-        its grid, or its first end, kept from the block before) are evaluated here.
-        """
-        got = None
-        for output, _, _ in self.sensors:
-            got = getattr(getattr(output, 'model', None), 'last_ends', None) or got
-        if got is None or not len(got[0]):
-            return read_truth(self.sol, times)
-        ends, s = got
-        at = np.minimum(np.searchsorted(ends, times), len(ends) - 1)
-        hit = ends[at] == times
-        if not hit.any():
-            return read_truth(self.sol, times)
-        at = at[hit]
-        cols = {'q': s.quaternion[at], 'w': s.omega[at], 'e': s.error_bound[at]}
-        if hit.all():
-            return cols
-        rest = read_truth(self.sol, times[~hit])
-        out = {}
-        for key, part in cols.items():
-            full = np.empty((len(times),) + part.shape[1:], dtype=part.dtype)
-            full[hit], full[~hit] = part, np.asarray(rest[key], dtype=part.dtype)
-            out[key] = full
-        return out
+        """:func:`read_truth` at scene ``times``, from the gyro's samples where it has them."""
+        return read_truth(self.known, times)
 
     def _sensor(self, output, track, krange, lo_ns, hi_ns, failures=None):
         """Read a sensor's samples logged in ``[lo, hi)`` (grid time + latency): its parts.
@@ -345,6 +323,46 @@ class _Run:
             hi = min(end, lo + step)
             yield lo, hi, self.block(lo, hi, failures)
             lo = hi
+
+
+class _KnownAt:
+    """A solution whose ``at`` takes the gyro's samples at its interval ends where it can.
+
+    The gyro evaluates the attitude at its interval ends (``Gyro.last_ends``: one
+    ``solution.at`` a block, read first in a block); ``at`` of an array of times takes
+    the rows of those samples whose times are the same, which are the bits
+    ``solution.at`` gives at those times (a sample's bits depend on its time alone), and
+    evaluates the others (off the gyro's grid, or its first end, kept from the block
+    before). Everything else is the solution's.
+    """
+
+    def __init__(self, solution, gyro):
+        self.solution, self.gyro = solution, gyro
+
+    def __getattr__(self, name):
+        return getattr(self.solution, name)
+
+    def at(self, t):
+        """Evaluate the exact motion at time(s) t, as the solution does: its Samples."""
+        got = self.gyro.last_ends
+        if got is None or type(t) is float or np.ndim(t) != 1 or not len(got[0]) \
+                or not len(t):
+            return self.solution.at(t)
+        times = np.asarray(t, dtype=float)
+        ends, s = got
+        at = np.minimum(np.searchsorted(ends, times), len(ends) - 1)
+        hit = ends[at] == times
+        if not hit.any():
+            return self.solution.at(t)
+        at = at[hit]
+        cols = [s.quaternion[at], s.omega[at], s.error_bound[at]]
+        if not hit.all():
+            rest = self.solution.at(times[~hit])
+            for i, part in enumerate((rest.quaternion, rest.omega, rest.error_bound)):
+                full = np.empty((len(times),) + cols[i].shape[1:], dtype=cols[i].dtype)
+                full[hit], full[~hit] = cols[i], part
+                cols[i] = full
+        return type(s)(times, *cols)
 
 
 def _sub(krange, rate, lo_ns, hi_ns):

@@ -35,6 +35,7 @@ def test_truth_columns_are_read_truth_bits(monkeypatch, values, reused):
         assert _bits(cols) == _bits(read_truth(self.sol, times))
         got = [getattr(o, 'model', None) for o, _, _ in self.sensors]
         ends = got[0].last_ends[0] if got and got[0].last_ends else np.empty(0)
+        assert isinstance(self.known, gen._KnownAt) == bool(got)
         counts['ticks'] += len(times)
         counts['taken'] += int(np.isin(times, ends).sum())
         return cols
