@@ -40,8 +40,9 @@ __all__ = ['NAME', 'NEEDS', 'run', 'main', 'render_md', 'add_arguments', 'failed
 
 NAME = 'campaign_inproc'
 NEEDS = ('rclpy', 'yaml')
-MEASURES = ('rigidrot_ros.campaign', 'rigidrot_ros.estimators.mekf', 'rigidrot_ros.scoring',
-            'rigidrot_ros.run.feed')
+MEASURES = ('rigidrot_ros.campaign', 'rigidrot_ros.estimators.mekf',
+            'rigidrot_ros.estimators.mekf_kernel', 'rigidrot_ros.estimators.mekf_jit',
+            'rigidrot_ros.scoring', 'rigidrot_ros.run.feed')
 
 ROOT = common.CHECKOUT
 SPEC = os.path.join(ROOT, 'doc', 'campaigns', 'mekf_tuned.yaml')
@@ -197,7 +198,8 @@ def render_md(results):
              f'{fmt(res["quoted_before"])}', '—', '—', '—', '—')]
     labels = {'before': f'before (commit {res.get("baseline_commit", res["baseline"])[:12]}): '
                         'estimates bagged, read back, scored; workers spawned',
-              'now': 'now: the run in memory (arrays), scored from memory; workers forked'}
+              'now': 'now: the run in memory (arrays), the MEKF compiled, scored from '
+                     'memory; workers forked'}
     for way in ('before', 'now'):
         figs = res[way]
         if not figs:

@@ -38,7 +38,7 @@ import time
 
 from rigidrot_ros.campaign.aggregate import aggregate, csv_rows
 from rigidrot_ros.campaign.run import run_one
-from rigidrot_ros.campaign.spec import SpecError
+from rigidrot_ros.campaign.spec import forget_prepared, SpecError
 from rigidrot_ros.campaign.workdir import sweep_work_dirs
 
 __all__ = ['run_campaign', 'DASK_MISSING', 'write_atomic', 'WINDOW_PER_WORKER',
@@ -46,6 +46,10 @@ __all__ = ['run_campaign', 'DASK_MISSING', 'write_atomic', 'WINDOW_PER_WORKER',
 
 #: Runs submitted ahead per worker (thread): enough to keep every worker busy.
 WINDOW_PER_WORKER = 4
+#: Threads of the client that save results (their fsyncs overlap), and the results that
+#: may wait to be saved.
+SAVE_THREADS = 4
+SAVE_WINDOW = 64
 #: How long the client tries to reach a Dask scheduler.
 CONNECT_TIMEOUT = '20s'
 _PR_SET_PDEATHSIG = 1                       # <linux/prctl.h>
@@ -238,20 +242,34 @@ def start_method(spec):
     return 'fork'
 
 
-def _warm():
-    """Load what an in-process run uses, once, in the client, before the pool forks."""
+def _warm(spec):
+    """Load what an in-process run uses, once, in the client, before the pool forks.
+
+    The modules, and what each estimator's ``warm()`` loads, if its object has one (the
+    reference MEKF's compiled filter): the workers start with it instead of each loading
+    it at its first run. A factory or ``warm()`` that fails here is left to the runs,
+    which report it.
+    """
     import rigidrot_ros.campaign.inproc  # noqa: F401
     import rigidrot_ros.campaign.session  # noqa: F401
     import rigidrot_ros.run.feed  # noqa: F401
     import rigidrot_ros.run.generate  # noqa: F401
     import rigidrot_ros.scoring.score  # noqa: F401
+    from rigidrot_ros.campaign.spec import load_factory
+    for est in _estimators(spec):
+        try:
+            warm = getattr(load_factory(est['factory'])(dict(est['params'])), 'warm', None)
+            if callable(warm):
+                warm()
+        except Exception:  # noqa: B902 - the runs make it again and report its failure
+            pass
 
 
 def _pool(spec, todo, bag_root, workers):
     method = start_method(spec)
     frozen = method == 'fork'
     if frozen:
-        _warm()
+        _warm(spec)
         sys.stdout.flush()          # nothing buffered is written again by a worker
         sys.stderr.flush()
         gc.freeze()                 # the client's objects: no worker's collector walks them
@@ -442,21 +460,96 @@ def run_campaign(spec, out_dir, workers=None, scheduler=None, dask_local=False,
         gen = _dask(spec, todo, bag_root, workers, client) \
             if (scheduler or dask_local) else _pool(spec, todo, bag_root, workers)
         ok = False
+        charts = saver = None
         try:
             for result in gen:
+                if charts is None:      # the workers are running (forked): start the threads
+                    charts = _preload_charts()
+                    saver = _Saver(out_dir, bar)
+                    forget_prepared()   # the workers have their copies
                 if result.get('fatal') and not ok:   # the estimator cannot start: stop
                     gen.close()
                     raise SpecError(result['fatal'])
                 ok = ok or result['row']['status'] == 'ok'
-                _save_run(out_dir, result)
-                bar.add(result['row']['status'] != 'ok')
+                saver.put(result)
         finally:
-            bar.close()
-            gen.close()
-            sweep_work_dirs()           # those of workers killed on this machine
+            try:
+                if saver is not None:
+                    saver.close()       # every result received is saved, even on an error
+            finally:
+                bar.close()
+                gen.close()
+                sweep_work_dirs()       # those of workers killed on this machine
+                forget_prepared()
+                if charts is not None:
+                    charts.join()
     else:
         bar.close()
     return finish(spec, out_dir)
+
+
+class _Saver:
+    """Save results (:func:`_save_run`) in :data:`SAVE_THREADS` threads: their fsyncs overlap.
+
+    On a disk busy with other writes an fsync can take 10 ms or more, longer than a short
+    run of the pool takes: one after the other, they held up the client between results,
+    and with it the submission of new runs. A save's error (a full disk) is raised by the
+    next :meth:`put` or by :meth:`close`; at most :data:`SAVE_WINDOW` results wait to be
+    saved.
+    """
+
+    def __init__(self, out_dir, bar):
+        self.out_dir, self.bar = out_dir, bar
+        self.ex = cf.ThreadPoolExecutor(max_workers=SAVE_THREADS,
+                                        thread_name_prefix='rigidrot-campaign-save')
+        self.pending = collections.deque()
+
+    def put(self, result):
+        """Save ``result`` in a thread; count the saves done."""
+        self.pending.append((self.ex.submit(_save_run, self.out_dir, result),
+                             result['row']['status'] != 'ok'))
+        self._reap(len(self.pending) > SAVE_WINDOW)
+
+    def _reap(self, wait):
+        while self.pending and (wait or self.pending[0][0].done()):
+            f, failed = self.pending.popleft()
+            f.result()              # a save's error
+            self.bar.add(failed)
+            wait = False
+
+    def close(self):
+        """Wait for every save; then raise the first save's error, if any."""
+        first = None
+        try:
+            while self.pending:
+                f, failed = self.pending.popleft()
+                try:
+                    f.result()
+                except Exception as exc:  # noqa: B902 - the others are saved first
+                    first = first or exc
+                    continue
+                self.bar.add(failed)
+        finally:
+            self.ex.shutdown(wait=True)
+        if first is not None:
+            raise first
+
+
+def _preload_charts():
+    """Import the charts' library in a thread (the report's last step): the thread.
+
+    Started once the runs go, it takes the client's idle time instead of adding to the
+    end; the client's own work (saving results) goes on beside it.
+    """
+    def load():
+        try:
+            from rigidrot_ros.campaign.charts import preload
+            preload()
+        except Exception:  # noqa: B902 - the charts say it themselves when drawn
+            pass
+    thread = threading.Thread(target=load, name='rigidrot-campaign-charts', daemon=True)
+    thread.start()
+    return thread
 
 
 def finish(spec, out_dir):
@@ -478,7 +571,7 @@ def finish(spec, out_dir):
     write_atomic(os.path.join(out_dir, 'runs.csv'), buf.getvalue())
     try:
         from rigidrot_ros.campaign.charts import write_charts
-        write_charts(report, out_dir)
+        write_charts(report, out_dir, jobs=min(2, os.cpu_count() or 1))
     except ImportError:
         print('rigidrot_campaign: no charts: pip install matplotlib', file=sys.stderr)
     return report

@@ -20,7 +20,10 @@ description) with the order its messages would arrive in
 (:func:`rigidrot_ros.run.feed.sensor_feed`), and returns its estimates as arrays
 (``type``, ``stamps_ns``, ``orientation`` (n, 4) and ``orientation_cov`` (n, 3, 3) or
 None; the reference MEKF's :meth:`~rigidrot_ros.estimators.mekf.MEKF.receive_arrays`): no
-message is built. It must give the estimates its messages would carry, bit for bit.
+message is built. It must give the estimates its messages would carry, bit for bit. An
+object with a ``warm()`` method has it called once in the campaign's client before the
+local pool forks its workers (:func:`rigidrot_ros.campaign.engine.start_method`), for
+what every run would otherwise load again in each worker (the MEKF's compiled filter).
 
 **Bags kept** (``rigidrot_campaign --keep-bags DIR``): the messages are fed and the
 estimates bagged on ``estimator.topic`` with their header stamps as log times, with the
@@ -140,11 +143,14 @@ class Estimates:
     """An in-process run's estimates in memory: what the scorer would read from their bag.
 
     ``rows`` as :func:`rigidrot_ros.scoring.decode.message_rows` gives them, in the order
-    the estimator returned them; ``run`` the run description as the bag's reader gives it.
+    the estimator returned them; ``run`` the run description as the bag's reader gives it;
+    ``solutions`` the run's exact solution where the generator's is at hand (``{(node,
+    start_ns): solution}``, for :func:`rigidrot_ros.scoring.score.score_against_runs`).
     """
 
-    def __init__(self, topic, type_name, rows, run):
+    def __init__(self, topic, type_name, rows, run, solutions=None):
         self.topic, self.type, self.rows, self.run = topic, type_name, rows, run
+        self.solutions = solutions
 
 
 def logged_run(description):
@@ -326,8 +332,11 @@ def _feed_arrays(filt, spec, values, topic, timing, t0, where):
     from rigidrot_ros.campaign.session import SCORED_TYPES, SENSORS
     from rigidrot_ros.run.feed import sensor_feed
     from rigidrot_ros.run.generate import run_arrays
+    from rigidrot_ros.campaign.spec import take_prepared
+    from rigidrot_ros.run.generate import prepare_run
     from rigidrot_ros.scoring.decode import ORIENTATION
-    arrays = run_arrays(values, spec['duration'])
+    setup = take_prepared(values) or prepare_run(values)
+    arrays = run_arrays(values, spec['duration'], setup=setup)
     feed, order = sensor_feed(arrays, SENSORS)
     feed['run'] = arrays['run']
     where[0] = 'receive_arrays()'
@@ -361,4 +370,6 @@ def _feed_arrays(filt, spec, values, topic, timing, t0, where):
     covs = [None] * n if cov is None else list(cov)
     rows = [(s, [(ORIENTATION, tuple(v), c, frame)])
             for s, v, c in zip(stamps.tolist(), q.tolist(), covs)]
-    return Estimates(topic, name, rows, logged_run(json.loads(json.dumps(arrays['run']))))
+    run = logged_run(json.loads(json.dumps(arrays['run'])))
+    return Estimates(topic, name, rows, run,
+                     {(str(run.get('node', '')), int(run['start_ns'])): setup.solution})

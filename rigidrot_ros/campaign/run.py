@@ -60,7 +60,8 @@ def score_estimates(est):
 
     The row and series :func:`score_bag` gives for the bag of the same estimates (the
     estimates as its reader gives them, the run description as its ``rigidrot_run``
-    record gives it), without the bag.
+    record gives it), without the bag; the truth is the generator's own solution where
+    the estimates carry it (``est.solutions``), else solved from the description.
     """
     from rigidrot_ros.bag import BagContents
     from rigidrot_ros.scoring.decode import ORIENTATION, stream_of_rows
@@ -68,7 +69,8 @@ def score_estimates(est):
     bag = BagContents(path=f'(the estimates of {est.topic}, in memory)', runs=[est.run])
     stream = stream_of_rows(est.topic, est.type, ORIENTATION, est.rows)
     try:
-        res = score_against_runs(bag, [] if stream is None else [stream])
+        res = score_against_runs(bag, [] if stream is None else [stream],
+                                 solutions=getattr(est, 'solutions', None))
     except ScoreError as exc:
         raise RunFailed(f'scoring failed: {" ".join(str(exc).split())}') from None
     return _row_series(res, est.topic, bag.runs)

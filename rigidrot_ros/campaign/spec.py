@@ -59,7 +59,8 @@ import numpy as np
 import yaml
 
 __all__ = ['SpecError', 'command_path', 'load_spec', 'check_spec', 'draw_run', 'run_values',
-           'MAX_REDRAWS', 'load_factory', 'DISPERSIONS']
+           'MAX_REDRAWS', 'load_factory', 'DISPERSIONS', 'take_prepared',
+           'forget_prepared']
 
 MAX_REDRAWS = 1000
 #: The last ROS domain ID (ROS 2's "Domain ID" guide: 0-232 on Linux, the highest whose DDS
@@ -335,12 +336,13 @@ def _ros_estimator(est):
             'domain_base': base, 'domain_span': span}
 
 
-def load_spec(path, progress=None):
+def load_spec(path, progress=None, keep=False):
     """Read and validate a spec file; SpecError (one line) if it cannot run.
 
     The runs' draws are made and validated too (:func:`check_draws`, the first
-    :data:`EAGER_DRAWS` of them; ``progress`` is its callback), so an impossible
-    dispersion is found before anything is written.
+    :data:`EAGER_DRAWS` of them; ``progress`` is its callback, ``keep`` keeps what the
+    check prepared for the runs of in-process estimators, :func:`take_prepared`), so an
+    impossible dispersion is found before anything is written.
     """
     from rigidrot_ros.run import rclyaml
     try:
@@ -358,7 +360,8 @@ def load_spec(path, progress=None):
     except RecursionError:
         raise SpecError(f'{path}: nested too deeply to read') from None
     spec = check_spec(doc, os.path.dirname(os.path.abspath(path)))
-    check_draws(spec, progress=progress)
+    inproc = all(e['kind'] == 'inproc' for e in spec.get('estimators') or [spec['estimator']])
+    check_draws(spec, progress=progress, keep=keep and inproc)
     return spec
 
 
@@ -416,7 +419,30 @@ def run_values(spec, draws):
     return values
 
 
-def check_draws(spec, limit=None, progress=None):
+#: What :func:`check_draws` prepared for the runs, by their values (``keep=True``).
+_PREPARED = {}
+
+
+def _values_key(values):
+    return repr(sorted(values.items()))
+
+
+def take_prepared(values):
+    """Return (and forget) the run set-up :func:`check_draws` kept for ``values``, or None.
+
+    The ``prepare_run(values)`` of the check (:func:`rigidrot_ros.run.generate.run_arrays`
+    takes it): a run whose draw was checked in the campaign's client is not prepared again
+    by the worker forked from it.
+    """
+    return _PREPARED.pop(_values_key(values), None) if _PREPARED else None
+
+
+def forget_prepared():
+    """Drop the set-ups :func:`check_draws` kept (the workers forked have their copies)."""
+    _PREPARED.clear()
+
+
+def check_draws(spec, limit=None, progress=None, keep=False):
     """Validate the runs' parameters as the node would; SpecError names the first bad run.
 
     The node's checks (model constraints such as a torque along the symmetry axis, the
@@ -426,7 +452,8 @@ def check_draws(spec, limit=None, progress=None):
     campaign's further runs are checked by the runs themselves (the generator runs the
     same checks), a draw the node refuses making a failed run with the node's reason,
     rather than hours of checking before the first run. ``progress(done, total)``, if
-    given, is called after each draw. Returns the number of runs checked.
+    given, is called after each draw. ``keep`` keeps each run's set-up for the run
+    (:func:`take_prepared`; about 60 kB a run). Returns the number of runs checked.
     """
     from rigidrot_ros.run.generate import GenerationError, prepare_run
     if not spec['dispersions'].keys() - {'attitude0'} and spec['sensor_seeds'] == 'fixed':
@@ -436,12 +463,15 @@ def check_draws(spec, limit=None, progress=None):
         if progress is not None:
             progress(i, total)
         draws, _ = draw_run(spec, i)
+        values = run_values(spec, draws)
         try:
-            prepare_run(run_values(spec, draws))
+            setup = prepare_run(values)
         except GenerationError as exc:
             shown = {k: v for k, v in draws.items() if not k.endswith('seed')}
             raise SpecError(f'impossible dispersion: run {i} draws {shown}, which the node '
                             f'refuses: {exc}') from None
+        if keep:
+            _PREPARED[_values_key(values)] = setup
     if progress is not None:
         progress(total, total)
     return total

@@ -197,9 +197,9 @@ class _Run:
     #: where the run description goes (:func:`rigidrot_ros.run.spans.span_of` finds it)
     run_topic = RUN_TOPIC
 
-    def __init__(self, values, duration_s, start_ns):
+    def __init__(self, values, duration_s, start_ns, setup=None):
         _check_span(duration_s, start_ns)
-        self.setup = setup = prepare_run(values)
+        self.setup = setup = prepare_run(values) if setup is None else setup
         self.p, self.sol = setup.values, setup.solution
         self.time_scale = float(setup.time_scale)
         if self.time_scale <= 0:
@@ -457,7 +457,7 @@ def iter_run(values, duration_s, start_ns=0):
     return _iter(run)
 
 
-def run_arrays(values, duration_s, start_ns=0):
+def run_arrays(values, duration_s, start_ns=0, setup=None):
     """Return the run's samples as arrays, in memory: what :func:`iter_run` would publish.
 
     A dict by topic (``'/attitude'``, ``'/imu'``, ``'/star_tracker'``, ``'/mag'``, ...) of
@@ -468,9 +468,10 @@ def run_arrays(values, duration_s, start_ns=0):
     tesla and ``cov``; ``'/star_tracker'``: ``q`` and ``cov``); and ``'run'``, the run
     description. The same samples, bit for bit, as the messages (read :data:`EVAL_BLOCKS`
     blocks at a time, as :func:`generate_bag` reads them), without building a message: for
-    estimators fed in memory.
+    estimators fed in memory. ``setup``, if given, is what :func:`prepare_run` returned for
+    ``values`` (a run checked already), used instead of preparing it again.
     """
-    run = _Run(values, duration_s, start_ns)
+    run = _Run(values, duration_s, start_ns, setup)
     parts = {}
     for _, _, block in run.blocks(EVAL_BLOCKS):
         for p in block:

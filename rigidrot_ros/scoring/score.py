@@ -340,7 +340,7 @@ def _summary(stream, t, err, comp=None, nees_values=None):
     return out
 
 
-def score_against_runs(bag, streams, cov_frame='body'):
+def score_against_runs(bag, streams, cov_frame='body', solutions=None):
     """Score each stream against the exact solution of the log's own runs.
 
     Parameters
@@ -351,11 +351,15 @@ def score_against_runs(bag, streams, cov_frame='body'):
         From :func:`extract_streams`.
     cov_frame : {'body', 'inertial'}
         Frame in which orientation covariances are read (module docstring).
+    solutions : dict, optional
+        ``{(node, start_ns): solution}``: the solutions of runs made already (by the
+        generator of the run, from the scene, ``tol`` and ``backend`` its description
+        gives), used instead of solving them again; the other runs are solved here.
     """
     if cov_frame not in ('body', 'inertial'):
         raise ScoreError(f'cov_frame must be body or inertial, got {cov_frame!r}')
     results = []
-    solutions = {}
+    solutions = dict(solutions or {})
     for s in streams:
         try:
             idx, t, runs = scene_times(bag, s.stamps, s.topic)

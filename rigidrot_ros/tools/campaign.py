@@ -82,12 +82,22 @@ def main(argv=None):
         except ImportError:
             from rigidrot_ros.campaign.engine import DASK_MISSING
             return fail('rigidrot_campaign', DASK_MISSING)
+    from rigidrot_ros.campaign.spec import forget_prepared
+    try:
+        return _run(opts)
+    finally:
+        forget_prepared()           # what the draws' check kept for the runs
+
+
+def _run(opts):
+    """Run the campaign ``opts`` say; the exit status."""
     from rigidrot_ros.campaign.engine import CampaignStopped, dask_security, run_campaign
     from rigidrot_ros.campaign.spec import load_spec, SpecError
     try:
         security = dask_security(opts.tls_ca_file, opts.tls_cert, opts.tls_key) \
             if opts.scheduler else None
-        spec = load_spec(opts.spec, progress=None if opts.quiet else _CheckProgress())
+        spec = load_spec(opts.spec, progress=None if opts.quiet else _CheckProgress(),
+                         keep=opts.workers is None and not opts.scheduler)
         if opts.bags:
             try:
                 os.makedirs(opts.bags, exist_ok=True)

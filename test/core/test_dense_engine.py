@@ -36,7 +36,8 @@ from rigidrot_ros.core import engine, Scene, solve
 scene = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.2, 0.5))
 sol = solve(scene)
 out = [sol.at(t).quaternion.tolist() + [float(sol.at(t).error_bound)] for t in TIMES]
-print(json.dumps({'state': engine.jit_state(), 'samples': [[x.hex() for x in r] for r in out]}))
+print(json.dumps({'state': engine.jit_state(), 'samples': [[x.hex() for x in r] for r in out],
+                  'linalg': 'scipy.linalg' in sys.modules}))
 '''
 
 
@@ -70,6 +71,23 @@ def test_numba_cache_goes_to_numba_cache_dir(tmp_path):
     # a second process loads from that cache and gives the same bits
     again = _child({'NUMBA_CACHE_DIR': str(cache), 'RIGIDROT_NO_JIT': ''}, tmp_path)
     assert again['samples'] == got['samples']
+    # numba's BLAS probe (an import of scipy.linalg) was refused while it compiled or loaded
+    assert got['linalg'] is False and again['linalg'] is False
+
+
+def test_the_blas_probe_is_refused_to_the_loading_thread_alone():
+    import threading
+    hook = engine._RefuseScipyLinalg()
+    for name in ('scipy.linalg', 'scipy.linalg.cython_blas'):
+        with pytest.raises(ModuleNotFoundError, match='while the kernels load'):
+            hook.find_spec(name, None)
+    assert hook.find_spec('scipy.linalgebra', None) is None
+    assert hook.find_spec('scipy.special', None) is None
+    other = []
+    t = threading.Thread(target=lambda: other.append(hook.find_spec('scipy.linalg', None)))
+    t.start()
+    t.join()
+    assert other == [None]
 
 
 def test_a_function_numba_cannot_cache_is_compiled_in_memory():
