@@ -84,11 +84,20 @@ def _children(pid):
     return out
 
 
+def _cmdline(pid):
+    """Return process ``pid``'s command line (its first 200 characters), or ''."""
+    try:
+        with open(f'/proc/{pid}/cmdline', 'rb') as fh:
+            return fh.read().replace(b'\0', b' ').decode('utf-8', 'replace').strip()[:200]
+    except OSError:
+        return ''
+
+
 def pytest_unconfigure(config):
     """End the orphans adopted (controller); remove this worker's file of last words."""
     if _controls_workers(config) and os.path.isdir('/proc'):
         adopted = _children(os.getpid())
-        left = [(name, pid) for name, pid, state in adopted if state != 'Z']
+        left = [(pid, _cmdline(pid) or name) for name, pid, state in adopted if state != 'Z']
         for _, pid, _ in adopted:
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
@@ -96,7 +105,7 @@ def pytest_unconfigure(config):
                 os.waitpid(pid, 0)          # the ended ones too: no zombie outlives the run
         if left:
             sys.__stderr__.write(f'ended {len(left)} processes left running by test processes: '
-                                 f'{", ".join(sorted({n for n, _ in left}))}\n')
+                                 f'{"; ".join(sorted(cmd for _, cmd in left))}\n')
     if _LAST_WORDS is not sys.__stderr__:
         faulthandler.unregister(signal.SIGTERM)
         _LAST_WORDS.close()

@@ -12,11 +12,8 @@ numba is imported on first use (:func:`kernels`, called when a dense solution is
 not with the package, so that a command's ``--help`` or a process that never makes a
 dense solution pays nothing; every kernel is then called once (:func:`_warm`), so that
 compiling or loading the cached code happens there, not at a caller's first sample.
-While it loads its code, numba looks for a BLAS by importing ``scipy.linalg`` (0.3 to
-0.9 s and 16 MB here), though no kernel calls one: that import is refused to the loading
-thread (:func:`_no_blas_probe`), so numba's ``np.convolve`` and ``np.correlate`` in the
-same process take their loop instead of BLAS (its ``np.dot`` still finds BLAS when
-compiled later).
+They load without numba's BLAS probe (:func:`rigidrot_ros.runtime.jit.no_blas_probe`):
+no kernel calls a BLAS.
 Compiled code is cached in ``NUMBA_CACHE_DIR`` when set, else next to this file
 (``__pycache__``) or in the user's cache directory; where none is writable it is
 compiled in memory at each start. The tests check that the compiled kernels give the
@@ -27,15 +24,12 @@ Scene constants travel as one float64 array ``prm``:
 ``(c1.re, c1.im, c2.re, c2.im, bound)`` (the spinor ``v1 = w + i z``, ``v2 = -y + i x``).
 """
 
-import contextlib
-import importlib.abc
 import math
-import sys
-import threading
 
 import numpy as np
 
 from rigidrot_ros.runtime import switches
+from rigidrot_ros.runtime.jit import no_blas_probe
 
 __all__ = ['kernels', 'jit_state', 'MAX_TERMS', 'EPS']
 
@@ -269,41 +263,6 @@ def _jit(numba, fn, **kw):
         return numba.njit(cache=False, fastmath=False, **kw)(fn), False
 
 
-class _RefuseScipyLinalg(importlib.abc.MetaPathFinder):
-    """An import hook refusing ``scipy.linalg`` (and below) to one thread."""
-
-    def __init__(self):
-        self.thread = threading.get_ident()
-
-    def find_spec(self, name, path, target=None):
-        """Refuse ``scipy.linalg`` to the loading thread; leave every other import alone."""
-        if (name == 'scipy.linalg' or name.startswith('scipy.linalg.')) \
-                and threading.get_ident() == self.thread:
-            raise ModuleNotFoundError(f'{name}: not imported while the kernels load',
-                                      name=name)
-        return None
-
-
-@contextlib.contextmanager
-def _no_blas_probe():
-    """Refuse ``scipy.linalg`` to this thread while numba loads the kernels.
-
-    numba's first compile or cache load imports its array implementations, which probe
-    for a BLAS by importing ``scipy.linalg.cython_blas``. The kernels call no BLAS, so the
-    probe's cost (most of a second, 16 MB) buys nothing; where ``scipy.linalg`` is loaded
-    already nothing changes.
-    """
-    if 'scipy.linalg' in sys.modules:
-        yield
-        return
-    hook = _RefuseScipyLinalg()
-    sys.meta_path.insert(0, hook)
-    try:
-        yield
-    finally:
-        sys.meta_path.remove(hook)
-
-
 def _load():
     py = {'eval_one': eval_one, 'eval_many': eval_many, 'chain': chain,
           'chain_back': chain_back}
@@ -324,7 +283,7 @@ def _load():
     for name, fn in py.items():
         out[name], ok = _jit(numba, fn)
         cached = cached and ok
-    with _no_blas_probe():
+    with no_blas_probe():
         _warm(out)
     _STATE.update(compiled=True, cached=cached, reason='')
     return out

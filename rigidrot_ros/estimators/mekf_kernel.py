@@ -32,6 +32,7 @@ import os
 import numpy as np
 
 from rigidrot_ros.runtime import switches
+from rigidrot_ros.runtime.jit import no_blas_probe
 
 __all__ = ['available', 'run', 'state', 'SYMBOLS', 'RunArrays']
 
@@ -93,12 +94,14 @@ def _load(check):
     _FPS = np.array([ctypes.cast(getattr(lib, s), ctypes.c_void_p).value for s in SYMBOLS],
                     dtype=np.int64)
     try:
-        _KERNEL = mekf_jit.make_jit(cache=True)
-        bad = check()
+        with no_blas_probe():
+            _KERNEL = mekf_jit.make_jit(cache=True)
+            bad = check()
     except Exception:                     # no writable cache location: compile in memory
         try:
-            _KERNEL = mekf_jit.make_jit(cache=False)
-            bad = check()
+            with no_blas_probe():
+                _KERNEL = mekf_jit.make_jit(cache=False)
+                bad = check()
         except Exception as exc:  # noqa: B902 - numba's own failure: stay interpreted
             _KERNEL = None
             _STATE.update(ok=False, reason=f'the kernel does not compile: '

@@ -8,5 +8,6 @@ windows reported on ``/diagnostics``), ``switches`` (every environment variable 
 package reads, read there alone), ``processes`` (a console script found and a child
 process stopped as Ctrl-C would, for the tools that start nodes) and ``interrupt`` (an
 exception raised into a running thread without leaving the interpreter's flag up, which
-stalls a profiled thread: the gated worker).
+stalls a profiled thread: the gated worker) and ``jit`` (numba's compiled code loaded
+without its BLAS probe).
 """

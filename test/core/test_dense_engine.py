@@ -77,9 +77,10 @@ def test_numba_cache_goes_to_numba_cache_dir(tmp_path):
 
 def test_the_blas_probe_is_refused_to_the_loading_thread_alone():
     import threading
-    hook = engine._RefuseScipyLinalg()
+    from rigidrot_ros.runtime import jit
+    hook = jit._RefuseScipyLinalg()
     for name in ('scipy.linalg', 'scipy.linalg.cython_blas'):
-        with pytest.raises(ModuleNotFoundError, match='while the kernels load'):
+        with pytest.raises(ModuleNotFoundError, match='while compiled code loads'):
             hook.find_spec(name, None)
     assert hook.find_spec('scipy.linalgebra', None) is None
     assert hook.find_spec('scipy.special', None) is None
