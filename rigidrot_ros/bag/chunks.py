@@ -154,8 +154,27 @@ def _placer(name='records'):
                     fn = numba.njit(cache=True, nogil=True)(py)
                 except Exception:   # noqa: B902 - no writable cache: compiled in memory
                     fn = numba.njit(nogil=True)(py)
+                _warm(name, fn)
         _PLACE[name] = fn
     return _PLACE[name]
+
+
+def _warm(name, fn):
+    """Compile or load ``fn`` now, for the argument types of its callers.
+
+    Without numba's BLAS probe (:func:`rigidrot_ros.runtime.jit.no_blas_probe`: nothing
+    here calls one), should this be the process's first compiled code.
+    """
+    from rigidrot_ros.runtime.jit import no_blas_probe
+    buf, one = np.zeros(64, dtype=np.uint8), np.zeros(1, dtype=np.int64)
+    head = np.zeros(11, dtype=np.uint8)
+    with no_blas_probe():
+        if name == 'records':
+            fn(buf, one, np.zeros((1, 2), dtype=np.uint8), head, 0, one)
+            return
+        raw = np.zeros((1, 8), dtype=np.uint8)
+        for row in (np.zeros(2, dtype=np.uint8), np.frombuffer(bytes(2), dtype=np.uint8)):
+            fn(buf, one, head, 0, one, row, one, one, raw, np.zeros(1, dtype=np.int64))
 
 
 def can_place():

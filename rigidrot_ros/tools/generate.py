@@ -76,37 +76,10 @@ def _malloc_for_blocks():
         mallopt(param, value)
 
 
-#: The module numba's array support imports to look for BLAS (for ``np.dot`` and
-#: ``np.linalg`` in compiled code): it loads all of ``scipy.linalg``.
-_BLAS = 'scipy.linalg.cython_blas'
-
-
-def _numba_without_scipy():
-    """Load numba's array support with scipy's BLAS hidden from it (this process only).
-
-    numba imports ``scipy.linalg`` (about 0.25 s and 17 MB) when its array functions load,
-    only to know whether compiled ``np.dot`` may call BLAS. The core's kernels call no
-    BLAS, and nothing else in this tool imports scipy: numba then uses its own loop for
-    an ``np.dot`` of floats. The hiding ends before this returns (scipy imports as
-    usual afterwards); where numba or ``scipy.linalg`` is loaded already, nothing changes.
-    """
-    if 'numba' in sys.modules or 'scipy.linalg' in sys.modules or _BLAS in sys.modules:
-        return
-    sys.modules[_BLAS] = None                       # import scipy.linalg.cython_blas fails
-    try:
-        import numba.np.arraymath  # noqa: F401
-    except ImportError:                             # no numba: the core's Python kernels
-        pass
-    finally:
-        if _BLAS in sys.modules and sys.modules[_BLAS] is None:
-            del sys.modules[_BLAS]
-
-
 def main(argv=None):
     """Entry point of ``rigidrot_generate``; returns the exit status."""
     opts = _parser().parse_args(sys.argv[1:] if argv is None else list(argv))
     _malloc_for_blocks()
-    _numba_without_scipy()
     from rigidrot_ros.run.generate import (
         generate_bag, GenerationError, load_values, parse_override,
     )

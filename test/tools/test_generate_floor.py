@@ -1,10 +1,9 @@
 """rigidrot_generate loads what generation needs: no ROS message classes, no scipy.linalg.
 
 A generation writes CDR (never a ROS message object; the markers' CDR template alone is
-made from one, so they are off here) and numba's array support is loaded
-with scipy's BLAS hidden (the core's kernels call none), so neither is in the process
-after a run; scipy.linalg still imports afterwards, and the bag is the same (the byte
-tests of ``test/run`` run the same code in process).
+made from one, so they are off here) and numba's compiled code loads without its BLAS
+probe (``runtime.jit.no_blas_probe``), so neither is in the process after a run;
+scipy.linalg still imports afterwards.
 """
 
 import json
