@@ -47,7 +47,6 @@ import yaml
 from rigidrot_ros.bag import qos_yaml
 from rigidrot_ros.run import grid, spans, table
 from rigidrot_ros.run.output import scene_time
-from rigidrot_ros.run.prefetch import prefetch
 from rigidrot_ros.run.scheduler import timing_of, Track
 from rigidrot_ros.run.truth_outputs import read_truth
 
@@ -536,11 +535,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
     chunk closes at its block's end or past 1 MiB of records) by
     :meth:`BagWriter.write_chunk`, which compresses and writes it on a thread of its own
     (zstd and the file write release the interpreter) while the next blocks are
-    evaluated: the file of the block-by-block writer, byte for byte. The spans are
-    evaluated one ahead on a thread of their own (:func:`rigidrot_ros.run.prefetch`): the
-    next span's samples are read while this one is packed and written (numpy's loops,
-    numba's placing loops, zstd and the file write release the interpreter), in the
-    same order by one thread, so the samples are the same.
+    evaluated: the file of the block-by-block writer, byte for byte.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -558,7 +553,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         raise GenerationError(f'cannot write the bag to {out_dir}: '
                               f'{" ".join(str(exc).split())}') from None
     stop = []
-    previous = span_list = None
+    previous = None
     if threading.current_thread() is threading.main_thread():
         # SIGINT between blocks, never inside a write: the bag is always finished whole
         previous = signal.signal(signal.SIGINT, lambda *_: stop.append(True))
@@ -569,10 +564,7 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
         total = run.span_ns * 1e-9 * run.time_scale
         step = round(BLOCK_S * _SEC)
         failures = []
-        # the next span evaluated on a thread of its own while this one is packed and
-        # written (one evaluating thread: the samples, in order, as inline)
-        span_list = prefetch(run.blocks(EVAL_BLOCKS, failures), name='rigidrot_generate_eval')
-        for elo, ehi, parts in span_list:
+        for elo, ehi, parts in run.blocks(EVAL_BLOCKS, failures):
             span = spans.span_of(run, parts, cids, seq, _order(parts))
             del parts                           # only its records are written
             for lo in range(elo, ehi, step):
@@ -590,8 +582,6 @@ def generate_bag(values, duration_s, out_dir, start_ns=0, progress=None):
                 break
     finally:
         try:
-            if span_list is not None:
-                span_list.close()           # the evaluation thread stopped and joined
             writer.close()
         finally:
             pool.shutdown()
