@@ -8,12 +8,15 @@ message indexes and statistics (:func:`add_records`); the open chunk detached on
 caller's thread (:func:`detach`, :func:`close_with_records`) and written later, on any
 thread, as mcap's own chunk close writes it (:func:`write_detached`: zstd, crc, the Chunk,
 MessageIndex and ChunkIndex records); the summary's chunk indexes kept packed as bytes
-(:func:`pack_indexes`).
+(:func:`pack_indexes`); the records of several channels placed straight into one buffer at
+their final offsets, head and payload, by one compiled loop per channel
+(:func:`place_records`, :func:`place_batch`). The chunks' crc is zlib-ng's where it is
+installed (the same CRC-32 as ``zlib.crc32``, about 0.01 ms for a 0.5 MB chunk instead of
+0.13 ms).
 """
 
 import struct
 import threading
-import zlib
 
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
@@ -21,6 +24,11 @@ from mcap.records import Chunk, ChunkIndex, MessageIndex
 from mcap.writer import IndexType
 import numpy as np
 import zstandard
+
+try:                        # zlib-ng's crc32 (PCLMUL folding): ten times zlib's speed
+    from zlib_ng.zlib_ng import crc32
+except ImportError:         # the same values, slower
+    from zlib import crc32
 
 
 #: An MCAP Message record's head: opcode, record length, channel, sequence, log and
@@ -62,6 +70,157 @@ def fill_records(rows, j, cid, seq0, log_ns, payloads):
     rec['log'] = log_ns
     rec['pub'] = log_ns
     rec['data'] = payloads
+
+
+def _place(buf, dst, payload, head, seq0, log):
+    """Write message records into ``buf``: row r's at ``dst[r]`` (see :func:`place_records`).
+
+    The byte loops index with unsigned integers: numba then drops its negative-index
+    checks and copies a payload as fast as memcpy (ten times faster than signed).
+    """
+    n = payload.shape[0]
+    size = np.uint64(payload.shape[1])
+    rec = np.empty(31, dtype=np.uint8)
+    rec[:11] = head                             # opcode, record length, channel
+    for r in range(n):
+        v = seq0 + r
+        for b in range(4):
+            rec[11 + b] = (v >> (8 * b)) & 255
+        t = log[r]
+        for b in range(8):
+            x = (t >> (8 * b)) & 255
+            rec[15 + b] = x                     # log time
+            rec[23 + b] = x                     # publish time (the same)
+        d = np.uint64(dst[r])
+        for b in range(np.uint64(31)):
+            buf[d + b] = rec[b]
+        d = d + np.uint64(31)
+        for b in range(size):
+            buf[d + b] = payload[r, b]
+
+
+def _place_plan(buf, dst, head, seq0, log, row, sec, nsec, raw, slots):
+    """Write message records into ``buf`` from a CDR plan (see :func:`place_batch`)."""
+    n = raw.shape[0]
+    size = np.uint64(row.shape[0])
+    m = slots.shape[0]
+    rec = np.empty(31, dtype=np.uint8)
+    rec[:11] = head
+    for r in range(n):
+        v = seq0 + r
+        for b in range(4):
+            rec[11 + b] = (v >> (8 * b)) & 255
+        t = log[r]
+        for b in range(8):
+            x = (t >> (8 * b)) & 255
+            rec[15 + b] = x
+            rec[23 + b] = x
+        d = np.uint64(dst[r])
+        for b in range(np.uint64(31)):
+            buf[d + b] = rec[b]
+        d = d + np.uint64(31)
+        for b in range(size):
+            buf[d + b] = row[b]
+        s, ns = sec[r], nsec[r]
+        for b in range(4):
+            buf[d + np.uint64(4 + b)] = (s >> (8 * b)) & 255
+            buf[d + np.uint64(8 + b)] = (ns >> (8 * b)) & 255
+        for j in range(m):
+            at = d + np.uint64(slots[j])
+            for b in range(8):
+                buf[at + np.uint64(b)] = raw[r, 8 * j + b]
+
+
+_PLACE = {}
+
+
+def _placer(name='records'):
+    """Return :func:`_place` (``'plan'``: :func:`_place_plan`) compiled by numba, or None.
+
+    Compiled once a process (cached on disk); None without numba (or with the core's
+    ``RIGIDROT_NO_JIT``).
+    """
+    if name not in _PLACE:
+        from rigidrot_ros.runtime import switches
+        fn = None
+        if not switches.no_jit():
+            try:
+                import numba
+            except ImportError:
+                pass
+            else:
+                py = _place if name == 'records' else _place_plan
+                try:
+                    fn = numba.njit(cache=True, nogil=True)(py)
+                except Exception:   # noqa: B902 - no writable cache: compiled in memory
+                    fn = numba.njit(nogil=True)(py)
+                _warm(name, fn)
+        _PLACE[name] = fn
+    return _PLACE[name]
+
+
+def _warm(name, fn):
+    """Compile or load ``fn`` now, for the argument types of its callers.
+
+    Without numba's BLAS probe (:func:`rigidrot_ros.runtime.jit.no_blas_probe`: nothing
+    here calls one), should this be the process's first compiled code.
+    """
+    from rigidrot_ros.runtime.jit import no_blas_probe
+    buf, one = np.zeros(64, dtype=np.uint8), np.zeros(1, dtype=np.int64)
+    head = np.zeros(11, dtype=np.uint8)
+    with no_blas_probe():
+        if name == 'records':
+            fn(buf, one, np.zeros((1, 2), dtype=np.uint8), head, 0, one)
+            return
+        raw = np.zeros((1, 8), dtype=np.uint8)
+        for row in (np.zeros(2, dtype=np.uint8), np.frombuffer(bytes(2), dtype=np.uint8)):
+            fn(buf, one, head, 0, one, row, one, one, raw, np.zeros(1, dtype=np.int64))
+
+
+def can_place():
+    """Whether :func:`place_records` runs compiled (numba); else callers take another way."""
+    return _placer() is not None and _placer('plan') is not None
+
+
+def _head(cid, size):
+    """Return the 11 constant bytes of a Message record's head: opcode, length, channel."""
+    head = np.empty(11, dtype=np.uint8)
+    head[0] = Opcode.MESSAGE
+    head[1:9] = np.array([22 + size], dtype='<u8').view(np.uint8)
+    head[9:11] = np.array([cid], dtype='<u2').view(np.uint8)
+    return head
+
+
+def place_records(buf, dst, cid, seq0, log, payloads):
+    """Write n MCAP Message records of one channel into ``buf`` (uint8) at offsets ``dst``.
+
+    Record r is at ``buf[dst[r]:dst[r] + 31 + size]``: its head (channel ``cid``, sequence
+    ``seq0 + r``, log and publish time ``log[r]``) then ``payloads[r]`` (``(n, size)``
+    uint8, the serialized messages): the bytes :func:`fill_records` gives a row's record.
+    Compiled (:func:`can_place`); the caller keeps the records within ``buf``.
+    """
+    payloads = np.ascontiguousarray(payloads, dtype=np.uint8)
+    _placer()(buf, np.ascontiguousarray(dst, dtype=np.int64), payloads,
+              _head(cid, payloads.shape[1]), int(seq0),
+              np.ascontiguousarray(log, dtype=np.int64))
+
+
+def place_batch(buf, dst, cid, seq0, log, batch):
+    """:func:`place_records` of a :class:`rigidrot_ros.msgs.cdr.Batch`'s messages.
+
+    A batch with its plan is written from it (its row, stamps and values straight into
+    ``buf``: the bytes its :attr:`~rigidrot_ros.msgs.cdr.Batch.data` holds, without
+    building them); another from its ``data``.
+    """
+    if not batch.planned:
+        return place_records(buf, dst, cid, seq0, log, batch.data)
+    values, slots = batch.plan()
+    _placer('plan')(buf, np.ascontiguousarray(dst, dtype=np.int64),
+                    _head(cid, batch.size), int(seq0),
+                    np.ascontiguousarray(log, dtype=np.int64), batch.row,
+                    np.ascontiguousarray(batch.sec, dtype=np.int64),
+                    np.ascontiguousarray(batch.nsec, dtype=np.int64),
+                    values.view(np.uint8), slots)
 
 
 def message_heads(cids, seq, log, sizes):
@@ -169,10 +328,18 @@ def detach(writer):
 
 
 def _frozen(records):
-    """Whether ``records`` can be kept as is: ``bytes``, or a memoryview of ``bytes``."""
-    return isinstance(records, bytes) or (isinstance(records, memoryview)
-                                          and isinstance(records.obj, bytes)
-                                          and records.contiguous)
+    """Whether ``records`` can be kept as is: ``bytes``, or a memoryview of ``bytes``.
+
+    Or of a read-only numpy array that owns its data (nothing can write it any more: the
+    buffers of :func:`place_records` once filled).
+    """
+    if isinstance(records, bytes):
+        return True
+    if not isinstance(records, memoryview) or not records.contiguous:
+        return False
+    obj = records.obj
+    return isinstance(obj, bytes) or (isinstance(obj, np.ndarray) and obj.base is None
+                                      and not obj.flags.writeable)
 
 
 def close_with_records(writer, records, cids, log, offsets, count):
@@ -204,7 +371,9 @@ def close_with_records(writer, records, cids, log, offsets, count):
     chunk.message_start_time = chunk.message_end_time = 0
     chunk.num_messages = 0
     # the records of each channel together, in their order (a stable sort by channel)
-    by = np.argsort(cids, kind='stable')
+    # (as 16-bit keys, which numpy sorts stably by radix: the same order, faster)
+    by = np.argsort(cids.astype(np.uint16) if n and 0 <= cids.min() and cids.max() < 1 << 16
+                    else cids, kind='stable')
     pairs = np.empty((n, 2), dtype='<u8')
     pairs[:, 0] = log[by]
     pairs[:, 1] = offsets[by]
@@ -297,7 +466,7 @@ def write_detached(writer, data, start, end, indices):
     if writer._Writer__enable_data_crcs:
         return _write_detached_records(writer, data, start, end, indices)
     compressed = _compress(data)
-    crc = zlib.crc32(data) if writer._Writer__enable_crcs else 0
+    crc = crc32(data) if writer._Writer__enable_crcs else 0
     stream = writer._Writer__stream
     writer._Writer__flush()                         # what the record builder holds
     offset = stream.tell()
@@ -332,7 +501,7 @@ def _write_detached_records(writer, data, start, end, indices):
     compressed = _compress(data)
     chunk = Chunk(compression='zstd', data=compressed, message_start_time=start,
                   message_end_time=end,
-                  uncompressed_crc=zlib.crc32(data) if writer._Writer__enable_crcs else 0,
+                  uncompressed_crc=crc32(data) if writer._Writer__enable_crcs else 0,
                   uncompressed_size=len(data))
     flush = writer._Writer__flush
     records = writer._Writer__record_builder

@@ -112,21 +112,62 @@ class Batch:
     """Serialized messages of one kind, all of one size, in one buffer.
 
     ``batch[i]`` and iteration give each message's ``bytes``; :attr:`data` is the
-    ``(n, size)`` uint8 array.
+    ``(n, size)`` uint8 array. The builders make it from its plan, written out on first
+    use: :attr:`row` (one message's bytes, uint8 (size,), the constant fields in place),
+    the stamps' ``sec``, ``nsec`` (int64 (n,)) and :attr:`columns` (``[(byte, float64
+    (n, k)), ...]``: k doubles of each message from that byte on); a writer that places
+    the messages elsewhere (:func:`rigidrot_ros.bag.chunks.place_batch`) reads the plan
+    (:meth:`plan`) and never builds :attr:`data`.
     """
 
-    __slots__ = ('data',)
+    __slots__ = ('_data', 'row', 'sec', 'nsec', 'columns')
 
-    def __init__(self, data):
-        self.data = data
+    def __init__(self, data=None, row=None, sec=None, nsec=None, columns=None):
+        self._data = data
+        self.row, self.sec, self.nsec, self.columns = row, sec, nsec, columns
+
+    @property
+    def data(self):
+        """The ``(n, size)`` uint8 array of the messages (built from the plan once)."""
+        if self._data is None:
+            n = len(self.sec)
+            out = np.empty((n, len(self.row)), dtype=np.uint8)
+            out[:] = self.row
+            out[:, 4:8] = self.sec.astype('<i4').view(np.uint8).reshape(n, 4)
+            out[:, 8:12] = self.nsec.astype('<u4').view(np.uint8).reshape(n, 4)
+            for at, v in self.columns:
+                out[:, at:at + 8 * v.shape[1]] = v.view(np.uint8)
+            self._data = out
+        return self._data
+
+    @property
+    def planned(self):
+        """Whether the batch has its plan (:attr:`row`, ...) and not only :attr:`data`."""
+        return self.row is not None
+
+    def plan(self):
+        """Return ``(values, slots)``: the columns' doubles side by side, and their bytes.
+
+        ``values`` float64 (n, m), ``slots`` int64 (m,): value j of a message goes at its
+        byte ``slots[j]``.
+        """
+        n = len(self.sec)
+        values = np.empty((n, sum(v.shape[1] for _, v in self.columns)), dtype='<f8')
+        slots, j = [], 0
+        for at, v in self.columns:
+            k = v.shape[1]
+            values[:, j:j + k] = v
+            slots += [at + 8 * i for i in range(k)]
+            j += k
+        return values, np.array(slots, dtype=np.int64)
 
     def __len__(self):
-        return self.data.shape[0]
+        return len(self.sec) if self._data is None else self._data.shape[0]
 
     @property
     def size(self):
         """Bytes per message."""
-        return self.data.shape[1]
+        return len(self.row) if self._data is None else self._data.shape[1]
 
     def __getitem__(self, i):
         return self.data[i].tobytes()
@@ -173,12 +214,7 @@ def serialize_batch(kind, stamps_ns, values, frame_id, child_frame_id=None):
     if n and not (_INT32[0] <= sec.min() and sec.max() <= _INT32[1]):
         raise ValueError('a stamp lies beyond the int32 seconds of builtin_interfaces/Time')
     tpl, offset = _template(kind, frame_id, child_frame_id)
-    out = np.empty((n, len(tpl)), dtype=np.uint8)
-    out[:] = tpl
-    out[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(n, 4)
-    out[:, 8:12] = nsec.astype('<u4').view(np.uint8).reshape(n, 4)
-    out[:, offset:] = vals.view(np.uint8).reshape(n, 8 * layout.doubles)
-    return Batch(out)
+    return Batch(row=tpl, sec=sec, nsec=nsec, columns=[(offset, vals)])
 
 
 _ROWS = {}
@@ -212,16 +248,11 @@ def _serialize_columns(kind, stamps_ns, n, fixed, columns, frame_id, child_frame
             _ROWS.clear()
         _ROWS[key] = got = (row, offset)
     row, offset = got
-    out = np.empty((m, len(row)), dtype=np.uint8)
-    out[:] = row
-    out[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(m, 4)
-    out[:, 8:12] = nsec.astype('<u4').view(np.uint8).reshape(m, 4)
-    for first, values in columns:
-        v = np.ascontiguousarray(np.broadcast_to(values, (m,) + np.shape(values)[1:]),
-                                 dtype='<f8').reshape(m, -1)
-        at = offset + 8 * first
-        out[:, at:at + 8 * v.shape[1]] = v.view(np.uint8)
-    return Batch(out)
+    cols = [(offset + 8 * first,
+             np.ascontiguousarray(np.broadcast_to(values, (m,) + np.shape(values)[1:]),
+                                  dtype='<f8').reshape(m, -1))
+            for first, values in columns]
+    return Batch(row=row, sec=sec, nsec=nsec, columns=cols)
 
 
 #: The Imu doubles without an accelerometer: orientation (0, 0, 0, 1) and

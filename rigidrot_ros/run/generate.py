@@ -213,6 +213,11 @@ class _Run:
         self.rate = float(setup.publish_rate)
         self.truth_k = _grid_count(self.rate, self.span_ns)
         self.outputs = table.make(setup)
+        #: the solution's ``at`` for the truth ticks, answered from the gyro's attitudes at
+        #: its interval ends where the times are the same (:class:`_KnownAt`)
+        self.known = self.sol
+        if setup.gyro is not None and any(o.name == 'imu' for o in self.outputs):
+            self.known = _KnownAt(self.sol, setup.gyro)
         # each sensor's grid and timing model, by the node's own Track (same seeded draws)
         self.sensors = [(o, Track(o.name, self.start_ns, o.rate, o.first,
                                   timing_of(self.p, o.name)),
@@ -251,19 +256,23 @@ class _Run:
         before it.
         """
         parts = []
+        for output, track, krange in self.sensors:
+            parts += self._sensor(output, track, krange, lo_ns, hi_ns, failures)
         ks = _sub(self.truth_k, self.rate, lo_ns, hi_ns)
         if len(ks):
             stamps = grid.stamps_ns(self.start_ns, self.rate, ks)
-            cols = read_truth(self.sol, scene_time(stamps, self.start_ns, self.time_scale))
+            cols = self._truth(scene_time(stamps, self.start_ns, self.time_scale))
             for o in self.outputs:
                 if o.grid == 'truth':       # the truth: log = stamp = true time
                     parts += self._parts(o, stamps, cols, stamps, stamps)
                 elif o.grid == 'start' and ks[0] == 0:    # after the first call's messages
                     parts += self._parts(o, stamps[:1], {'info': [self.description()]},
                                          stamps[:1], stamps[:1])
-        for output, track, krange in self.sensors:
-            parts += self._sensor(output, track, krange, lo_ns, hi_ns, failures)
         return parts
+
+    def _truth(self, times):
+        """:func:`read_truth` at scene ``times``, from the gyro's samples where it has them."""
+        return read_truth(self.known, times)
 
     def _sensor(self, output, track, krange, lo_ns, hi_ns, failures=None):
         """Read a sensor's samples logged in ``[lo, hi)`` (grid time + latency): its parts.
@@ -313,6 +322,46 @@ class _Run:
             hi = min(end, lo + step)
             yield lo, hi, self.block(lo, hi, failures)
             lo = hi
+
+
+class _KnownAt:
+    """A solution whose ``at`` takes the gyro's samples at its interval ends where it can.
+
+    The gyro evaluates the attitude at its interval ends (``Gyro.last_ends``: one
+    ``solution.at`` a block, read first in a block); ``at`` of an array of times takes
+    the rows of those samples whose times are the same, which are the bits
+    ``solution.at`` gives at those times (a sample's bits depend on its time alone), and
+    evaluates the others (off the gyro's grid, or its first end, kept from the block
+    before). Everything else is the solution's.
+    """
+
+    def __init__(self, solution, gyro):
+        self.solution, self.gyro = solution, gyro
+
+    def __getattr__(self, name):
+        return getattr(self.solution, name)
+
+    def at(self, t):
+        """Evaluate the exact motion at time(s) t, as the solution does: its Samples."""
+        got = self.gyro.last_ends
+        if got is None or type(t) is float or np.ndim(t) != 1 or not len(got[0]) \
+                or not len(t):
+            return self.solution.at(t)
+        times = np.asarray(t, dtype=float)
+        ends, s = got
+        at = np.minimum(np.searchsorted(ends, times), len(ends) - 1)
+        hit = ends[at] == times
+        if not hit.any():
+            return self.solution.at(t)
+        at = at[hit]
+        cols = [s.quaternion[at], s.omega[at], s.error_bound[at]]
+        if not hit.all():
+            rest = self.solution.at(times[~hit])
+            for i, part in enumerate((rest.quaternion, rest.omega, rest.error_bound)):
+                full = np.empty((len(times),) + cols[i].shape[1:], dtype=cols[i].dtype)
+                full[hit], full[~hit] = cols[i], part
+                cols[i] = full
+        return type(s)(times, *cols)
 
 
 def _sub(krange, rate, lo_ns, hi_ns):

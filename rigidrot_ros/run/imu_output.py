@@ -23,8 +23,7 @@ accelerometer, ``dv``, ``dvm`` (n, 3) its exact and measured increments.
 import numpy as np
 
 from rigidrot_ros.msgs import cdr
-from rigidrot_ros.msgs import messages as msgs
-from rigidrot_ros.run.output import columns, header_stamps, SensorOutput, Topic
+from rigidrot_ros.run.output import columns, header_stamps, msgs, SensorOutput, Topic
 
 __all__ = ['ImuOutput']
 

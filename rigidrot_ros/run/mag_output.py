@@ -6,8 +6,7 @@ seconds of scene time. Columns: ``m`` (n, 3) T, ``cov`` (n, 3, 3) T^2.
 """
 
 from rigidrot_ros.msgs import cdr
-from rigidrot_ros.msgs import messages as msgs
-from rigidrot_ros.run.output import header_stamps, SensorOutput, Topic
+from rigidrot_ros.run.output import header_stamps, msgs, SensorOutput, Topic
 
 __all__ = ['MagOutput']
 

@@ -24,11 +24,11 @@ body_frame_id)``: the frames N and B.
 """
 
 import abc
+import importlib
 from typing import NamedTuple
 
 import numpy as np
 
-from rigidrot_ros.msgs import messages as msgs
 from rigidrot_ros.run import grid
 
 __all__ = ['Topic', 'Output', 'SensorOutput', 'Block', 'scene_time', 'is_on', 'columns',
@@ -42,6 +42,27 @@ def scene_time(stamp_ns, t_start_ns, time_scale):
     integer difference, converted to float64 once, and the same two products).
     """
     return (stamp_ns - t_start_ns) * 1e-9 * time_scale
+
+
+class LazyModule:
+    """A module imported when one of its attributes is first read.
+
+    ROS's message classes (:mod:`rigidrot_ros.msgs.messages`) take a tenth of a second
+    and about 13 MB to load; offline generation writes CDR and never builds one, so the
+    kinds reach them through this (``msgs = LazyModule('rigidrot_ros.msgs.messages')``).
+    """
+
+    __slots__ = ('_name',)
+
+    def __init__(self, name):
+        self._name = name
+
+    def __getattr__(self, attr):
+        return getattr(importlib.import_module(self._name), attr)
+
+
+#: :mod:`rigidrot_ros.msgs.messages`, loaded on first use.
+msgs = LazyModule('rigidrot_ros.msgs.messages')
 
 
 def header_stamps(stamps):

@@ -10,7 +10,6 @@ With it, :func:`sensor_config`: the effective configuration of each running sens
 import json
 
 import numpy as np
-from std_msgs.msg import String
 
 from rigidrot_ros import __version__
 from rigidrot_ros.msgs import cdr
@@ -109,6 +108,7 @@ def _plain(v):
 
 def run_message(info):
     """Return the std_msgs/String carrying a run description as JSON."""
+    from std_msgs.msg import String
     return String(data=json.dumps(info))
 
 

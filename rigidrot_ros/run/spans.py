@@ -1,8 +1,10 @@
 """A generated run's blocks as MCAP records, cut into chunks as the bag writer cuts them.
 
 The parts of a block (each topic's header stamps, log times and columns, from
-:mod:`rigidrot_ros.run.generate`) become MCAP Message records built in arrays
-(:func:`records`), merged in the order the node publishes them (:func:`span_of`), cut
+:mod:`rigidrot_ros.run.generate`) become MCAP Message records, written straight into one
+buffer in the order the node publishes them (:func:`placed`) or, where that cannot be
+(the run description's span, no numba), built in arrays (:func:`records`) and merged in
+that order (:func:`span_of`), cut
 where :meth:`rigidrot_ros.bag.BagWriter.write_many` would close a chunk (:func:`pieces`)
 and handed to :meth:`BagWriter.write_chunk` a chunk at a time (:func:`write_piece`,
 :func:`write_block`): the file of the message-by-message writer, byte for byte.
@@ -12,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ['Span', 'records', 'span_of', 'pieces', 'write_piece', 'write_block']
+__all__ = ['Span', 'records', 'placed', 'span_of', 'pieces', 'write_piece', 'write_block']
 
 
 class Span(NamedTuple):
@@ -82,12 +84,66 @@ def records(run, parts, cids, seq):
     return sources, where
 
 
+def placed(run, parts, cids, seq, order):
+    """Return a span's :class:`Span` with its records in one buffer, in the merge ``order``.
+
+    Where every part's CDR is a fixed-size :class:`~rigidrot_ros.msgs.cdr.Batch` and the
+    compiled placing loop is at hand (:func:`rigidrot_ros.bag.chunks.can_place`): each
+    message's offset is the sum of the record sizes before it in ``order``, and each part's
+    records (head and CDR) are written there at once
+    (:func:`~rigidrot_ros.bag.chunks.place_batch`: from each CDR batch's plan, whose
+    ``(n, size)`` array is never built), so the span is one read-only buffer, its
+    messages back to back: the bytes of :func:`span_of`'s records in its order, with two
+    copies fewer and no join; a chunk is a slice of it. None otherwise (nothing counted
+    in ``seq``).
+    """
+    from rigidrot_ros.bag.chunks import can_place, place_batch
+    from rigidrot_ros.msgs.cdr import Batch
+    which, rows = order
+    if not len(which) or not can_place():
+        return None
+    raws = []
+    for p in parts:
+        r = p.output.encode_batch(p.name, p.stamps, p.cols, run.frames)
+        if not isinstance(r, Batch):
+            return None
+        raws.append(r)
+    size = np.array([31 + r.size for r in raws], dtype=np.int64)[which]
+    off = np.zeros(len(which), dtype=np.int64)
+    np.cumsum(size[:-1], out=off[1:])
+    buf = np.empty(int(off[-1] + size[-1]), dtype=np.uint8)
+    # each part's places in the order, grouped by part (a stable sort of small keys)
+    by = np.argsort(which.astype(np.int16) if len(parts) < 1 << 15 else which, kind='stable')
+    ends = np.cumsum([len(p.stamps) for p in parts])
+    for i, (p, r) in enumerate(zip(parts, raws)):
+        n = len(p.stamps)
+        mine = by[ends[i] - n:ends[i]]
+        dst = np.empty(n, dtype=np.int64)
+        dst[rows[mine]] = off[mine]
+        place_batch(buf, dst, cids[p.topic], seq[p.topic], p.log, r)
+        seq[p.topic] += n
+    buf.flags.writeable = False                 # frozen: chunks are slices of it
+    cid = np.array([cids[p.topic] for p in parts], dtype=np.int64)[which]
+    log = np.concatenate([p.log for p in parts])
+    first = np.cumsum([0] + [len(p.stamps) for p in parts])[:-1]
+    log = log[first[which] + rows] - run.start_ns
+    cont = np.ones(len(which), dtype=bool)
+    cont[0] = False
+    return Span(log, cid, np.zeros(len(which), dtype=np.int64), off, size, cont,
+                [memoryview(buf)], -1)
+
+
 def span_of(run, parts, cids, seq, order):
     """Return a span's :class:`Span`: its parts' records, in the merge ``order``.
 
     ``order``: ``(part index, row)`` arrays, the order the node publishes the parts'
-    messages in (:func:`rigidrot_ros.run.generate` merges them so).
+    messages in (:func:`rigidrot_ros.run.generate` merges them so). Where it can,
+    :func:`placed` builds it.
     """
+    if not any(p.topic == run.run_topic for p in parts):
+        got = placed(run, parts, cids, seq, order)
+        if got is not None:
+            return got
     sources, where = records(run, parts, cids, seq)
     which, rows = order
     if not len(which):
@@ -133,8 +189,13 @@ def write_piece(writer, span, a, b, start_ns):
     lo = span.off[starts].tolist()
     hi = (span.off[last] + span.size[last]).tolist()
     src = [span.sources[k] for k in span.src[starts].tolist()]
-    data = b''.join([s[x:y] for s, x, y in zip(src, lo, hi)])
-    offsets = np.concatenate([[0], np.cumsum(span.size[a:b - 1])])
+    if len(src) == 1:                       # one run: its bytes as they are, in place
+        data = src[0][lo[0]:hi[0]] if isinstance(src[0], memoryview) else \
+            memoryview(src[0])[lo[0]:hi[0]]
+        offsets = span.off[a:b] - lo[0]
+    else:
+        data = b''.join([s[x:y] for s, x, y in zip(src, lo, hi)])
+        offsets = np.concatenate([[0], np.cumsum(span.size[a:b - 1])])
     writer.write_chunk(data, span.cid[a:b], span.log[a:b] + start_ns, offsets)
 
 

@@ -7,8 +7,7 @@ orientation block (rad^2), the position block marked unused. Columns: ``q`` (n, 
 """
 
 from rigidrot_ros.msgs import cdr
-from rigidrot_ros.msgs import messages as msgs
-from rigidrot_ros.run.output import header_stamps, SensorOutput, Topic
+from rigidrot_ros.run.output import header_stamps, msgs, SensorOutput, Topic
 
 __all__ = ['StarTrackerOutput']
 

@@ -9,9 +9,12 @@ rad/s, ``e`` (n,) the error bound, rad. Frames: N ``frame_id``, B ``body_frame_i
 import numpy as np
 
 from rigidrot_ros.msgs import cdr
-from rigidrot_ros.msgs import messages as msgs
-from rigidrot_ros.msgs import template
-from rigidrot_ros.run.output import header_stamps as _stamps, Output, Topic
+from rigidrot_ros.run.output import header_stamps as _stamps, LazyModule, msgs, Output, Topic
+
+#: :mod:`rigidrot_ros.msgs.template` (it loads ROS's message classes), on first use.
+template = LazyModule('rigidrot_ros.msgs.template')
+#: The markers' type (``template.MARKERS``).
+MARKERS = 'visualization_msgs/msg/MarkerArray'
 
 __all__ = ['read_truth', 'TruthOutput', 'TransformOutput', 'OdomOutput', 'MarkersOutput']
 
@@ -114,7 +117,7 @@ class MarkersOutput(Output):
 
     name = 'markers'
     enable = 'markers.enable'
-    topics = (Topic('markers', template.MARKERS, 4),)
+    topics = (Topic('markers', MARKERS, 4),)
 
     def encode(self, topic, stamps, cols, frames):
         """Return the CDR of the markers for each row."""

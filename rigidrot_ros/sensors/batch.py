@@ -373,7 +373,12 @@ def delta_rotation_many(q0, q1, bound0, bound1):
 
 
 def _ends(gyro, times):
-    """Attitudes and bounds at the block's ends; the last end is cached for the next."""
+    """Attitudes and bounds at the block's ends; the last end is cached for the next.
+
+    The ``solution.at`` samples of the ends it evaluated stay in ``gyro.last_ends``
+    (``(times, Samples)``): offline generation takes its truth ticks on the same times
+    from them.
+    """
     q = np.empty((len(times), 4))
     e = np.empty(len(times))
     first = 0
@@ -384,6 +389,7 @@ def _ends(gyro, times):
     s = gyro.solution.at(times[first:])     # one call: a sample's bits depend on t alone
     q[first:], e[first:] = s.quaternion, s.error_bound
     gyro._last = (float(times[-1]), q[-1].copy(), float(e[-1]))
+    gyro.last_ends = (times[first:], s)     # the samples, for a caller on the same times
     return q, e
 
 

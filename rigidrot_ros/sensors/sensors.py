@@ -85,6 +85,8 @@ class Gyro:
         self.tol = tol
         self._bound = RateBound(solution)
         self._last = None
+        #: ``(times, Samples)`` of the last block's ends evaluated (:func:`.batch._ends`)
+        self.last_ends = None
 
     def reset(self):
         """Restart the noise stream and forget the cached attitude."""
