@@ -26,7 +26,6 @@ setup(
         'mcap>=1.2',
         'mcap-ros2-support>=0.5',
         'zstandard',
-        'zlib-ng>=1.0',
         'ros-jazzy-rclpy[fastrtps]',
         'ros-jazzy-common-interfaces',
     ],
