@@ -66,6 +66,23 @@ def fill_records(rows, j, cid, seq0, log_ns, payloads):
     rec['data'] = payloads
 
 
+def _put_head(buf, d, rec, seq, t):
+    """Write a Message record's head (``rec``: its first 11 bytes set) at ``buf[d:]``.
+
+    The sequence number ``seq``, the log time ``t`` and the publish time (the same);
+    returns where the payload goes.
+    """
+    for b in range(4):
+        rec[11 + b] = (seq >> (8 * b)) & 255
+    for b in range(8):
+        x = (t >> (8 * b)) & 255
+        rec[15 + b] = x                         # log time
+        rec[23 + b] = x                         # publish time (the same)
+    for b in range(np.uint64(31)):
+        buf[d + b] = rec[b]
+    return d + np.uint64(31)
+
+
 def _place(buf, dst, payload, head, seq0, log):
     """Write message records into ``buf``: row r's at ``dst[r]`` (see :func:`place_records`).
 
@@ -77,18 +94,7 @@ def _place(buf, dst, payload, head, seq0, log):
     rec = np.empty(31, dtype=np.uint8)
     rec[:11] = head                             # opcode, record length, channel
     for r in range(n):
-        v = seq0 + r
-        for b in range(4):
-            rec[11 + b] = (v >> (8 * b)) & 255
-        t = log[r]
-        for b in range(8):
-            x = (t >> (8 * b)) & 255
-            rec[15 + b] = x                     # log time
-            rec[23 + b] = x                     # publish time (the same)
-        d = np.uint64(dst[r])
-        for b in range(np.uint64(31)):
-            buf[d + b] = rec[b]
-        d = d + np.uint64(31)
+        d = _put_head(buf, np.uint64(dst[r]), rec, seq0 + r, log[r])
         for b in range(size):
             buf[d + b] = payload[r, b]
 
@@ -101,18 +107,7 @@ def _place_plan(buf, dst, head, seq0, log, row, sec, nsec, raw, slots):
     rec = np.empty(31, dtype=np.uint8)
     rec[:11] = head
     for r in range(n):
-        v = seq0 + r
-        for b in range(4):
-            rec[11 + b] = (v >> (8 * b)) & 255
-        t = log[r]
-        for b in range(8):
-            x = (t >> (8 * b)) & 255
-            rec[15 + b] = x
-            rec[23 + b] = x
-        d = np.uint64(dst[r])
-        for b in range(np.uint64(31)):
-            buf[d + b] = rec[b]
-        d = d + np.uint64(31)
+        d = _put_head(buf, np.uint64(dst[r]), rec, seq0 + r, log[r])
         for b in range(size):
             buf[d + b] = row[b]
         s, ns = sec[r], nsec[r]
@@ -144,9 +139,13 @@ def _placer(name='records'):
                 pass
             else:
                 py = _place if name == 'records' else _place_plan
+                head = globals()['_put_head']
+                head = getattr(head, 'py_func', head)
                 try:
+                    globals()['_put_head'] = numba.njit(cache=True, nogil=True)(head)
                     fn = numba.njit(cache=True, nogil=True)(py)
                 except Exception:   # noqa: B902 - no writable cache: compiled in memory
+                    globals()['_put_head'] = numba.njit(nogil=True)(head)
                     fn = numba.njit(nogil=True)(py)
                 _warm(name, fn)
         _PLACE[name] = fn
