@@ -48,7 +48,7 @@ if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-# The process controlling ``-n 2`` adopts what a test process leaves running when it dies
+# The process controlling ``-n`` adopts what a test process leaves running when it dies
 # (a node, a probe): the kernel reparents such orphans to it rather than to init, and it
 # ends them when the run ends, so that none holds the run's output open after it.
 _PR_SET_CHILD_SUBREAPER = 36                    # <linux/prctl.h>
@@ -114,12 +114,12 @@ def pytest_unconfigure(config):
 
 
 #: The modules holding the longest tests (10 to 40 s each: browsers, campaigns, several
-#: processes, linters), longest first. They run first: under ``-n 2`` each test process is
-#: sent the next tests as it finishes its own, so when the long ones come early the run
-#: ends on short tests and both processes finish together, instead of one waiting out the
-#: other's last long test (the collection's own order puts view/, with the browser test,
-#: last). The order of the tests within a module, and of the rest, is kept. A scheduling
-#: hint only: a module missing here or renamed is run in its place.
+#: processes, linters), longest first. They run first: under ``-n`` each test process is
+#: sent a first batch of consecutive tests, then more as it runs low, so when the long ones
+#: come early the run ends on short tests and the processes finish together, instead of
+#: one waiting out another's last long test (the collection's own order puts view/, with
+#: the browser test, last). The order of the tests within a module, and of the rest, is
+#: kept. A scheduling hint only: a module missing here or renamed is run in its place.
 LONG_MODULES = (
     'view/test_view.py', 'campaign/test_campaign_ros.py', 'bench/test_bench.py',
     'tools/test_node_accel_ahrs.py', 'core/test_core_fuzz.py', 'project/test_flake8.py',

@@ -183,6 +183,11 @@ def failed(results):
     return []
 
 
+def _rpm(x):
+    """Format runs a minute: whole runs from 100 up, else three significant digits."""
+    return f'{x:.0f}' if x >= 100 else common.fmt(x)
+
+
 def _median(figs, key):
     return statistics.median(f[key] for f in figs)
 
@@ -196,8 +201,10 @@ def render_md(results):
     cores = res['cores']
     rows = [('before, quoted: hand-timed on the quiet machine (2026-11-24)', '100', '—',
              f'{fmt(res["quoted_before"])}', '—', '—', '—', '—')]
+    what = ('estimates bagged, read back, scored; workers spawned'
+            if res['baseline'] == BASELINE else 'the code of that commit')
     labels = {'before': f'before (commit {res.get("baseline_commit", res["baseline"])[:12]}): '
-                        'estimates bagged, read back, scored; workers spawned',
+                        f'{what}',
               'now': 'now: the run in memory (arrays), the MEKF compiled, scored from '
                      'memory; workers forked'}
     for way in ('before', 'now'):
@@ -208,9 +215,9 @@ def render_md(results):
         cpu = _median(figs, 'cpu_s')
         rows.append((labels[way], str(res['runs']),
                      ' / '.join(f'{fmt(f["wall_s"])} s' for f in figs),
-                     f'**{fmt(_median(figs, "runs_per_min"))}**',
-                     fmt(max(f['runs_per_min'] for f in figs)), f'{fmt(cpu)} s',
-                     fmt(60.0 * res['runs'] / (cpu / cores)),
+                     f'**{_rpm(_median(figs, "runs_per_min"))}**',
+                     _rpm(max(f['runs_per_min'] for f in figs)), f'{fmt(cpu)} s',
+                     _rpm(60.0 * res['runs'] / (cpu / cores)),
                      f'{min(loads):.1f}–{max(loads):.1f}'))
     table = common.md_table(
         ['way', 'runs', 'wall (each round)', 'runs/min (median)', 'runs/min (best)',
