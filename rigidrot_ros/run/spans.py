@@ -114,19 +114,18 @@ def placed(run, parts, cids, seq, order):
     buf = np.empty(int(off[-1] + size[-1]), dtype=np.uint8)
     # each part's places in the order, grouped by part (a stable sort of small keys)
     by = np.argsort(which.astype(np.int16) if len(parts) < 1 << 15 else which, kind='stable')
-    ends = np.cumsum([len(p.stamps) for p in parts])
+    counts = np.array([len(p.stamps) for p in parts], dtype=np.int64)
+    first = np.cumsum(counts) - counts          # each part's first place in ``by`` and ``log``
     for i, (p, r) in enumerate(zip(parts, raws)):
         n = len(p.stamps)
-        mine = by[ends[i] - n:ends[i]]
+        mine = by[first[i]:first[i] + n]
         dst = np.empty(n, dtype=np.int64)
         dst[rows[mine]] = off[mine]
         place_batch(buf, dst, cids[p.topic], seq[p.topic], p.log, r)
         seq[p.topic] += n
     buf.flags.writeable = False                 # frozen: chunks are slices of it
     cid = np.array([cids[p.topic] for p in parts], dtype=np.int64)[which]
-    log = np.concatenate([p.log for p in parts])
-    first = np.cumsum([0] + [len(p.stamps) for p in parts])[:-1]
-    log = log[first[which] + rows] - run.start_ns
+    log = np.concatenate([p.log for p in parts])[first[which] + rows] - run.start_ns
     cont = np.ones(len(which), dtype=bool)
     cont[0] = False
     return Span(log, cid, np.zeros(len(which), dtype=np.int64), off, size, cont,
