@@ -20,21 +20,13 @@ from rigidrot_ros.campaign.run import run_one
 from rigidrot_ros.campaign.spec import draw_run, load_spec, run_values, take_prepared
 from rigidrot_ros.tools.campaign import main
 
-from campaign_helpers import _write, SPEC  # noqa: I100, I201 - a helper module beside it
+from campaign_helpers import _write, Silent, SPEC  # noqa: I100, I201 - a helper module beside it
 
 WARMED = []
 
 
-class _Warm:
-    """An estimator that is not fed: it only counts its ``warm()`` calls."""
-
-    def receive(self, topic, msg):
-        """Nothing."""
-        return []
-
-    def finish(self):
-        """Nothing."""
-        return []
+class _Warm(Silent):
+    """An estimator that publishes nothing and counts its ``warm()`` calls."""
 
     def warm(self):
         """Count the call."""
