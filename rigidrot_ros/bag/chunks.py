@@ -155,13 +155,13 @@ def _placer(name='records'):
 def _warm(name, fn):
     """Compile or load ``fn`` now, for the argument types of its callers.
 
-    Without numba's BLAS probe (:func:`rigidrot_ros.runtime.jit.no_blas_probe`: nothing
-    here calls one), should this be the process's first compiled code.
+    Through :func:`rigidrot_ros.runtime.jit.cached_load`: a cache load without numba's
+    compiler registries, and no BLAS probe (nothing here calls one).
     """
-    from rigidrot_ros.runtime.jit import no_blas_probe
+    from rigidrot_ros.runtime.jit import cached_load
     buf, one = np.zeros(64, dtype=np.uint8), np.zeros(1, dtype=np.int64)
     head = np.zeros(11, dtype=np.uint8)
-    with no_blas_probe():
+    with cached_load():
         if name == 'records':
             fn(buf, one, np.zeros((1, 2), dtype=np.uint8), head, 0, one)
             return

@@ -12,8 +12,9 @@ numba is imported on first use (:func:`kernels`, called when a dense solution is
 not with the package, so that a command's ``--help`` or a process that never makes a
 dense solution pays nothing; every kernel is then called once (:func:`_warm`), so that
 compiling or loading the cached code happens there, not at a caller's first sample.
-They load without numba's BLAS probe (:func:`rigidrot_ros.runtime.jit.no_blas_probe`):
-no kernel calls a BLAS.
+They load through :func:`rigidrot_ros.runtime.jit.cached_load`: a load from numba's cache
+imports none of numba's compiler registries, and none calls numba's BLAS probe (no kernel
+calls a BLAS).
 Compiled code is cached in ``NUMBA_CACHE_DIR`` when set, else next to this file
 (``__pycache__``) or in the user's cache directory; where none is writable it is
 compiled in memory at each start. The tests check that the compiled kernels give the
@@ -29,7 +30,7 @@ import math
 import numpy as np
 
 from rigidrot_ros.runtime import switches
-from rigidrot_ros.runtime.jit import no_blas_probe
+from rigidrot_ros.runtime.jit import cached_load
 
 __all__ = ['kernels', 'jit_state', 'MAX_TERMS', 'EPS']
 
@@ -283,7 +284,7 @@ def _load():
     for name, fn in py.items():
         out[name], ok = _jit(numba, fn)
         cached = cached and ok
-    with no_blas_probe():
+    with cached_load():
         _warm(out)
     _STATE.update(compiled=True, cached=cached, reason='')
     return out
@@ -307,6 +308,7 @@ def _warm(k):
     idx = np.array([0, 1], dtype=np.int64)
     k['eval_many'](prm, a, hs, anc, idx, idx + 1, t, np.empty((2, 4)), np.empty(2),
                    np.empty(2, dtype=np.bool_), co)
+    own_per_window(0.5)            # _series and _own called from Python, as dense.py does
 
 
 def kernels():

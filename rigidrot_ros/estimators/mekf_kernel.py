@@ -32,7 +32,7 @@ import os
 import numpy as np
 
 from rigidrot_ros.runtime import switches
-from rigidrot_ros.runtime.jit import no_blas_probe
+from rigidrot_ros.runtime.jit import cached_load
 
 __all__ = ['available', 'run', 'state', 'SYMBOLS', 'RunArrays']
 
@@ -94,12 +94,12 @@ def _load(check):
     _FPS = np.array([ctypes.cast(getattr(lib, s), ctypes.c_void_p).value for s in SYMBOLS],
                     dtype=np.int64)
     try:
-        with no_blas_probe():
+        with cached_load():
             _KERNEL = mekf_jit.make_jit(cache=True)
             bad = check()
     except Exception:                     # no writable cache location: compile in memory
         try:
-            with no_blas_probe():
+            with cached_load():
                 _KERNEL = mekf_jit.make_jit(cache=False)
                 bad = check()
         except Exception as exc:  # noqa: B902 - numba's own failure: stay interpreted

@@ -9,5 +9,5 @@ package reads, read there alone), ``processes`` (a console script found and a ch
 process stopped as Ctrl-C would, for the tools that start nodes) and ``interrupt`` (an
 exception raised into a running thread without leaving the interpreter's flag up, which
 stalls a profiled thread: the gated worker) and ``jit`` (numba's compiled code loaded
-without its BLAS probe).
+from its cache without its compiler's registries nor its BLAS probe).
 """

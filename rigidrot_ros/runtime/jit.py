@@ -1,4 +1,16 @@
-"""numba's compiled code loaded without numba's BLAS probe.
+"""numba's compiled code loaded from its cache without the compiler's set-up.
+
+:func:`cached_load` is what the package's loaders use: the two pieces below.
+
+**The compiler's registries.** Before numba loads one function from its on-disk cache it
+refreshes its whole compiler context: it imports and registers every implementation it
+could compile (numpy's arrays, linalg, random, typed containers, cffi...), 0.3 to 0.4 s of
+CPU in each process, although a cached function is machine code that needs none of them.
+:func:`cache_only_refresh` makes that refresh, for loads on the calling thread, only the
+part a loaded function needs: numba's runtime (``rtsys.initialize``). A function not in
+the cache is compiled as ever, and numba's compiler refreshes the whole context first.
+
+**The BLAS probe.**
 
 The first time a process compiles or loads numba code from its cache, numba imports its
 array implementations, and those probe for a BLAS by importing ``scipy.linalg.cython_blas``
@@ -15,7 +27,7 @@ import importlib.abc
 import sys
 import threading
 
-__all__ = ['no_blas_probe']
+__all__ = ['cached_load', 'cache_only_refresh', 'no_blas_probe']
 
 
 class _RefuseScipyLinalg(importlib.abc.MetaPathFinder):
@@ -45,3 +57,54 @@ def no_blas_probe():
         yield
     finally:
         sys.meta_path.remove(hook)
+
+
+_LIGHT = threading.local()
+_PATCH = {'done': False}
+_PATCH_LOCK = threading.Lock()
+
+
+def _install():
+    """Wrap numba's ``Cache.load_overload`` once: light refresh where a thread asks for it."""
+    with _PATCH_LOCK:
+        if _PATCH['done']:
+            return
+        from numba.core import caching
+        from numba.core.runtime import rtsys
+        full = caching.Cache.load_overload
+
+        def load_overload(self, sig, target_context):
+            if not getattr(_LIGHT, 'depth', 0):
+                return full(self, sig, target_context)
+            rtsys.initialize(target_context)   # what a loaded function calls into
+            with self._guard_against_spurious_io_errors():
+                return self._load_overload(sig, target_context)
+        load_overload.__doc__ = full.__doc__
+        caching.Cache.load_overload = load_overload
+        _PATCH['done'] = True
+
+
+@contextlib.contextmanager
+def cache_only_refresh():
+    """Within, this thread's loads from numba's cache skip the compiler's registries.
+
+    Compiling (a cache miss) is untouched: numba's compiler refreshes everything itself.
+    Where numba's cache class has not the expected shape, nothing changes.
+    """
+    try:
+        _install()
+    except (ImportError, AttributeError):
+        yield
+        return
+    _LIGHT.depth = getattr(_LIGHT, 'depth', 0) + 1
+    try:
+        yield
+    finally:
+        _LIGHT.depth -= 1
+
+
+@contextlib.contextmanager
+def cached_load():
+    """Load (or compile) numba code within: no compiler registries for a load, no BLAS probe."""
+    with no_blas_probe(), cache_only_refresh():
+        yield

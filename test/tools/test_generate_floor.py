@@ -2,7 +2,7 @@
 
 A generation writes CDR (never a ROS message object; the markers' CDR template alone is
 made from one, so they are off here) and numba's compiled code loads without its BLAS
-probe (``runtime.jit.no_blas_probe``), so neither is in the process after a run;
+probe (``runtime.jit.cached_load``), so neither is in the process after a run;
 scipy.linalg still imports afterwards.
 """
 

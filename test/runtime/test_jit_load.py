@@ -1,0 +1,55 @@
+"""Compiled code loads from numba's cache without numba's compiler registries.
+
+``runtime.jit.cached_load`` makes a cache load refresh only numba's runtime; the whole
+compiler (numpy's array implementations, linalg, typed containers...) is imported only
+when something is compiled. Checked in fresh processes: after the core's kernels load
+from a warm cache none of those modules is in the process, the kernels give the
+interpreted functions' bits, and a function compiled afterwards in the same process gets
+numba's whole compiler.
+"""
+
+import json
+import subprocess
+import sys
+
+PROBE = r'''
+import json, sys
+import numpy as np
+from rigidrot_ros.core import engine
+k = engine.kernels()
+state = engine.jit_state()
+heavy = sorted(m for m in ('numba.np.linalg', 'numba.np.arraymath', 'numba.typed.typeddict',
+                           'numba.np.npyimpl', 'scipy.linalg') if m in sys.modules)
+prm = np.array([0.5, 0.05, 0.3, -0.2, 0.36, 0.0, 0.0, 0.0, 1e-12, 0.9e-12])
+co = np.empty((engine.MAX_TERMS, 4))
+anc = np.array([1.0, 0.0, 0.0, 0.0, 0.0])
+got = [float(x) for x in np.ravel(k['eval_one'](prm, 0.0, 0.5, 0.25, anc, co))]
+want = [float(x) for x in np.ravel(engine.eval_one(prm, 0.0, 0.5, 0.25, anc, co))]
+import numba
+@numba.njit(cache=False)
+def fresh(a):
+    return np.linalg.norm(a) + np.sum(np.sort(a))
+print(json.dumps({'state': state, 'heavy': heavy, 'same': got == want,
+                  'fresh': fresh(np.array([3.0, 4.0])),
+                  'compiler_after': 'numba.np.arraymath' in sys.modules}))
+'''
+
+
+def _probe():
+    proc = subprocess.run([sys.executable, '-c', PROBE], capture_output=True, text=True,
+                          timeout=180)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_a_cache_load_skips_the_compiler_and_a_later_compile_gets_it():
+    first = _probe()                      # compiles the kernels if the cache is cold
+    if not first['state']['compiled']:
+        import pytest
+        pytest.skip(f"the kernels are not compiled here: {first['state']['reason']}")
+    got = _probe() if first['state']['cached'] else first
+    assert got['same'], 'a kernel loaded from the cache differs from the interpreted one'
+    assert got['fresh'] == 12.0
+    assert got['compiler_after'], 'the later compile did not load numba\'s compiler'
+    if first['state']['cached']:
+        assert got['heavy'] == [], f'the cache load imported {got["heavy"]}'
