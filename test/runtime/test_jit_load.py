@@ -50,6 +50,6 @@ def test_a_cache_load_skips_the_compiler_and_a_later_compile_gets_it():
     got = _probe() if first['state']['cached'] else first
     assert got['same'], 'a kernel loaded from the cache differs from the interpreted one'
     assert got['fresh'] == 12.0
-    assert got['compiler_after'], 'the later compile did not load numba\'s compiler'
+    assert got['compiler_after'], "the later compile did not load numba's compiler"
     if first['state']['cached']:
         assert got['heavy'] == [], f'the cache load imported {got["heavy"]}'
