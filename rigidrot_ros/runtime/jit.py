@@ -10,16 +10,15 @@ CPU in each process, although a cached function is machine code that needs none 
 part a loaded function needs: numba's runtime (``rtsys.initialize``). A function not in
 the cache is compiled as ever, and numba's compiler refreshes the whole context first.
 
-**The BLAS probe.**
-
-The first time a process compiles or loads numba code from its cache, numba imports its
-array implementations, and those probe for a BLAS by importing ``scipy.linalg.cython_blas``
-(0.3 to 0.9 s and 16 MB here). The package's compiled code (the core's kernels, the MEKF's
-loop) calls no BLAS through numba: the MEKF calls numpy's own by address. So
-:func:`no_blas_probe` refuses ``scipy.linalg`` to the loading thread while it loads them.
-Its one effect elsewhere: numba code of the same process then takes its own loop for
-``np.convolve`` and ``np.correlate``; numba's ``np.dot`` and ``np.linalg``, compiled later,
-still find BLAS. Where ``scipy.linalg`` is loaded already nothing changes.
+**The BLAS probe.** The first time a process compiles numba code (or loads it with the
+whole refresh), numba imports its array implementations, and those probe for a BLAS by
+importing ``scipy.linalg.cython_blas`` (0.3 to 0.9 s and 16 MB here). The package's
+compiled code (the core's kernels, the MEKF's loop) calls no BLAS through numba: the MEKF
+calls numpy's own by address. So :func:`no_blas_probe` refuses ``scipy.linalg`` to the
+loading thread while it compiles or loads them (a cold cache compiles). Its one effect
+elsewhere: numba code of the same process then takes its own loop for ``np.convolve`` and
+``np.correlate``; numba's ``np.dot`` and ``np.linalg``, compiled later, still find BLAS.
+Where ``scipy.linalg`` is loaded already nothing changes.
 """
 
 import contextlib
