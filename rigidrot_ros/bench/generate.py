@@ -34,16 +34,28 @@ SCENE = ['imu.enable:=true', 'imu.rate:=1000.0', 'star_tracker.enable:=true',
          'star_tracker.rate:=10.0', 'publish_rate:=100.0']
 
 
+#: The child: ``rigidrot_generate``, then its own peak RSS on standard error.
+_CHILD = '''
+import sys
+from rigidrot_ros.tools.generate import main
+code = main(sys.argv[1:])
+with open('/proc/self/status') as f:
+    hwm = [line.split()[1] for line in f if line.startswith('VmHWM:')]
+sys.stderr.write('\\nmaxrss_kb %s\\n' % hwm[0])
+sys.exit(code)
+'''
+
+
 def _child(duration, root, out):
     """Run ``rigidrot_generate`` on the scene in a child process: wall, CPU, peak RSS, bag.
 
     ``root``: a checkout whose code runs (its directory first on the path), else this one.
-    The child's peak RSS is its own (``/usr/bin/time``'s ``ru_maxrss`` of one process).
+    The child's peak RSS is its own: its ``VmHWM``, the high-water mark of its own memory.
+    Not ``ru_maxrss``: Linux carries that across ``fork`` and ``exec``, so a child's is at
+    least its parent's size when it was started (this benchmark's process, hundreds of MB
+    after other parts had run).
     """
-    cmd = [sys.executable, '-c', 'import resource, sys; from rigidrot_ros.tools.generate '
-           'import main; code = main(sys.argv[1:]); sys.stderr.write("\\nmaxrss_kb %d\\n" '
-           '% resource.getrusage(resource.RUSAGE_SELF).ru_maxrss); sys.exit(code)',
-           '-o', out, '--duration', str(duration), '--quiet']
+    cmd = [sys.executable, '-c', _CHILD, '-o', out, '--duration', str(duration), '--quiet']
     for s in SCENE:
         cmd += ['-p', s]
     env, cwd = dict(os.environ), None
