@@ -56,3 +56,14 @@ def test_a_baseline_checkout_runs_beside_and_its_bag_is_compared(capsys):
     assert '**not** the same' in generate.render_md(results)
     assert 'differs' in generate.failed(results)[0]
     assert 'generate (previous code): 1 scene s' in capsys.readouterr().out
+
+
+def test_the_childs_peak_rss_is_its_own_not_its_parents(tmp_path):
+    # Linux carries ru_maxrss across fork and exec: a child of a large process reported
+    # the parent's size. The child's own high-water mark is far below a parent made large.
+    big = bytearray(400 << 20)
+    big[::4096] = b'\1' * len(range(0, len(big), 4096))     # touched: resident
+    wall, cpu, rss_mb, size = generate._child(0.5, None, str(tmp_path / 'bag'))
+    del big
+    assert size > 0 and wall > 0
+    assert 20 < rss_mb < 380, rss_mb
