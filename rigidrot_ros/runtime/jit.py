@@ -71,13 +71,19 @@ def _install():
         from numba.core import caching
         from numba.core.runtime import rtsys
         full = caching.Cache.load_overload
+        for name in ('_load_overload', '_guard_against_spurious_io_errors'):
+            if not hasattr(caching.Cache, name):       # another numba: leave it as it is
+                raise AttributeError(f'numba.core.caching.Cache has no {name}')
 
         def load_overload(self, sig, target_context):
             if not getattr(_LIGHT, 'depth', 0):
                 return full(self, sig, target_context)
-            rtsys.initialize(target_context)   # what a loaded function calls into
-            with self._guard_against_spurious_io_errors():
-                return self._load_overload(sig, target_context)
+            try:
+                rtsys.initialize(target_context)   # what a loaded function calls into
+                with self._guard_against_spurious_io_errors():
+                    return self._load_overload(sig, target_context)
+            except Exception:  # noqa: B902 - numba's own way, which raises what is wrong
+                return full(self, sig, target_context)
         load_overload.__doc__ = full.__doc__
         caching.Cache.load_overload = load_overload
         _PATCH['done'] = True
