@@ -132,96 +132,35 @@ def filter_run(fp, imu_t, imu_w, imu_var, star_t, star_q, star_r6, star_ok, kind
     (0 imu, 1 star tracker, else ignored) and ``rows`` the arrival order. ``counts``
     gets (estimates, updates, rejected, status: 0, or 1 for a singular ``S``).
     """
-    f_dot = fp[2]
-    P = np.zeros(36)
-    tmp = np.empty(36)
-    phi = np.zeros(36)
-    for i in range(6):
-        phi[i * 6 + i] = 1.0
-    W = np.empty(9)
-    WW = np.empty(9)
-    w = np.empty(3)
-    v = np.empty(3)
-    q = np.empty(4)
-    qn = np.empty(4)
-    beta = bias0.copy()
-    omega = np.zeros(3)
-    gvar = np.zeros(9)
-    # the update's buffers
-    qe = np.empty(4)
-    zq = np.empty(4)
-    a_s = np.empty(9)
-    b_s = np.empty(18)
-    X = np.empty(18)
-    ipiv = np.empty(3, dtype=np.int64)
-    ints = np.empty(5, dtype=np.int64)
-    dx = np.empty(6)
-    IKH = np.empty(36)
-    t1 = np.empty(36)
-    t2 = np.empty(36)
-    KR = np.empty(18)
-    KRK = np.empty(36)
-    ex = np.empty(4)
+    P, q, beta, omega, gvar = np.zeros(36), np.empty(4), bias0.copy(), np.zeros(3), np.zeros(9)
+    pb, ub = _propagate_buffers(), _update_buffers()
     pend = np.empty(len(star_t), dtype=np.int64)    # waiting star samples, sorted
-    npend = 0
-    started = False
-    omega_set = False
-    t_ns = 0
-    due = False
-    due_t = 0
-    gyro_count = 0
-    n_out = 0
-    updates = 0
-    rejected = 0
-    status = 0
+    npend = t_ns = due_t = gyro_count = n_out = updates = rejected = status = 0
+    started = omega_set = due = False
     for j in range(len(kinds)):
         kind = kinds[j]
         if kind != 0 and kind != 1:
             continue
         k = rows[j]
         t = imu_t[k] if kind == 0 else star_t[k]
-        # _flush(t)
-        if due and t > due_t:
+        if due and t > due_t:                   # _flush(t)
             due = False
             _emit(n_out, due_t, q, P, omega, beta, gvar, out_t, out_q, out_p, out_w, out_gv)
             n_out += 1
         if kind == 1:                           # _on_star
-            qo = k * 4
-            ro = k * 36
-            q0, q1, q2, q3 = star_q[qo], star_q[qo + 1], star_q[qo + 2], star_q[qo + 3]
-            if not (math.isfinite(q0) and math.isfinite(q1) and math.isfinite(q2)
-                    and math.isfinite(q3)
-                    and abs(math.sqrt(ddot(f_dot, 4, star_q, qo, star_q, qo)) - 1) < 1e-6
-                    and star_ok[k]):
+            if not _star_valid(fp[2], star_q, k * 4, star_ok[k]):
                 rejected += 1
-                continue
-            if not started:
-                nrm = math.sqrt(ddot(f_dot, 4, star_q, qo, star_q, qo))   # np.linalg.norm
-                q[0], q[1], q[2], q[3] = q0 / nrm, q1 / nrm, q2 / nrm, q3 / nrm
-                for i in range(36):
-                    P[i] = 0.0
-                for r in range(3):
-                    for c in range(3):
-                        P[r * 6 + c] = star_r6[ro + (3 + r) * 6 + 3 + c]
-                        P[(3 + r) * 6 + 3 + c] = bs2 * (1.0 if r == c else 0.0)
+            elif not started:
+                _start(fp[2], P, q, star_q, k * 4, star_r6, k * 36, bs2)
                 t_ns = t
                 started = True
-                continue
-            if t == t_ns:
-                status = _update(fp, P, q, beta, star_q, qo, star_r6, ro, qe, zq, a_s, b_s,
-                                 X, ipiv, ints, dx, IKH, t1, t2, KR, KRK, ex)
+            elif t == t_ns:
+                status = _update(fp, P, q, beta, star_q, k * 4, star_r6, k * 36, ub)
                 if status:
                     break
                 updates += 1
             elif t > t_ns:
-                # append, then the stable sort by stamp of _advance: after its equals
-                pos = npend
-                while pos > 0 and star_t[pend[pos - 1]] > t:
-                    pos -= 1
-                for i in range(npend, pos, -1):
-                    pend[i] = pend[i - 1]
-                pend[pos] = k
-                npend += 1
+                npend = _queue(pend, npend, star_t, k, t)
             else:
                 rejected += 1
             continue
@@ -234,31 +173,15 @@ def filter_run(fp, imu_t, imu_w, imu_var, star_t, star_q, star_r6, star_ok, kind
             continue
         omega[0], omega[1], omega[2] = wx, wy, wz
         omega_set = True
-        vr = imu_var[k]
         for i in range(9):
             gvar[i] = 0.0
-        gvar[0] = gvar[4] = gvar[8] = vr
-        # _advance(t)
-        head = 0
-        while head < npend and star_t[pend[head]] <= t:
-            s = pend[head]
-            head += 1
-            _propagate(fp, (star_t[s] - t_ns) * 1e-9, P, tmp, phi, W, WW, w, v, q, qn,
-                       omega, beta, sv2, su2)
-            t_ns = star_t[s]
-            status = _update(fp, P, q, beta, star_q, s * 4, star_r6, s * 36, qe, zq, a_s,
-                             b_s, X, ipiv, ints, dx, IKH, t1, t2, KR, KRK, ex)
-            if status:
-                break
-            updates += 1
+        gvar[0] = gvar[4] = gvar[8] = imu_var[k]
+        npend, t_ns, done, status = _advance(fp, t, t_ns, pend, npend, star_t, star_q,
+                                             star_r6, P, q, omega, beta, sv2, su2, pb, ub)
+        updates += done
         if status:
             break
-        if head:
-            for i in range(npend - head):
-                pend[i] = pend[i + head]
-            npend -= head
-        _propagate(fp, (t - t_ns) * 1e-9, P, tmp, phi, W, WW, w, v, q, qn, omega, beta,
-                   sv2, su2)
+        _propagate(fp, (t - t_ns) * 1e-9, P, q, omega, beta, sv2, su2, pb)
         t_ns = t
         gyro_count += 1
         if gyro_count % every == 0:
@@ -267,10 +190,87 @@ def filter_run(fp, imu_t, imu_w, imu_var, star_t, star_q, star_r6, star_ok, kind
     if status == 0 and due:                     # _flush(None)
         _emit(n_out, due_t, q, P, omega, beta, gvar, out_t, out_q, out_p, out_w, out_gv)
         n_out += 1
-    counts[0] = n_out
-    counts[1] = updates
-    counts[2] = rejected
-    counts[3] = status
+    counts[0], counts[1], counts[2], counts[3] = n_out, updates, rejected, status
+    _save(fstate, istate, q, P, beta, omega, gvar, started, t_ns, gyro_count, omega_set,
+          pend, npend)
+
+
+def _propagate_buffers():
+    """Return the buffers of :func:`_propagate`: tmp, phi (the identity), W, WW, w, v, qn."""
+    phi = np.zeros(36)
+    for i in range(6):
+        phi[i * 6 + i] = 1.0
+    return (np.empty(36), phi, np.empty(9), np.empty(9), np.empty(3), np.empty(3),
+            np.empty(4))
+
+
+def _update_buffers():
+    """Return the buffers of :func:`_update`, in the order it unpacks them."""
+    return (np.empty(4), np.empty(4), np.empty(9), np.empty(18), np.empty(18),
+            np.empty(3, dtype=np.int64), np.empty(5, dtype=np.int64), np.empty(6),
+            np.empty(36), np.empty(36), np.empty(36), np.empty(18), np.empty(36),
+            np.empty(4))
+
+
+def _star_valid(f_dot, star_q, qo, ok):
+    """Whether a star tracker sample is taken (``_on_star``'s check): finite, unit, valid."""
+    q0, q1, q2, q3 = star_q[qo], star_q[qo + 1], star_q[qo + 2], star_q[qo + 3]
+    return (math.isfinite(q0) and math.isfinite(q1) and math.isfinite(q2)
+            and math.isfinite(q3)
+            and abs(math.sqrt(ddot(f_dot, 4, star_q, qo, star_q, qo)) - 1) < 1e-6
+            and ok)
+
+
+def _start(f_dot, P, q, star_q, qo, star_r6, ro, bs2):
+    """Start the filter at the first star tracker sample (``_on_star`` before ``started``)."""
+    nrm = math.sqrt(ddot(f_dot, 4, star_q, qo, star_q, qo))     # np.linalg.norm
+    q[0], q[1], q[2], q[3] = (star_q[qo] / nrm, star_q[qo + 1] / nrm, star_q[qo + 2] / nrm,
+                              star_q[qo + 3] / nrm)
+    for i in range(36):
+        P[i] = 0.0
+    for r in range(3):
+        for c in range(3):
+            P[r * 6 + c] = star_r6[ro + (3 + r) * 6 + 3 + c]
+            P[(3 + r) * 6 + 3 + c] = bs2 * (1.0 if r == c else 0.0)
+
+
+def _queue(pend, npend, star_t, k, t):
+    """Append star sample ``k``, then ``_advance``'s stable sort by stamp; the new count."""
+    pos = npend
+    while pos > 0 and star_t[pend[pos - 1]] > t:
+        pos -= 1
+    for i in range(npend, pos, -1):
+        pend[i] = pend[i - 1]
+    pend[pos] = k
+    return npend + 1
+
+
+def _advance(fp, t, t_ns, pend, npend, star_t, star_q, star_r6, P, q, omega, beta, sv2, su2,
+             pb, ub):
+    """Take the waiting star samples stamped up to ``t`` (the filter's ``_advance``).
+
+    Returns the samples left waiting, the filter's time, the updates made, the status.
+    """
+    head = done = status = 0
+    while head < npend and star_t[pend[head]] <= t:
+        s = pend[head]
+        head += 1
+        _propagate(fp, (star_t[s] - t_ns) * 1e-9, P, q, omega, beta, sv2, su2, pb)
+        t_ns = star_t[s]
+        status = _update(fp, P, q, beta, star_q, s * 4, star_r6, s * 36, ub)
+        if status:
+            return npend, t_ns, done, status
+        done += 1
+    if head:
+        for i in range(npend - head):
+            pend[i] = pend[i + head]
+        npend -= head
+    return npend, t_ns, done, status
+
+
+def _save(fstate, istate, q, P, beta, omega, gvar, started, t_ns, gyro_count, omega_set,
+          pend, npend):
+    """Write the filter's state at the end of the run into ``fstate`` and ``istate``."""
     for i in range(4):
         fstate[i] = q[i]
     for i in range(36):
@@ -302,10 +302,11 @@ def _emit(n, t, q, P, omega, beta, gvar, out_t, out_q, out_p, out_w, out_gv):
         out_gv[n * 9 + i] = gvar[i]
 
 
-def _propagate(fp, dt, P, tmp, phi, W, WW, w, v, q, qn, omega, beta, sv2, su2):
-    """Propagate the state over ``dt`` (``MEKF._propagate``)."""
+def _propagate(fp, dt, P, q, omega, beta, sv2, su2, pb):
+    """Propagate the state over ``dt`` (``MEKF._propagate``); ``pb``: its buffers."""
     if dt <= 0:
         return
+    tmp, phi, W, WW, w, v, qn = pb
     f_gemm, f_dot = fp[0], fp[2]
     for i in range(3):
         w[i] = omega[i] - beta[i]
@@ -372,13 +373,13 @@ def _propagate(fp, dt, P, tmp, phi, W, WW, w, v, q, qn, omega, beta, sv2, su2):
         q[i] = qn[i] / nrm
 
 
-def _update(fp, P, q, beta, star_q, qo, star_r6, ro, qe, zq, a_s, b_s, X, ipiv, ints, dx,
-            IKH, t1, t2, KR, KRK, ex):
+def _update(fp, P, q, beta, star_q, qo, star_r6, ro, ub):
     """Update with a star tracker sample (``MEKF._update``); 1 if ``S`` is singular.
 
-    ``q_m = star_q[qo:qo + 4]``, ``R`` the rotation block of ``star_r6[ro:ro + 36]``.
-    Returns 1 where ``np.linalg.solve`` raises (a singular ``S``), else 0.
+    ``q_m = star_q[qo:qo + 4]``, ``R`` the rotation block of ``star_r6[ro:ro + 36]``,
+    ``ub`` its buffers. Returns 1 where ``np.linalg.solve`` raises (a singular ``S``), else 0.
     """
+    qe, zq, a_s, b_s, X, ipiv, ints, dx, IKH, t1, t2, KR, KRK, ex = ub
     f_gemm, f_gemv, f_dot, f_gesv = fp[0], fp[1], fp[2], fp[3]
     # z = _qlog(_qmul(q^-1, q_m))
     _qmul(-q[0], -q[1], -q[2], q[3], star_q[qo], star_q[qo + 1], star_q[qo + 2],
@@ -438,7 +439,8 @@ def _update(fp, P, q, beta, star_q, qo, star_r6, ro, qe, zq, a_s, b_s, X, ipiv, 
 def make_jit(cache):
     """Return :func:`filter_run` compiled (``cache``: on disk), its helpers compiled first."""
     g = globals()
-    for name in ('_qmul', '_emit', '_propagate', '_update'):
+    for name in ('_qmul', '_emit', '_propagate', '_update', '_propagate_buffers',
+                 '_update_buffers', '_star_valid', '_start', '_queue', '_advance', '_save'):
         fn = g[name]
         g[name] = njit(cache=cache, fastmath=False)(getattr(fn, 'py_func', fn))
     return njit(cache=cache, fastmath=False)(filter_run)
