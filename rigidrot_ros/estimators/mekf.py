@@ -307,8 +307,7 @@ class MEKF:
         out = self._flush(t)
         q_m = np.array(q_m, dtype=float)
         R = np.asarray(cov6, dtype=float).reshape(6, 6)[3:, 3:]
-        if not (_finite(*q_m.tolist()) and abs(math.sqrt(float(q_m.dot(q_m))) - 1) < 1e-6
-                and self._usable(R)):
+        if not self._takes_star(q_m, R):
             self.rejected += 1
             return out
         if self.q is None:
@@ -325,6 +324,11 @@ class MEKF:
         else:
             self.rejected += 1           # older than the state: not in stamp order
         return out
+
+    def _takes_star(self, q_m, R):
+        """Whether a star tracker sample is taken: ``q_m`` finite and unit, ``R`` usable."""
+        return (_finite(*q_m.tolist()) and abs(math.sqrt(float(q_m.dot(q_m))) - 1) < 1e-6
+                and self._usable(R))
 
     def _usable(self, R):
         """Whether ``R`` is finite and positive definite (the answer kept by its bytes)."""

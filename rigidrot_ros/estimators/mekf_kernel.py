@@ -26,7 +26,6 @@ not constants of the code.
 """
 
 import ctypes
-import math
 import os
 
 import numpy as np
@@ -181,11 +180,8 @@ def run(filt, data):
         raise RuntimeError(f'the compiled MEKF is not available: {_STATE["reason"]}')
     p = filt.p
     m = len(data.star_t)
-    ok = np.zeros(m, dtype=np.bool_)    # R checked where the filter checks it: q usable
-    for k in range(m):
-        q_m = data.star_q[4 * k:4 * k + 4]
-        if np.isfinite(q_m).all() and abs(math.sqrt(float(q_m.dot(q_m))) - 1) < 1e-6:
-            ok[k] = filt._usable(data.cov6[k, 3:, 3:])
+    ok = np.array([filt._takes_star(data.star_q[4 * k:4 * k + 4], data.cov6[k, 3:, 3:])
+                   for k in range(m)], dtype=np.bool_)     # R checked only where q is usable
     cap = len(data.imu_t) // p.output_every + 1
     out_t = np.zeros(cap, dtype=np.int64)
     out_q, out_p = np.zeros(cap * 4), np.zeros(cap * 36)
