@@ -129,7 +129,8 @@ class ObjectCode:
             if typ == _SHT_PROGBITS:
                 self._map[off:off + n] = self._data[src:src + n]
         self._map[self._trap:self._trap + len(_UD2)] = _UD2
-        self._addr = ctypes.addressof(ctypes.c_char.from_buffer(self._map))
+        self._view = ctypes.c_char.from_buffer(self._map)     # held: the map stays open
+        self._addr = ctypes.addressof(self._view)
         self._size = size
 
     def _symbols(self):
@@ -193,6 +194,7 @@ class ObjectCode:
 
 
 _PROCESS = ctypes.CDLL(None, use_errno=True)
+_MAPPED = []
 _mprotect = _PROCESS.mprotect
 _mprotect.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
 _mprotect.restype = ctypes.c_int
@@ -203,7 +205,9 @@ def load_object(data):
     if sys.platform != 'linux' or platform.machine() not in ('x86_64', 'AMD64'):
         raise NativeError(f'loading object code is done on x86-64 Linux only, not '
                           f'{sys.platform} {platform.machine()}')
-    return ObjectCode(data).functions
+    code = ObjectCode(data)
+    _MAPPED.append(code)            # mapped for the life of the process: addresses are out
+    return code.functions
 
 
 # -- the cache -------------------------------------------------------------------------------
