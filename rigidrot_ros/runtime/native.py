@@ -37,8 +37,9 @@ import platform
 import struct
 import sys
 
-__all__ = ['NativeError', 'ObjectCode', 'load_object', 'emit', 'cache_path', 'cache_key',
-           'read_cache', 'write_cache', 'TRAPPED']
+__all__ = ['NativeError', 'ObjectCode', 'load_object', 'load_kernels', 'c_signature',
+           'trampoline_ir', 'python_function', 'cache_path', 'cache_key', 'read_cache',
+           'write_cache', 'TRAPPED']
 
 #: numba helpers referenced only by a C function's error path (building and raising a
 #: Python exception, releasing arrays that a C function's views never own): resolved to a
@@ -212,7 +213,7 @@ def load_object(data):
 
 # -- the cache -------------------------------------------------------------------------------
 def _cpu():
-    """This processor as numba compiles for it: model name and flags (``/proc/cpuinfo``)."""
+    """Return this processor as numba compiles for it: model and flags (``/proc/cpuinfo``)."""
     try:
         with open('/proc/cpuinfo', encoding='ascii', errors='replace') as f:
             lines = f.read().split('\n\n')[0].splitlines()
@@ -259,18 +260,94 @@ def cache_path(module_file, name, key):
     return None
 
 
-def emit(cfunc):
-    """Return ``(symbol, object bytes)`` of a ``numba.cfunc``: the code numba runs itself.
+def _object(cfunc, name, spec, result, nogil=False):
+    """Return the object code of ``cfunc`` with its Python entry ``rr_<name>`` linked in.
 
-    The object is what numba's own code generator emits for the function's final (linked,
-    optimised) module, with numba's JIT settings for this processor. Raises
+    The C function's module is numba's final (linked, optimised) one; the entry
+    (:func:`trampoline_ir`) is linked into a copy of it, and the object emitted by numba's
+    own code generator, with numba's JIT settings for this processor. Raises
     :class:`NativeError` where this numba does not have the parts used.
     """
+    import llvmlite.binding as ll
     try:
         lib = cfunc._library
-        return cfunc.native_name, bytes(lib._codegen._tm.emit_object(lib._final_module))
+        final = lib._final_module.clone()
+        tm = lib._codegen._tm
     except AttributeError as exc:
         raise NativeError(f'this numba does not expose its object code ({exc})') from None
+    entry = ll.parse_assembly(trampoline_ir(name, cfunc.native_name, spec, result, nogil))
+    entry.verify()
+    final.link_in(entry)
+    return bytes(tm.emit_object(final))
+
+
+def c_signature(spec, result):
+    """Return the numba signature of the C function behind a call ``spec``.
+
+    ``'f'``: float64; ``'i'`` and ``'b'``: int64; an array ``(kind, ndim, width, out)``:
+    a pointer to its items and its length, and its second dimension too where ``width`` is
+    None; a ``'sample'`` result adds a pointer to 5 float64 (x, y, z, w, bound). The
+    function returns an int64.
+    """
+    from numba import types
+    item = {'f8': types.float64, 'i8': types.int64, 'b1': types.boolean, 'u1': types.uint8}
+    args = []
+    for a in spec:
+        if isinstance(a, str):
+            args.append(types.float64 if a == 'f' else types.int64)
+        else:
+            args += [types.CPointer(item[a[0]]), types.int64] + \
+                ([types.int64] if a[1] == 2 and a[2] is None else [])
+    if result == 'sample':
+        args.append(types.CPointer(types.float64))
+    return types.int64(*args)
+
+
+def load_kernels(module_file, name, sources, build):
+    """Return the kernel set ``name`` as Python functions: built once, then from the cache.
+
+    ``sources``: what the kernels are made from (the cache key, with this module's own
+    source); ``build()``, called on a cache miss (numba imported there), returns
+    ``{kernel: (cfunc, spec, result[, nogil])}`` (:func:`trampoline_ir`). A cache file that cannot
+    be read or loaded is built anew once. Raises :class:`NativeError` with the reason
+    where the kernels cannot be had this way (the caller then takes numba's own load).
+    """
+    if sys.platform != 'linux' or platform.machine() not in ('x86_64', 'AMD64'):
+        raise NativeError(f'kernels are loaded as object code on x86-64 Linux only, not '
+                          f'{sys.platform} {platform.machine()}')
+    with open(__file__, 'rb') as f:
+        own = f.read()
+    path = cache_path(module_file, name, cache_key(own, *sources))
+    why = None
+    if path is not None and os.path.exists(path):
+        try:
+            return _functions(read_cache(path)), True
+        except NativeError as exc:
+            why = str(exc)          # built anew below
+    try:
+        entries = {k: (f'rr_{k}', _object(cf, k, *how)) for k, (cf, *how) in build().items()}
+    except NativeError:
+        raise
+    except Exception as exc:  # noqa: B902 - numba's and LLVM's errors alike
+        raise NativeError(f'building the kernels failed: {type(exc).__name__}: {exc}'
+                          + (f' (the cache: {why})' if why else '')) from None
+    out = _functions(entries)
+    if path is not None:
+        try:
+            write_cache(path, entries)
+        except OSError:
+            pass                    # built again next time
+    return out, False
+
+
+def _functions(entries):
+    out = {}
+    for kernel, (symbol, obj) in entries.items():
+        functions = load_object(obj)
+        if symbol not in functions:
+            raise NativeError(f'{symbol!r} is not in its object')
+        out[kernel] = python_function(functions[symbol], kernel)
+    return out
 
 
 def write_cache(path, kernels):
@@ -288,7 +365,7 @@ def write_cache(path, kernels):
 
 
 def read_cache(path):
-    """Return ``{name: (symbol, object bytes)}`` from ``path``; :class:`NativeError` if unusable."""
+    """Return ``{name: (symbol, object bytes)}`` read from ``path``, or raise NativeError."""
     try:
         with open(path, 'rb') as f:
             data = f.read()
@@ -307,3 +384,196 @@ def read_cache(path):
                 for name, (symbol, at, size) in head.items()}
     except (ValueError, TypeError):
         raise NativeError(f'{path}: unreadable header') from None
+
+
+# -- calling from Python -----------------------------------------------------------------
+#: numpy's buffer: C-contiguous with its format (and writable, for an output).
+_GETBUF_IN, _GETBUF_OUT = 0x38 | 0x4, 0x38 | 0x4 | 0x1
+#: array kinds: itemsize and the accepted format characters (``struct`` codes).
+_KINDS = {'f8': (8, 'd', 'float64'), 'i8': (8, 'lq', 'int64'), 'b1': (1, '?', 'bool'),
+          'u1': (1, 'B', 'uint8')}
+_METH_FASTCALL = 0x80
+
+
+def trampoline_ir(name, symbol, spec, result, nogil=False):
+    """LLVM IR of ``rr_<name>``, a ``METH_FASTCALL`` Python function calling ``symbol``.
+
+    ``spec`` lists the Python arguments (:func:`c_signature`); each array is taken
+    through the buffer protocol, C-contiguous, of its kind (format and item size) and
+    number of dimensions (a 2-d array's second dimension ``width``), writable if ``out``;
+    anything else raises TypeError (BufferError from numpy for a strided or read-only
+    array), naming the argument. ``result``: ``'int'`` the C function's int64,
+    ``'pair'`` ``(r >> 1, bool(r & 1))``, ``'sample'`` the 5 doubles written and
+    ``bool(r)``.
+    """
+    n = len(spec)
+    arrays = [i for i, a in enumerate(spec) if not isinstance(a, str)]
+    lines, consts = [], []
+
+    def const(text):
+        data = text.encode() + b'\0'
+        body = ''.join(chr(c) if 32 <= c < 127 and c not in (34, 92) else f'\\{c:02X}'
+                       for c in data)
+        consts.append(f'@.s{len(consts)} = private unnamed_addr constant '
+                      f'[{len(data)} x i8] c"{body}"')
+        return f'@.s{len(consts) - 1}'
+
+    def fail(text, acquired):
+        """Jump to a block raising TypeError(text) after releasing ``acquired`` buffers."""
+        label = f'fail{len(lines)}'
+        msg = const(text)
+        lines.extend([f'{label}:', '  %exc.' + label + ' = load ptr, ptr @PyExc_TypeError',
+                      f'  call void @PyErr_SetString(ptr %exc.{label}, ptr {msg})',
+                      f'  br label %release{len(acquired)}'])
+        return label
+
+    body = [f'  %bufs = alloca [{max(len(arrays), 1)} x [80 x i8]], align 8',
+            '  %out = alloca [5 x double], align 8',
+            f'  %nok = icmp eq i64 %nargs, {n}',
+            '  br i1 %nok, label %arg0, label %' +
+            fail(f'{name}() takes {n} arguments', [])]
+    c_args, acquired = [], []
+    for i, a in enumerate(spec):
+        body += [f'arg{i}:', f'  %po{i} = getelementptr ptr, ptr %args, i64 {i}',
+                 f'  %o{i} = load ptr, ptr %po{i}']
+        nxt = f'arg{i + 1}'
+        if a in ('f', 'i', 'b'):
+            call = {'f': f'  %v{i} = call double @PyFloat_AsDouble(ptr %o{i})',
+                    'i': f'  %v{i} = call i64 @PyLong_AsLongLong(ptr %o{i})',
+                    'b': f'  %t{i} = call i32 @PyObject_IsTrue(ptr %o{i})'}[a]
+            body.append(call)
+            if a == 'b':
+                body += [f'  %e{i} = icmp slt i32 %t{i}, 0',
+                         f'  %v{i} = sext i32 %t{i} to i64',
+                         f'  br i1 %e{i}, label %release{len(acquired)}, label %{nxt}']
+            else:
+                minus = '-1.0' if a == 'f' else '-1'
+                cmp = 'fcmp oeq double' if a == 'f' else 'icmp eq i64'
+                body += [f'  %e{i} = {cmp} %v{i}, {minus}',
+                         f'  br i1 %e{i}, label %chk{i}, label %{nxt}',
+                         f'chk{i}:', f'  %err{i} = call ptr @PyErr_Occurred()',
+                         f'  %none{i} = icmp eq ptr %err{i}, null',
+                         f'  br i1 %none{i}, label %{nxt}, label %release{len(acquired)}']
+            c_args.append(('double' if a == 'f' else 'i64', f'%v{i}'))
+            continue
+        kind, ndim, width, out = a
+        size, chars, dtype = _KINDS[kind]
+        j = len(acquired)
+        what = (f'{name}() argument {i + 1}: expected a C-contiguous {ndim}-d {dtype} array' +
+                (f' of {width} columns' if ndim == 2 and width is not None else ''))
+        body += [f'  %b{i} = getelementptr [80 x i8], ptr %bufs, i64 {j}',
+                 f'  %g{i} = call i32 @PyObject_GetBuffer(ptr %o{i}, ptr %b{i}, i32 '
+                 f'{_GETBUF_OUT if out else _GETBUF_IN})',
+                 f'  %ge{i} = icmp ne i32 %g{i}, 0',
+                 f'  br i1 %ge{i}, label %release{j}, label %got{i}', f'got{i}:']
+        acquired.append(i)
+        bad = fail(what, acquired)
+        body += [f'  %pnd{i} = getelementptr i8, ptr %b{i}, i64 36',
+                 f'  %nd{i} = load i32, ptr %pnd{i}',
+                 f'  %pis{i} = getelementptr i8, ptr %b{i}, i64 24',
+                 f'  %is{i} = load i64, ptr %pis{i}',
+                 f'  %pfm{i} = getelementptr i8, ptr %b{i}, i64 40',
+                 f'  %fm{i} = load ptr, ptr %pfm{i}',
+                 f'  %c0{i} = load i8, ptr %fm{i}',
+                 # one byte-order prefix of native order ('@', '=', '<') may lead
+                 f'  %x1{i} = icmp eq i8 %c0{i}, 64', f'  %x2{i} = icmp eq i8 %c0{i}, 61',
+                 f'  %x3{i} = icmp eq i8 %c0{i}, 60',
+                 f'  %x12{i} = or i1 %x1{i}, %x2{i}', f'  %px{i} = or i1 %x12{i}, %x3{i}',
+                 f'  %skip{i} = zext i1 %px{i} to i64',
+                 f'  %pc{i} = getelementptr i8, ptr %fm{i}, i64 %skip{i}',
+                 f'  %c{i} = load i8, ptr %pc{i}',
+                 f'  %pz{i} = getelementptr i8, ptr %pc{i}, i64 1',
+                 f'  %z{i} = load i8, ptr %pz{i}',
+                 f'  %zok{i} = icmp eq i8 %z{i}, 0',
+                 f'  %ndok{i} = icmp eq i32 %nd{i}, {ndim}',
+                 f'  %isok{i} = icmp eq i64 %is{i}, {size}']
+        conds = [f'%zok{i}', f'%ndok{i}', f'%isok{i}']
+        ors = []
+        for k, ch in enumerate(chars):
+            body.append(f'  %ch{i}_{k} = icmp eq i8 %c{i}, {ord(ch)}')
+            ors.append(f'%ch{i}_{k}')
+        while len(ors) > 1:
+            body.append(f'  %chor{i}_{len(ors)} = or i1 {ors[0]}, {ors[1]}')
+            ors = [f'%chor{i}_{len(ors)}'] + ors[2:]
+        conds.append(ors[0])
+        acc = conds[0]
+        for k, cnd in enumerate(conds[1:]):
+            body.append(f'  %all{i}_{k} = and i1 {acc}, {cnd}')
+            acc = f'%all{i}_{k}'
+        body += [f'  br i1 {acc}, label %shape{i}, label %{bad}', f'shape{i}:',
+                 f'  %psh{i} = getelementptr i8, ptr %b{i}, i64 48',
+                 f'  %sh{i} = load ptr, ptr %psh{i}',
+                 f'  %len{i} = load i64, ptr %sh{i}',
+                 f'  %data{i} = load ptr, ptr %b{i}']
+        c_args += [('ptr', f'%data{i}'), ('i64', f'%len{i}')]
+        if ndim == 2:
+            body += [f'  %pw{i} = getelementptr i64, ptr %sh{i}, i64 1',
+                     f'  %w{i} = load i64, ptr %pw{i}']
+        if ndim == 2 and width is not None:
+            body += [f'  %wok{i} = icmp eq i64 %w{i}, {width}',
+                     f'  br i1 %wok{i}, label %{nxt}, label %{bad}']
+        else:
+            body.append(f'  br label %{nxt}')
+            if ndim == 2:
+                c_args.append(('i64', f'%w{i}'))
+    if result == 'sample':
+        c_args.append(('ptr', '%out'))
+    body += [f'arg{n}:'] + (['  %ts = call ptr @PyEval_SaveThread()'] if nogil else []) + \
+        [f'  %r = call i64 @"{symbol}"({", ".join(f"{t} {v}" for t, v in c_args)})'] + \
+        (['  call void @PyEval_RestoreThread(ptr %ts)'] if nogil else [])
+    for j in reversed(range(len(acquired))):
+        body.append(f'  call void @PyBuffer_Release(ptr %b{acquired[j]})')
+    if result == 'int':
+        body.append('  %res = call ptr @PyLong_FromLongLong(i64 %r)')
+    elif result == 'pair':
+        body += ['  %k = ashr i64 %r, 1', '  %flag = and i64 %r, 1',
+                 '  %fb = call ptr @PyBool_FromLong(i64 %flag)',
+                 f'  %res = call ptr (ptr, ...) @Py_BuildValue(ptr {const("(LN)")}, '
+                 'i64 %k, ptr %fb)']
+    else:
+        body.append('  %fb = call ptr @PyBool_FromLong(i64 %r)')
+        vals = []
+        for k in range(5):
+            body += [f'  %pq{k} = getelementptr double, ptr %out, i64 {k}',
+                     f'  %q{k} = load double, ptr %pq{k}']
+            vals.append(f'double %q{k}')
+        body.append(f'  %res = call ptr (ptr, ...) @Py_BuildValue(ptr {const("(dddddN)")}, '
+                    f'{", ".join(vals)}, ptr %fb)')
+    body.append('  ret ptr %res')
+    # release blocks: releaseJ frees the first J buffers, then returns NULL
+    for j in reversed(range(len(acquired) + 1)):
+        body.append(f'release{j}:')
+        if j:
+            body += [f'  call void @PyBuffer_Release(ptr %b{acquired[j - 1]})',
+                     f'  br label %release{j - 1}']
+        else:
+            body.append('  ret ptr null')
+    decl = ', '.join(t for t, _ in c_args)
+    head = ['declare double @PyFloat_AsDouble(ptr)', 'declare i64 @PyLong_AsLongLong(ptr)',
+            'declare i32 @PyObject_IsTrue(ptr)', 'declare ptr @PyErr_Occurred()',
+            'declare i32 @PyObject_GetBuffer(ptr, ptr, i32)',
+            'declare void @PyBuffer_Release(ptr)', 'declare void @PyErr_SetString(ptr, ptr)',
+            'declare ptr @PyLong_FromLongLong(i64)', 'declare ptr @PyBool_FromLong(i64)',
+            'declare ptr @Py_BuildValue(ptr, ...)', '@PyExc_TypeError = external global ptr',
+            'declare ptr @PyEval_SaveThread()', 'declare void @PyEval_RestoreThread(ptr)',
+            f'declare i64 @"{symbol}"({decl})']
+    entry = [f'define ptr @rr_{name}(ptr %self, ptr %args, i64 %nargs) {{', 'entry:']
+    return '\n'.join(head + consts + entry + body[:4] + lines + body[4:] + ['}']) + '\n'
+
+
+class _MethodDef(ctypes.Structure):
+    _fields_ = [('ml_name', ctypes.c_char_p), ('ml_meth', ctypes.c_void_p),
+                ('ml_flags', ctypes.c_int), ('ml_doc', ctypes.c_char_p)]
+
+
+_DEFS = []
+_new_function = ctypes.pythonapi.PyCFunction_NewEx
+_new_function.argtypes = (ctypes.POINTER(_MethodDef), ctypes.py_object, ctypes.py_object)
+_new_function.restype = ctypes.py_object
+
+
+def python_function(address, name, doc=None):
+    """Return a Python builtin calling the ``METH_FASTCALL`` function at ``address``."""
+    d = _MethodDef(name.encode(), address, _METH_FASTCALL, doc.encode() if doc else None)
+    _DEFS.append(d)                 # the definition must outlive the function
+    return _new_function(ctypes.byref(d), None, None)
