@@ -92,7 +92,8 @@ def _place(buf, dst, payload, head, seq0, log, rec):
     """
     n = payload.shape[0]
     size = np.uint64(payload.shape[1])
-    rec[:11] = head                             # opcode, record length, channel
+    for b in range(11):
+        rec[b] = head[b]                        # opcode, record length, channel
     for r in range(n):
         d = _put_head(buf, np.uint64(dst[r]), rec, seq0 + r, log[r])
         for b in range(size):
@@ -104,7 +105,8 @@ def _place_plan(buf, dst, head, seq0, log, row, sec, nsec, raw, slots, rec):
     n = raw.shape[0]
     size = np.uint64(row.shape[0])
     m = slots.shape[0]
-    rec[:11] = head
+    for b in range(11):
+        rec[b] = head[b]
     for r in range(n):
         d = _put_head(buf, np.uint64(dst[r]), rec, seq0 + r, log[r])
         for b in range(size):

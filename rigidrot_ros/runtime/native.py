@@ -568,12 +568,12 @@ class _MethodDef(ctypes.Structure):
 
 _DEFS = []
 _new_function = ctypes.pythonapi.PyCFunction_NewEx
-_new_function.argtypes = (ctypes.POINTER(_MethodDef), ctypes.py_object, ctypes.py_object)
+_new_function.argtypes = (ctypes.POINTER(_MethodDef), ctypes.c_void_p, ctypes.py_object)
 _new_function.restype = ctypes.py_object
 
 
-def python_function(address, name, doc=None):
+def python_function(address, name, module=__name__):
     """Return a Python builtin calling the ``METH_FASTCALL`` function at ``address``."""
-    d = _MethodDef(name.encode(), address, _METH_FASTCALL, doc.encode() if doc else None)
+    d = _MethodDef(name.encode(), address, _METH_FASTCALL, None)
     _DEFS.append(d)                 # the definition must outlive the function
-    return _new_function(ctypes.byref(d), None, None)
+    return _new_function(ctypes.byref(d), None, module)
