@@ -234,7 +234,11 @@ def _version(dist):
 def cache_key(*sources):
     """Return the cache key of kernels built from ``sources`` (str or bytes) here."""
     h = hashlib.sha256()
-    for part in (*sources, _version('numba'), _version('llvmlite'), sys.version, _cpu()):
+    # numba's own settings of the code it makes (its target and optimisation level)
+    names = ('NUMBA_CPU_NAME', 'NUMBA_CPU_FEATURES', 'NUMBA_OPT')
+    tuning = [os.environ.get(v, '') for v in names]
+    for part in (*sources, _version('numba'), _version('llvmlite'), sys.version, _cpu(),
+                 *tuning):
         h.update(part if isinstance(part, bytes) else str(part).encode())
         h.update(b'\0')
     return h.hexdigest()[:32]
