@@ -72,6 +72,15 @@ def test_bytes_that_are_no_loadable_object_are_refused():
         native.load_object(b'\x89PNG\r\n\x1a\n' + bytes(100))
     with pytest.raises(native.NativeError, match='truncated'):
         native.load_object(obj[:len(obj) // 2])
+    rng = np.random.default_rng(5)
+    for _ in range(200):                        # damaged anywhere: refused, never a crash
+        bad = bytearray(obj)
+        at = rng.integers(0, len(bad), 4)
+        bad[at[0]:at[0] + 8] = rng.integers(0, 256, 8, dtype=np.uint8).tobytes()
+        try:
+            native.ObjectCode(bytes(bad))
+        except native.NativeError:
+            pass
     other = bytearray(obj)
     other[18:20] = (183).to_bytes(2, 'little')  # e_machine: AArch64
     with pytest.raises(native.NativeError, match='not x86-64'):
@@ -154,6 +163,11 @@ def test_a_cache_file_is_whole_or_refused(tmp_path):
         native.read_cache(path)
     open(path, 'wb').write(b'PK\x03\x04' + data)
     with pytest.raises(native.NativeError, match='not a kernel cache file'):
+        native.read_cache(path)
+    flipped = bytearray(data)
+    flipped[-2] ^= 1                            # one bit of the code: never run
+    open(path, 'wb').write(bytes(flipped))
+    with pytest.raises(native.NativeError, match='does not match its checksum'):
         native.read_cache(path)
 
 
