@@ -83,29 +83,30 @@ def _put_head(buf, d, rec, seq, t):
     return d + np.uint64(31)
 
 
-def _place(buf, dst, payload, head, seq0, log):
+def _place(buf, dst, payload, head, seq0, log, rec):
     """Write message records into ``buf``: row r's at ``dst[r]`` (see :func:`place_records`).
 
-    The byte loops index with unsigned integers: numba then drops its negative-index
-    checks and copies a payload as fast as memcpy (ten times faster than signed).
+    ``rec``: 31 bytes of scratch (a record's head; the kernel allocates nothing). The byte
+    loops index with unsigned integers: numba then drops its negative-index checks and
+    copies a payload as fast as memcpy (ten times faster than signed).
     """
     n = payload.shape[0]
     size = np.uint64(payload.shape[1])
-    rec = np.empty(31, dtype=np.uint8)
-    rec[:11] = head                             # opcode, record length, channel
+    for b in range(11):
+        rec[b] = head[b]                        # opcode, record length, channel
     for r in range(n):
         d = _put_head(buf, np.uint64(dst[r]), rec, seq0 + r, log[r])
         for b in range(size):
             buf[d + b] = payload[r, b]
 
 
-def _place_plan(buf, dst, head, seq0, log, row, sec, nsec, raw, slots):
+def _place_plan(buf, dst, head, seq0, log, row, sec, nsec, raw, slots, rec):
     """Write message records into ``buf`` from a CDR plan (see :func:`place_batch`)."""
     n = raw.shape[0]
     size = np.uint64(row.shape[0])
     m = slots.shape[0]
-    rec = np.empty(31, dtype=np.uint8)
-    rec[:11] = head
+    for b in range(11):
+        rec[b] = head[b]
     for r in range(n):
         d = _put_head(buf, np.uint64(dst[r]), rec, seq0 + r, log[r])
         for b in range(size):
@@ -123,13 +124,72 @@ def _place_plan(buf, dst, head, seq0, log, row, sec, nsec, raw, slots):
 _PLACE = {}
 
 
-def _placer(name='records'):
-    """Return :func:`_place` (``'plan'``: :func:`_place_plan`) compiled by numba, or None.
+def _u1(ndim=1, out=False):
+    return ('u1', ndim, None if ndim == 2 else 0, out)
 
-    Compiled once a process (cached on disk); None without numba (or with the core's
-    ``RIGIDROT_NO_JIT``).
+
+_I8 = ('i8', 1, 0, False)
+#: The placers' Python arguments and result, as :mod:`rigidrot_ros.runtime.native` loads
+#: them (the interpreter released during the loop, as numba's ``nogil``).
+_NATIVE = {
+    'records': ([_u1(out=True), _I8, _u1(2), _u1(), 'i', _I8, _u1(out=True)], 'int', True),
+    'plan': ([_u1(out=True), _I8, _u1(), 'i', _I8, _u1(), _I8, _I8, _u1(2), _I8,
+              _u1(out=True)], 'int', True)}
+
+
+def _c_placers():
+    """Compile both placers as C functions (numba imported): ``{name: (cfunc, *how)}``."""
+    import numba
+    from numba import carray
+    from rigidrot_ros.runtime.native import c_signature
+    flags = dict(error_model='numpy')
+    g = globals()
+    g['_put_head'] = numba.njit(**flags)(getattr(g['_put_head'], 'py_func', g['_put_head']))
+    records, plan = (numba.njit(**flags)(f) for f in (_place, _place_plan))
+
+    @numba.cfunc(c_signature(*_NATIVE['records'][:2]), **flags)
+    def c_records(buf, nbuf, dst, ndst, pay, n0, n1, head, nhead, seq0, log, nlog, rec, nrec):
+        records(carray(buf, (nbuf,)), carray(dst, (ndst,)), carray(pay, (n0, n1)),
+                carray(head, (nhead,)), seq0, carray(log, (nlog,)), carray(rec, (nrec,)))
+        return 0
+
+    @numba.cfunc(c_signature(*_NATIVE['plan'][:2]), **flags)
+    def c_plan(buf, nbuf, dst, ndst, head, nhead, seq0, log, nlog, row, nrow, sec, nsec,
+               ns, nns, raw, r0, r1, slots, nslots, rec, nrec):
+        plan(carray(buf, (nbuf,)), carray(dst, (ndst,)), carray(head, (nhead,)), seq0,
+             carray(log, (nlog,)), carray(row, (nrow,)), carray(sec, (nsec,)),
+             carray(ns, (nns,)), carray(raw, (r0, r1)), carray(slots, (nslots,)),
+             carray(rec, (nrec,)))
+        return 0
+
+    return {'records': (c_records, *_NATIVE['records']), 'plan': (c_plan, *_NATIVE['plan'])}
+
+
+def _native_placers():
+    """Both placers loaded as object code (:mod:`rigidrot_ros.runtime.native`), or None."""
+    from rigidrot_ros.runtime import native, switches
+    if switches.no_jit() or switches.no_native():
+        return None
+    try:
+        with open(__file__, 'rb') as f:
+            return native.load_kernels(__file__, 'chunks', (f.read(),), _c_placers)[0]
+    except native.NativeError:
+        return None             # numba's own load, below
+
+
+def _placer(name='records'):
+    """Return :func:`_place` (``'plan'``: :func:`_place_plan`) compiled, or None.
+
+    Loaded as object code where it can be (:mod:`rigidrot_ros.runtime.native`), else
+    compiled by numba (cached on disk), once a process; None without numba (or with the
+    core's ``RIGIDROT_NO_JIT``).
     """
     if name not in _PLACE:
+        if 'native' not in _PLACE:
+            _PLACE['native'] = _native_placers()
+        if _PLACE['native'] is not None:
+            _PLACE[name] = _PLACE['native'][name]
+            return _PLACE[name]
         from rigidrot_ros.runtime import switches
         fn = None
         if not switches.no_jit():
@@ -160,14 +220,14 @@ def _warm(name, fn):
     """
     from rigidrot_ros.runtime.jit import cached_load
     buf, one = np.zeros(64, dtype=np.uint8), np.zeros(1, dtype=np.int64)
-    head = np.zeros(11, dtype=np.uint8)
+    head, rec = np.zeros(11, dtype=np.uint8), np.empty(31, dtype=np.uint8)
     with cached_load():
         if name == 'records':
-            fn(buf, one, np.zeros((1, 2), dtype=np.uint8), head, 0, one)
+            fn(buf, one, np.zeros((1, 2), dtype=np.uint8), head, 0, one, rec)
             return
         raw = np.zeros((1, 8), dtype=np.uint8)
         for row in (np.zeros(2, dtype=np.uint8), np.frombuffer(bytes(2), dtype=np.uint8)):
-            fn(buf, one, head, 0, one, row, one, one, raw, np.zeros(1, dtype=np.int64))
+            fn(buf, one, head, 0, one, row, one, one, raw, np.zeros(1, dtype=np.int64), rec)
 
 
 def can_place():
@@ -195,7 +255,7 @@ def place_records(buf, dst, cid, seq0, log, payloads):
     payloads = np.ascontiguousarray(payloads, dtype=np.uint8)
     _placer()(buf, np.ascontiguousarray(dst, dtype=np.int64), payloads,
               _head(cid, payloads.shape[1]), int(seq0),
-              np.ascontiguousarray(log, dtype=np.int64))
+              np.ascontiguousarray(log, dtype=np.int64), np.empty(31, dtype=np.uint8))
 
 
 def place_batch(buf, dst, cid, seq0, log, batch):
@@ -213,7 +273,7 @@ def place_batch(buf, dst, cid, seq0, log, batch):
                     np.ascontiguousarray(log, dtype=np.int64), batch.row,
                     np.ascontiguousarray(batch.sec, dtype=np.int64),
                     np.ascontiguousarray(batch.nsec, dtype=np.int64),
-                    values.view(np.uint8), slots)
+                    values.view(np.uint8), slots, np.empty(31, dtype=np.uint8))
 
 
 def message_heads(cids, seq, log, sizes):

@@ -12,13 +12,18 @@ numba is imported on first use (:func:`kernels`, called when a dense solution is
 not with the package, so that a command's ``--help`` or a process that never makes a
 dense solution pays nothing; every kernel is then called once (:func:`_warm`), so that
 compiling or loading the cached code happens there, not at a caller's first sample.
-They load through :func:`rigidrot_ros.runtime.jit.cached_load`: a load from numba's cache
-imports none of numba's compiler registries, and none calls numba's BLAS probe (no kernel
-calls a BLAS).
-Compiled code is cached in ``NUMBA_CACHE_DIR`` when set, else next to this file
-(``__pycache__``) or in the user's cache directory; where none is writable it is
-compiled in memory at each start. The tests check that the compiled kernels give the
-interpreted ones' bits (no fused multiply-add slipped in).
+The kernels load as object code (:mod:`rigidrot_ros.runtime.native`): numba compiles
+them once for this processor and this source as C functions (:func:`_c_kernels`), each
+with a Python entry that checks its arrays; later processes map that machine code without
+importing numba or LLVM (about 100 MB and 0.3 s less a process). Where that cannot be
+(a machine other than x86-64 Linux, ``RIGIDROT_NO_NATIVE=1``), numba loads them from its
+own cache through :func:`rigidrot_ros.runtime.jit.cached_load`: none of numba's compiler
+registries, no BLAS probe (no kernel calls a BLAS). Both ways compile the same functions
+with the same options (:data:`_FLAGS`). Compiled code is cached in ``NUMBA_CACHE_DIR``
+when set, else next to this file (``__pycache__``) or in the user's cache directory;
+where none is writable it is compiled in memory at each start. The tests check that the
+compiled kernels give the interpreted ones' bits (no fused multiply-add slipped in), and
+that both loads give the same bits.
 
 Scene constants travel as one float64 array ``prm``:
 ``(r0, U, p, q, dabs, d_r0, d_u, d_d, tol, chain_limit)``; an anchor or a chain state as
@@ -244,41 +249,136 @@ def chain_back(prm, a_b, hs_b, k, stop, state, fresh, anc_b, co):
 
 
 def own_per_window(rt):
-    """Return a window's ``own`` bound at ``R h = rt`` (U h^2 = 0, no parameter error)."""
-    prm = [0.0, 0.0, rt, 0.0, rt, 0.0, 0.0, 0.0, 1.0, 1.0]
+    """Return a window's ``own`` bound at ``R h = rt`` (U h^2 = 0, no parameter error).
+
+    Interpreted where the kernels load as object code (numba's ``_series`` is not in the
+    process): on Python floats, the same bits, and no numpy warning where a sum
+    overflows to inf (as in compiled code).
+    """
+    prm = [0.0, 0.0, float(rt), 0.0, float(rt), 0.0, 0.0, 0.0, 1.0, 1.0]
     co = np.empty((MAX_TERMS, 4))
-    prm = np.array(prm)
+    if hasattr(_series, 'py_func'):             # compiled by numba: it takes an array
+        prm = np.array(prm)
     n, common, s0, s1 = _series(prm, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, co)
-    return _own(common, s0, s1)
+    return float(_own(common, s0, s1))
 
 
 _KERNELS = None
-_STATE = {'compiled': False, 'cached': False, 'reason': 'not loaded yet'}
+_STATE = {'compiled': False, 'cached': False, 'how': 'python', 'reason': 'not loaded yet'}
+#: numba's options for every kernel: no fast-math (no contraction, no reassociation), and
+#: numpy's error model (a quotient by zero is inf, not an exception: none occurs, every
+#: divisor here is at least 1, and a C function may not raise).
+_FLAGS = dict(fastmath=False, error_model='numpy')
 
 
 def _jit(numba, fn, **kw):
     """``numba.njit(fn)`` with the on-disk cache where it can be had, else without."""
     try:
-        return numba.njit(cache=True, fastmath=False, **kw)(fn), True
+        return numba.njit(cache=True, **_FLAGS, **kw)(fn), True
     except Exception:                     # no writable cache location: compile in memory
-        return numba.njit(cache=False, fastmath=False, **kw)(fn), False
+        return numba.njit(cache=False, **_FLAGS, **kw)(fn), False
+
+
+def _f8(ndim=1, width=0, out=False):
+    return ('f8', ndim, width, out)
+
+
+#: Each kernel's Python arguments (:func:`rigidrot_ros.runtime.native.trampoline_ir`) and
+#: its result: ``'sample'`` the tuple of :func:`eval_one`, ``'int'``, ``'pair'`` ``(k,
+#: needs exact)``.
+_CHAIN = ([_f8(), _f8(), _f8(), 'i', 'i', _f8(out=True), 'b', _f8(2, 5, True),
+           _f8(2, 4, True)], 'pair')
+_NATIVE = {
+    'eval_one': ([_f8(), 'f', 'f', 'f', _f8(), _f8(2, 4, True)], 'sample'),
+    'eval_many': ([_f8(), _f8(), _f8(), _f8(2, 5), ('i8', 1, 0, False), ('i8', 1, 0, False),
+                   _f8(), _f8(2, 4, True), _f8(out=True), ('b1', 1, 0, True),
+                   _f8(2, 4, True)], 'int'),
+    'chain': _CHAIN, 'chain_back': _CHAIN}
+
+
+def _c_kernels():
+    """Compile the kernels as C functions (numba imported): ``{name: (cfunc, spec, result)}``.
+
+    Each takes its arrays as pointers and lengths (``numba.carray`` views of them) and
+    calls the kernel compiled with :data:`_FLAGS`, as numba's own load does; this
+    module's helpers are compiled first, so that the kernels call the compiled ones.
+    """
+    import numba
+    from numba import carray
+    from rigidrot_ros.runtime.native import c_signature
+    g = globals()
+    for name in ('_series', '_horner', '_own'):
+        g[name] = numba.njit(**_FLAGS)(getattr(g[name], 'py_func', g[name]))
+    one, many, fwd, back = (numba.njit(**_FLAGS)(getattr(f, 'py_func', f))
+                            for f in (eval_one, eval_many, chain, chain_back))
+
+    def sig(name):
+        return c_signature(*_NATIVE[name])
+
+    @numba.cfunc(sig('eval_one'), **_FLAGS)
+    def c_eval_one(prm, nprm, a, tau, dt, anc, nanc, co, nco, out):
+        x, y, z, w, bound, ok = one(carray(prm, (nprm,)), a, tau, dt, carray(anc, (nanc,)),
+                                    carray(co, (nco, 4)))
+        o = carray(out, (5,))
+        o[0] = x
+        o[1] = y
+        o[2] = z
+        o[3] = w
+        o[4] = bound
+        return 1 if ok else 0
+
+    @numba.cfunc(sig('eval_many'), **_FLAGS)
+    def c_eval_many(prm, nprm, a_w, na, tau_w, ntau, anc_w, nanc, lo_w, nlo, hi_w, nhi, t, nt,
+                    out_q, nq, out_err, ne, ok_w, nok, co, nco):
+        return many(carray(prm, (nprm,)), carray(a_w, (na,)), carray(tau_w, (ntau,)),
+                    carray(anc_w, (nanc, 5)), carray(lo_w, (nlo,)), carray(hi_w, (nhi,)),
+                    carray(t, (nt,)), carray(out_q, (nq, 4)), carray(out_err, (ne,)),
+                    carray(ok_w, (nok,)), carray(co, (nco, 4)))
+
+    def c_chain(fn):
+        @numba.cfunc(sig('chain'), **_FLAGS)
+        def c(prm, nprm, a_b, na, hs_b, nh, k, stop, state, ns, fresh, anc_b, nanc, co, nco):
+            k, need = fn(carray(prm, (nprm,)), carray(a_b, (na,)), carray(hs_b, (nh,)), k,
+                         stop, carray(state, (ns,)), fresh != 0, carray(anc_b, (nanc, 5)),
+                         carray(co, (nco, 4)))
+            return 2 * k + (1 if need else 0)
+        return c
+
+    cf = {'eval_one': c_eval_one, 'eval_many': c_eval_many, 'chain': c_chain(fwd),
+          'chain_back': c_chain(back)}
+    return {name: (cf[name], *_NATIVE[name]) for name in cf}
 
 
 def _load():
     py = {'eval_one': eval_one, 'eval_many': eval_many, 'chain': chain,
           'chain_back': chain_back}
     if switches.no_jit():
-        _STATE.update(compiled=False, cached=False, reason='RIGIDROT_NO_JIT is set')
+        _STATE.update(compiled=False, cached=False, how='python',
+                      reason='RIGIDROT_NO_JIT is set')
         return py
+    why = 'RIGIDROT_NO_NATIVE is set'
+    if not switches.no_native():
+        from rigidrot_ros.runtime import native
+        try:
+            with open(__file__, 'rb') as f:
+                out, cached = native.load_kernels(__file__, 'engine', (f.read(),),
+                                                  _c_kernels)
+        except native.NativeError as exc:
+            why = str(exc)
+        else:
+            _warm(out)
+            _STATE.update(compiled=True, cached=cached, how='native', reason='')
+            return out
     try:
         import numba
     except ImportError as exc:
-        _STATE.update(compiled=False, cached=False, reason=f'numba not importable: {exc}')
+        _STATE.update(compiled=False, cached=False, how='python',
+                      reason=f'numba not importable: {exc}')
         return py
     cached = True
     g = globals()
     for name in ('_series', '_horner', '_own'):
-        g[name], ok = _jit(numba, g[name])
+        g[name], ok = _jit(numba, getattr(g[name], 'py_func', g[name]))
         cached = cached and ok
     out = {}
     for name, fn in py.items():
@@ -286,7 +386,7 @@ def _load():
         cached = cached and ok
     with cached_load():
         _warm(out)
-    _STATE.update(compiled=True, cached=cached, reason='')
+    _STATE.update(compiled=True, cached=cached, how='numba', reason=why)
     return out
 
 

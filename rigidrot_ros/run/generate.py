@@ -65,8 +65,8 @@ BLOCK_S = 1.0
 #: look-ahead batches rely on), with fewer calls per sample. A span of blocks pays about
 #: 2.4 ms of per-call costs on the benchmark scene (1.8 ms CPU per scene second less at 4
 #: blocks than at 1). 8: about 0.3 ms per scene second less than at 4 (about a tenth of
-#: the CPU), for about 9 MB more peak memory (the peak: about 200 MB at 4 blocks, most of
-#: it numba and LLVM, loaded before the first sample; 6 blocks: +3 MB, 16: +25 MB).
+#: the CPU), for about 9 MB more peak memory (measured when the peak was about 200 MB at 4
+#: blocks, most of it numba and LLVM; 6 blocks: +3 MB, 16: +25 MB).
 EVAL_BLOCKS = 8
 _SEC = 1_000_000_000
 

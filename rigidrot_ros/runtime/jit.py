@@ -1,6 +1,8 @@
 """numba's compiled code loaded from its cache without the compiler's set-up.
 
-:func:`cached_load` is what the package's loaders use: the two pieces below.
+:func:`cached_load` is what the package's numba loads use (the MEKF's loop; the core's
+kernels and the record placers where they do not load as object code,
+:mod:`rigidrot_ros.runtime.native`): the two pieces below.
 
 **The compiler's registries.** Before numba loads one function from its on-disk cache it
 refreshes its whole compiler context: it imports and registers every implementation it

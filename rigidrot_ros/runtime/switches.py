@@ -15,7 +15,7 @@ module reads, and that no other module of the package reads one.
 
 import os
 
-__all__ = ['SWITCHES', 'rt_priority', 'no_jit', 'lookahead_worker', 'worker_gate',
+__all__ = ['SWITCHES', 'rt_priority', 'no_jit', 'no_native', 'lookahead_worker', 'worker_gate',
            'worker_batch', 'gc_freeze', 'gc_schedule', 'record_offload']
 
 
@@ -50,6 +50,15 @@ def rt_priority(default, environ=None):
 def no_jit(environ=None):
     """Whether ``RIGIDROT_NO_JIT`` asks for the interpreted engine (set, and not ``0``)."""
     return _text('RIGIDROT_NO_JIT', environ) not in ('', '0')
+
+
+def no_native(environ=None):
+    """Whether ``RIGIDROT_NO_NATIVE`` asks for numba's own load of the compiled kernels.
+
+    Set and not ``0``: the kernels are not loaded as object code
+    (:mod:`rigidrot_ros.runtime.native`) but through numba, as before that loader.
+    """
+    return _text('RIGIDROT_NO_NATIVE', environ) not in ('', '0')
 
 
 def lookahead_worker(environ=None):
@@ -100,6 +109,7 @@ def record_offload(environ=None):
 SWITCHES = {
     'RIGIDROT_RT_PRIORITY': rt_priority,
     'RIGIDROT_NO_JIT': no_jit,
+    'RIGIDROT_NO_NATIVE': no_native,
     'RIGIDROT_LOOKAHEAD_WORKER': lookahead_worker,
     'RIGIDROT_WORKER_GATE': worker_gate,
     'RIGIDROT_WORKER_BATCH': worker_batch,

@@ -37,7 +37,7 @@ scene = Scene(inertia=(2.0, 2.0, 1.0), torque=(0.0, 0.0, 0.05), omega0=(0.3, -0.
 sol = solve(scene)
 out = [sol.at(t).quaternion.tolist() + [float(sol.at(t).error_bound)] for t in TIMES]
 print(json.dumps({'state': engine.jit_state(), 'samples': [[x.hex() for x in r] for r in out],
-                  'linalg': 'scipy.linalg' in sys.modules}))
+                  'linalg': 'scipy.linalg' in sys.modules, 'numba': 'numba' in sys.modules}))
 '''
 
 
@@ -64,15 +64,35 @@ def test_interpreted_engine_gives_the_compiled_bits_in_another_process(tmp_path)
 
 def test_numba_cache_goes_to_numba_cache_dir(tmp_path):
     cache = tmp_path / 'numba-cache'
-    got = _child({'NUMBA_CACHE_DIR': str(cache), 'RIGIDROT_NO_JIT': ''}, tmp_path)
+    env = {'NUMBA_CACHE_DIR': str(cache), 'RIGIDROT_NO_JIT': '', 'RIGIDROT_NO_NATIVE': '1'}
+    got = _child(env, tmp_path)
     assert got['state']['compiled'] and got['state']['cached']
+    assert got['state']['how'] == 'numba' and 'RIGIDROT_NO_NATIVE' in got['state']['reason']
     files = [f for _, _, fs in os.walk(cache) for f in fs]
     assert any(f.endswith('.nbi') for f in files) and any(f.endswith('.nbc') for f in files)
     # a second process loads from that cache and gives the same bits
-    again = _child({'NUMBA_CACHE_DIR': str(cache), 'RIGIDROT_NO_JIT': ''}, tmp_path)
+    again = _child(env, tmp_path)
     assert again['samples'] == got['samples']
     # numba's BLAS probe (an import of scipy.linalg) was refused while it compiled or loaded
     assert got['linalg'] is False and again['linalg'] is False
+
+
+def test_the_native_kernels_build_once_then_load_without_numba_and_give_numbas_bits(
+        tmp_path):
+    cache = tmp_path / 'native-cache'
+    env = {'NUMBA_CACHE_DIR': str(cache), 'RIGIDROT_NO_JIT': '', 'RIGIDROT_NO_NATIVE': ''}
+    built = _child(env, tmp_path)
+    assert built['state'] == {'compiled': True, 'cached': False, 'how': 'native',
+                              'reason': ''}
+    assert [f for f in os.listdir(cache) if f.startswith('engine.')
+            and f.endswith('.native')], os.listdir(cache)
+    loaded = _child(env, tmp_path)
+    assert loaded['state']['how'] == 'native' and loaded['state']['cached']
+    assert loaded['numba'] is False             # machine code alone: no numba, no LLVM
+    by_numba = _child({'NUMBA_CACHE_DIR': str(tmp_path / 'numba-cache'),
+                       'RIGIDROT_NO_JIT': '', 'RIGIDROT_NO_NATIVE': '1'}, tmp_path)
+    assert by_numba['state']['how'] == 'numba'
+    assert built['samples'] == loaded['samples'] == by_numba['samples']
 
 
 def test_the_blas_probe_is_refused_to_the_loading_thread_alone():
