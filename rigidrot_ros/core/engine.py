@@ -423,6 +423,11 @@ def kernels():
 
 
 def jit_state():
-    """Whether the kernels are compiled, and cached on disk (else why not)."""
+    """Return how the kernels run: compiled, cached on disk, ``how``, and why not native.
+
+    ``how``: ``'native'`` (object code, :mod:`rigidrot_ros.runtime.native`), ``'numba'``
+    (numba's own load; ``reason`` says why not native) or ``'python'`` (interpreted;
+    ``reason`` says why).
+    """
     kernels()
     return dict(_STATE)
