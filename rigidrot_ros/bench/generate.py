@@ -81,10 +81,12 @@ def _generate(duration, log, baseline=None, repeats=1):
 
     ``baseline``: a checkout of the previous code, run alternately with this one in the same
     benchmark run (same machine, same load): its figures go under ``'baseline'``. Each code
-    first generates one scene second untimed (numba's compiled kernels cached on disk, as
+    first generates one scene second untimed (its compiled kernels cached on disk, as
     after any first run); that child's peak RSS is the floor of the set-up
-    (``setup_rss_mb``: the imports, numba's kernels, the scene and its first samples),
-    what the generation itself adds is the rest of the peak.
+    (``setup_rss_mb``: the imports, the compiled kernels, the scene and its first
+    samples), what the generation itself adds is the rest of the peak. Then the whole
+    duration once, untimed: numba compiles some kernels only when a longer run first
+    calls them, and a compile in a timed run would put numba's compiler into its peak.
     """
     runs = {'now': [], 'baseline': []}
     setup_rss = {}
@@ -92,6 +94,8 @@ def _generate(duration, log, baseline=None, repeats=1):
         for key, root in (('baseline', baseline), ('now', None)):
             if key == 'now' or baseline is not None:     # compiled code cached, not timed
                 setup_rss[key] = _child(1.0, root, os.path.join(tmp, f'warm_{key}', 'bag'))[2]
+                _child(duration, root, os.path.join(tmp, f'warm_all_{key}', 'bag'))
+                shutil.rmtree(os.path.join(tmp, f'warm_all_{key}'))
         for i in range(repeats):
             for key, root in (('baseline', baseline), ('now', None)):
                 if key == 'baseline' and baseline is None:
@@ -345,7 +349,8 @@ def _setup(gen):
     """Return `` (S MB for 1 scene s: ...)``, the set-up's peak RSS, where the results hold it."""
     if gen.get('setup_rss_mb') is None:
         return ''
-    return f' ({common.fmt(gen["setup_rss_mb"])} MB for 1 scene s: imports, numba, set-up)'
+    return (f' ({common.fmt(gen["setup_rss_mb"])} MB for 1 scene s: imports, compiled kernels, '
+            'set-up)')
 
 
 def render_md(results):
