@@ -8,8 +8,8 @@ module works, slower, without numba; ``RIGIDROT_NO_JIT=1`` forces that, and the 
 compare both). Scalar calls, batches and chains all go through :func:`_series` and
 :func:`_horner`, so a sample's bits are a function of its window and t alone.
 
-numba is imported on first use (:func:`kernels`, called when a dense solution is made),
-not with the package, so that a command's ``--help`` or a process that never makes a
+The kernels are loaded on first use (:func:`kernels`, called when a dense solution is
+made), not with the package, so that a command's ``--help`` or a process that never makes a
 dense solution pays nothing; every kernel is then called once (:func:`_warm`), so that
 compiling or loading the cached code happens there, not at a caller's first sample.
 The kernels load as object code (:mod:`rigidrot_ros.runtime.native`): numba compiles
