@@ -426,10 +426,11 @@ def trampoline_ir(name, symbol, spec, result, nogil=False):
     ``spec`` lists the Python arguments (:func:`c_signature`); each array is taken
     through the buffer protocol, C-contiguous, of its kind (format and item size) and
     number of dimensions (a 2-d array's second dimension ``width``), writable if ``out``;
-    anything else raises TypeError (BufferError from numpy for a strided or read-only
-    array), naming the argument. ``result``: ``'int'`` the C function's int64,
-    ``'pair'`` ``(r >> 1, bool(r & 1))``, ``'sample'`` the 5 doubles written and
-    ``bool(r)``.
+    anything else raises TypeError naming the argument (numpy raises its own ValueError
+    for a strided array, or a read-only one where one is written). ``result``: ``'int'``
+    the C function's int64, ``'pair'`` ``(r >> 1, bool(r & 1))``, ``'sample'`` the 5
+    doubles written and ``bool(r)``. ``nogil``: the interpreter is released during the C
+    function's call (the arrays stay held through their buffers).
     """
     n = len(spec)
     arrays = [i for i, a in enumerate(spec) if not isinstance(a, str)]
