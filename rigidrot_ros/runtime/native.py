@@ -32,7 +32,9 @@ Python's version, and this processor (``/proc/cpuinfo``'s model and flags: numba
 compiles for the host). A change of any of them builds anew, and so does a damaged file.
 """
 
+import contextlib
 import ctypes
+import fcntl
 import hashlib
 import json
 import mmap
@@ -339,26 +341,53 @@ def load_kernels(module_file, name, sources, build):
     with open(__file__, 'rb') as f:
         own = f.read()
     path = cache_path(module_file, name, cache_key(own, *sources))
-    why = None
-    if path is not None and os.path.exists(path):
+    with _build_lock(path):         # one process builds; the others then load its file
+        why = None
+        if path is not None and os.path.exists(path):
+            try:
+                return _functions(read_cache(path)), True
+            except NativeError as exc:
+                why = str(exc)          # built anew below
         try:
-            return _functions(read_cache(path)), True
-        except NativeError as exc:
-            why = str(exc)          # built anew below
+            entries = {k: (f'rr_{k}', _object(cf, k, *how))
+                       for k, (cf, *how) in build().items()}
+        except NativeError:
+            raise
+        except Exception as exc:  # noqa: B902 - numba's and LLVM's errors alike
+            raise NativeError(f'building the kernels failed: {type(exc).__name__}: {exc}'
+                              + (f' (the cache: {why})' if why else '')) from None
+        out = _functions(entries)
+        if path is not None:
+            try:
+                write_cache(path, entries)
+            except OSError:
+                pass                    # built again next time
+        return out, False
+
+
+@contextlib.contextmanager
+def _build_lock(path):
+    """Hold an exclusive lock on ``path + '.lock'`` (none where it cannot be had).
+
+    Processes started together on a cold cache (a test suite's workers) then build the
+    kernels once: the first builds and writes the file, the others wait and load it.
+    """
+    if path is None:
+        yield
+        return
     try:
-        entries = {k: (f'rr_{k}', _object(cf, k, *how)) for k, (cf, *how) in build().items()}
-    except NativeError:
-        raise
-    except Exception as exc:  # noqa: B902 - numba's and LLVM's errors alike
-        raise NativeError(f'building the kernels failed: {type(exc).__name__}: {exc}'
-                          + (f' (the cache: {why})' if why else '')) from None
-    out = _functions(entries)
-    if path is not None:
+        fd = os.open(path + '.lock', os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        yield
+        return
+    try:
         try:
-            write_cache(path, entries)
+            fcntl.flock(fd, fcntl.LOCK_EX)
         except OSError:
-            pass                    # built again next time
-    return out, False
+            pass                        # a file system without locks: build alike
+        yield
+    finally:
+        os.close(fd)                    # releases the lock
 
 
 def _functions(entries):
