@@ -39,6 +39,8 @@ def ros_env(domain_id):
         # a killed process would leave Fast DDS shared-memory files behind
         'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4',
         'PYTHONUNBUFFERED': '1',
+        # a process that hangs dumps every thread's stack when stop() aborts it
+        'PYTHONFAULTHANDLER': '1',
     })
     env.pop('ROS_LOCALHOST_ONLY', None)
     return env
@@ -110,14 +112,23 @@ def start(cmd, env, **kwargs):
 
 
 def stop(proc, sig, timeout=20.0):
-    """Send ``sig`` and wait; return (returncode, stdout, stderr)."""
+    """Send ``sig`` and wait; return (returncode, stdout, stderr).
+
+    A process still running after ``timeout`` s is sent SIGABRT first: with
+    ``PYTHONFAULTHANDLER`` (:func:`ros_env`) it writes every thread's stack to its stderr,
+    which the caller's assertion then shows; SIGKILL after 5 s more.
+    """
     if proc.poll() is None:
         proc.send_signal(sig)
     try:
         out, err = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
-        proc.kill()
-        out, err = proc.communicate()
+        proc.send_signal(signal.SIGABRT)
+        try:
+            out, err = proc.communicate(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
     return proc.returncode, out, err
 
 
