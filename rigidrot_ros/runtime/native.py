@@ -213,7 +213,14 @@ class ObjectCode:
 
 
 _PROCESS = ctypes.CDLL(None, use_errno=True)
+#: The mapped objects and the method definitions of their entries: never freed, not even
+#: as the interpreter finalizes (each list holds an extra reference). An entry can outlive
+#: its module's globals (a kernel table, a solution's tuple of kernels), and both its code
+#: and its definition (which a builtin reads as it is freed) must outlive the entry.
 _MAPPED = []
+_DEFS = []
+ctypes.pythonapi.Py_IncRef(ctypes.py_object(_MAPPED))
+ctypes.pythonapi.Py_IncRef(ctypes.py_object(_DEFS))
 _mprotect = _PROCESS.mprotect
 _mprotect.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
 _mprotect.restype = ctypes.c_int
@@ -621,7 +628,6 @@ class _MethodDef(ctypes.Structure):
                 ('ml_flags', ctypes.c_int), ('ml_doc', ctypes.c_char_p)]
 
 
-_DEFS = []
 _new_function = ctypes.pythonapi.PyCFunction_NewEx
 _new_function.argtypes = (ctypes.POINTER(_MethodDef), ctypes.c_void_p, ctypes.py_object)
 _new_function.restype = ctypes.py_object
@@ -630,5 +636,5 @@ _new_function.restype = ctypes.py_object
 def python_function(address, name, module=__name__):
     """Return a Python builtin calling the ``METH_FASTCALL`` function at ``address``."""
     d = _MethodDef(name.encode(), address, _METH_FASTCALL, None)
-    _DEFS.append(d)                 # the definition must outlive the function
+    _DEFS.append(d)                 # the definition outlives the function (see _DEFS)
     return _new_function(ctypes.byref(d), None, module)
