@@ -171,8 +171,7 @@ def _native_placers():
     if switches.no_jit() or switches.no_native():
         return None
     try:
-        with open(__file__, 'rb') as f:
-            return native.load_kernels(__file__, 'chunks', (f.read(),), _c_placers)[0]
+        return native.load_kernels(__file__, 'chunks', _c_placers)[0]
     except native.NativeError:
         return None             # numba's own load, below
 

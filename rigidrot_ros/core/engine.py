@@ -360,9 +360,7 @@ def _load():
     if not switches.no_native():
         from rigidrot_ros.runtime import native
         try:
-            with open(__file__, 'rb') as f:
-                out, cached = native.load_kernels(__file__, 'engine', (f.read(),),
-                                                  _c_kernels)
+            out, cached = native.load_kernels(__file__, 'engine', _c_kernels)
         except native.NativeError as exc:
             why = str(exc)
         else:

@@ -60,7 +60,7 @@ _EHDR = struct.Struct('<16sHHIQQQIHHHHHH')
 _SHDR = struct.Struct('<IIQQQQIIQQ')
 _SYM = struct.Struct('<IBBHQQ')
 _RELA = struct.Struct('<QQq')
-_SHT_PROGBITS, _SHT_SYMTAB, _SHT_STRTAB, _SHT_RELA, _SHT_NOBITS = 1, 2, 3, 4, 8
+_SHT_PROGBITS, _SHT_SYMTAB, _SHT_RELA, _SHT_NOBITS = 1, 2, 4, 8
 _SHF_WRITE, _SHF_ALLOC = 1, 2
 _SHN_UNDEF, _SHN_ABS = 0, 0xfff1
 _EM_X86_64 = 62
@@ -332,22 +332,25 @@ def c_signature(spec, result):
     return types.int64(*args)
 
 
-def load_kernels(module_file, name, sources, build):
+def load_kernels(module_file, name, build):
     """Return ``(functions, cached)``: the kernel set ``name``, built once, then loaded.
 
     ``functions``: each kernel as a Python builtin; ``cached``: whether they came from the
-    cache file. ``sources``: what the kernels are made from (the cache key, with this
-    module's own source); ``build()``, called on a cache miss (numba imported there), returns
-    ``{kernel: (cfunc, spec, result[, nogil])}`` (:func:`trampoline_ir`). A cache file that cannot
-    be read or loaded is built anew once. Raises :class:`NativeError` with the reason
-    where the kernels cannot be had this way (the caller then takes numba's own load).
+    cache file. ``module_file``: the module the kernels are made from (its source and this
+    module's are in the cache key); ``build()``, called on a cache miss (numba imported
+    there), returns ``{kernel: (cfunc, spec, result[, nogil])}`` (:func:`trampoline_ir`).
+    A cache file that cannot be read or loaded is built anew once. Raises
+    :class:`NativeError` with the reason where the kernels cannot be had this way (the
+    caller then takes numba's own load).
     """
     if sys.platform != 'linux' or platform.machine() not in ('x86_64', 'AMD64'):
         raise NativeError(f'kernels are loaded as object code on x86-64 Linux only, not '
                           f'{sys.platform} {platform.machine()}')
-    with open(__file__, 'rb') as f:
-        own = f.read()
-    path = cache_path(module_file, name, cache_key(own, *sources))
+    sources = []
+    for source in (__file__, module_file):
+        with open(source, 'rb') as f:
+            sources.append(f.read())
+    path = cache_path(module_file, name, cache_key(*sources))
     with _build_lock(path):         # one process builds; the others then load its file
         why = None
         if path is not None and os.path.exists(path):
