@@ -43,7 +43,7 @@ import platform
 import struct
 import sys
 
-__all__ = ['NativeError', 'ObjectCode', 'load_object', 'load_kernels', 'c_signature',
+__all__ = ['NativeError', 'ObjectCode', 'load_object', 'load_kernels', 'load_ir', 'c_signature',
            'trampoline_ir', 'python_function', 'cache_path', 'cache_key', 'read_cache',
            'write_cache', 'TRAPPED']
 
@@ -373,6 +373,60 @@ def load_kernels(module_file, name, build):
             except OSError:
                 pass                    # built again next time
         return out, False
+
+
+def load_ir(module_file, name, ir, symbol):
+    """Return the address of ``symbol``, a C function written in LLVM IR (``ir``), built once.
+
+    The IR is compiled for this processor with LLVM's large code model (absolute addresses,
+    what :class:`ObjectCode` relocates), kept in the cache beside ``module_file`` (its key:
+    the IR, this module, LLVM's version, the processor) and mapped by :func:`load_object`.
+    LLVM (llvmlite) is imported only to build. Raises :class:`NativeError` with the reason.
+    """
+    if sys.platform != 'linux' or platform.machine() not in ('x86_64', 'AMD64'):
+        raise NativeError(f'object code is loaded on x86-64 Linux only, not '
+                          f'{sys.platform} {platform.machine()}')
+    with open(__file__, 'rb') as f:
+        own = f.read()
+    path = cache_path(module_file, name, cache_key(own, ir))
+    with _build_lock(path):
+        if path is not None and os.path.exists(path):
+            try:
+                entries = read_cache(path)
+                functions = load_object(entries[name][1])
+                return functions[symbol]
+            except (NativeError, KeyError):
+                pass                    # built anew below
+        try:
+            obj = _compile_ir(ir)
+        except Exception as exc:  # noqa: B902 - llvmlite's errors, a missing llvmlite
+            raise NativeError(f'building {name} failed: {type(exc).__name__}: {exc}') \
+                from None
+        functions = load_object(obj)
+        if symbol not in functions:
+            raise NativeError(f'{symbol!r} is not in its object')
+        if path is not None:
+            try:
+                write_cache(path, {name: (symbol, obj)})
+            except OSError:
+                pass
+        return functions[symbol]
+
+
+def _compile_ir(ir):
+    """Return the object code of the LLVM IR ``ir`` for this processor (large code model)."""
+    import llvmlite.binding as ll
+    ll.initialize_native_target()
+    ll.initialize_native_asmprinter()
+    module = ll.parse_assembly(ir)
+    module.verify()
+    target = ll.Target.from_default_triple()
+    tm = target.create_target_machine(cpu=ll.get_host_cpu_name(),
+                                      features=ll.get_host_cpu_features().flatten(),
+                                      opt=2, reloc='static', codemodel='large')
+    module.triple = tm.triple
+    module.data_layout = str(tm.target_data)
+    return bytes(tm.emit_object(module))
 
 
 @contextlib.contextmanager
