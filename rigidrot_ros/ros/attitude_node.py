@@ -34,7 +34,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 
 from rigidrot_ros.core import PrecisionError
-from rigidrot_ros.ros import cli, recording
+from rigidrot_ros.ros import cli, pacing, recording
 from rigidrot_ros.ros.cli import SceneError
 from rigidrot_ros.ros.recorder import msg_class
 from rigidrot_ros.ros.ros_params import descriptor, UnknownParameterError, warn_unknown_overrides
@@ -43,6 +43,7 @@ from rigidrot_ros.run.params import BY_NAME, PARAMS
 from rigidrot_ros.run.schedule import Schedule
 from rigidrot_ros.run.sensor_ahead import Sensor
 from rigidrot_ros.runtime import collector, diagnostics, realtime, switches
+from rigidrot_ros.runtime.pacer import LEAD_S
 from rigidrot_ros.runtime.worker import BatchWorker
 
 __all__ = ['AttitudeNode', 'main', 'SceneError']
@@ -86,6 +87,12 @@ class AttitudeNode(Node):
         #: Runs the look-ahead batches off the executor's thread (worker.BatchWorker)
         self._worker = BatchWorker() if switches.lookahead_worker() else None
         self._gate_last = (0, 0)        # the worker gate's holds and ns at the last report
+        #: The native pacer's calls (pacing.PacedCalls), made at the first call it serves
+        self._paced = None
+        self._served = (None, None)     # (grid0, the last slot) the paced calls served
+        #: Why the node does not pace (None: it may, at >= 1 kHz on the system clock)
+        self._pace_off = None if switches.pacer() else 'off (RIGIDROT_PACER=0)'
+        self._lead_ns = int(LEAD_S * 1e9)
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._on_post_set)
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -233,6 +240,8 @@ class AttitudeNode(Node):
         a second. Each phase's time goes to the diagnostics (the window's longest call:
         ``call_max_phases``).
         """
+        if self._pacing():
+            return self._on_timer_paced()
         c_tick = time.perf_counter_ns()
         gc0 = self._gc.total_ns
         now_ns = self._now_ns()
@@ -256,14 +265,14 @@ class AttitudeNode(Node):
                 self._counters.tick_times.append(c_publish - c_tick)
             self._runs.tick(self, self._setup, sch.t_start_ns, now_ns, items)
             c_record = time.perf_counter_ns()
+        if self._paced is not None and len(self._paced):
+            self._took(self._paced.harvest())
+            c_record = time.perf_counter_ns()
         # a call that came late (a catch-up) leaves its batch to the next call while the
         # buffers hold enough: a batch now would make the next samples late too
         batch = sch.refill(behind=now_ns - due_ns > _CATCH_UP * self._timer_ns)
         c_batch = time.perf_counter_ns()
-        if time.monotonic() >= self._next_diag:
-            self._next_diag = max(self._next_diag + 1.0, time.monotonic() + 0.5)
-            self._freezer.poll()        # once per run, a few seconds in (O(1))
-            self._publish_diagnostics()
+        self._diag_due()
         wake = max(now_ns - due_ns, 0)
         # the collector's pass, where the next call is most of a period away (or overdue)
         self._passes.poll(wake + time.perf_counter_ns() - c_tick <= _GC_ROOM * self._timer_ns)
@@ -278,6 +287,137 @@ class AttitudeNode(Node):
             ('publish', c_publish - c_collect), ('record', c_record - c_publish),
             ('batch', (c_batch - c_record, batch)), ('diag', c_end - c_batch),
             ('gc', gc_ns)])
+
+    def _diag_due(self):
+        """Publish the diagnostics once a second (and poll the collector's freezer)."""
+        if time.monotonic() >= self._next_diag:
+            self._next_diag = max(self._next_diag + 1.0, time.monotonic() + 0.5)
+            self._freezer.poll()        # once per run, a few seconds in (O(1))
+            self._publish_diagnostics()
+
+    def _on_timer_paced(self):
+        """Serve every timer slot up to the lead ahead of now; the pacer publishes them.
+
+        Each slot is collected as the unpaced call at that time would collect it (the same
+        samples, the same order), and queued on the pacer due at its slot time. A slot
+        whose call came late is served with the next call, still ahead of its time while
+        the lateness stays under the lead. The first call of a grid (a run's start, a new
+        rate, a clock that went back or jumped over a second) serves the one slot it
+        anchors. Then the calls the pacer finished are recorded and counted (:meth:`_took`).
+        """
+        c_tick = time.perf_counter_ns()
+        gc0 = self._gc.total_ns
+        sch = self._schedule
+        period = self._timer_ns
+        now_ns = self._now_ns()
+        target = now_ns + self._lead_ns
+        g0 = sch.truth.grid0
+        last = self._served[1] if self._served[0] == g0 and g0 is not None else None
+        if last is None or target < g0:
+            slots = [target]
+        else:
+            target = sch.grid_due_ns(target)
+            if not 0 <= target - last <= 1_000_000_000:
+                slots = [target]        # the clock jumped: as the unpaced call would
+            else:
+                # the slots already due (the node fell behind by more than the lead): one
+                # call, published at once, as an unpaced catch-up; then each slot ahead
+                overdue = sch.grid_due_ns(now_ns)
+                first = last + period
+                slots = ([overdue] if overdue >= first else []) + \
+                    list(range(max(first, overdue + period), target + 1, period))
+        until = self._timer.time_until_next_call
+        owed, c_push = {}, 0
+        for slot in slots:
+            call = sch.collect(slot, until, self._failed, True)
+            due = sch.grid_due_ns(slot)
+            self._served = (sch.truth.grid0, due)
+            if call.started:
+                self._freezer.arm()
+            for name, n, m in call.owed:
+                a, b = owed.get(name, (0, 0))
+                owed[name] = (a + n, b + m)
+            if not call.groups:
+                continue
+            items = [self._pubs[topic] + (raw,) for topic, raw in call.items()]
+            pending = sch.take_pending()
+            c0 = time.perf_counter_ns()
+            if self._paced.push(due, items, call, pending):
+                self._counters.published -= call.ticks     # counted once rcl takes them
+                if call.truth:
+                    self._counters.tick_times.append(time.perf_counter_ns() - c_tick)
+            else:                       # no room (the loop lags or stopped): publish now
+                pub_ns = self._now_ns()
+                sent = recording.publish_all(self, [(pub, raw) for pub, _, raw in items])
+                if sent < len(items):
+                    self._counters.published -= call.ticks - call.ticks_within(sent)
+                    self._runs.tick(self, self._setup, sch.t_start_ns, pub_ns, items[:sent])
+                    return
+                sch.note_published(pending, pub_ns)
+                self._runs.tick(self, self._setup, sch.t_start_ns, pub_ns, items)
+            c_push += time.perf_counter_ns() - c0
+        c_collect = time.perf_counter_ns()
+        self._took(self._paced.harvest())
+        c_record = time.perf_counter_ns()
+        batch = sch.refill()
+        c_batch = time.perf_counter_ns()
+        self._diag_due()
+        self._passes.poll(time.perf_counter_ns() - c_tick <= _GC_ROOM * period)
+        c_end = time.perf_counter_ns()
+        gc_ns = self._gc.total_ns - gc0
+        self._counters.call(c_end - c_tick, lambda: [
+            ('wake', 0),
+            ('collect', (c_collect - c_tick - c_push, f'{len(slots)} slots: ' + ', '.join(
+                f'{name} {n} owed/{m} now' for name, (n, m) in owed.items() if n or m))),
+            ('publish', c_push), ('record', c_record - c_collect),
+            ('batch', (c_batch - c_record, batch)), ('diag', c_end - c_batch),
+            ('gc', gc_ns)])
+
+    def _pacing(self):
+        """Whether this call is served ahead and published by the pacer (ros.pacing).
+
+        At a scheduler period of at most ``PACE_PERIOD_NS`` on the system clock, unless
+        ``RIGIDROT_PACER=0`` or the pacer cannot run here (said once in the log).
+        """
+        if self._pace_off is not None or self._timer_ns > pacing.PACE_PERIOD_NS or \
+                (self._time_source is not None and self._time_source.ros_time_is_active):
+            return False
+        if self._paced is None:
+            try:
+                self._paced = pacing.PacedCalls()
+            except pacing.PacerError as exc:
+                self._pace_off = f'off ({exc})'
+                self.get_logger().warning(f'publishing from the executor: {exc}')
+                return False
+        return self._paced.pacer.alive
+
+    def _pace_state(self):
+        """Return the pacer's state for the diagnostics: on, with its lead, or why not."""
+        if self._pace_off is not None:
+            return self._pace_off
+        if self._timer_ns > pacing.PACE_PERIOD_NS:
+            return 'off (below 1 kHz)'
+        if self._paced is None or not self._paced.pacer.alive:
+            return 'off (sim time)' if self._paced is None else 'off (its loop stopped)'
+        return f'on (lead {self._lead_ns / 1e6:g} ms)'
+
+    def _took(self, finished):
+        """Record, count and announce what the pacer published (PacedCalls.harvest)."""
+        sch = self._schedule
+        calls = []
+        for items, call, pending, sent, at_ns, statuses in finished:
+            self._counters.published += call.ticks_within(sent)
+            if sent < len(items):       # shut down meanwhile, cut by a reset, or refused
+                failed = [s for s in statuses if s != pacing.STATUS_PENDING]
+                if failed and self.context.ok():
+                    self.get_logger().error(
+                        f'rcl refused to publish (return code {failed[0]})',
+                        throttle_duration_sec=1.0)
+            if sent:
+                sch.note_published(pending, at_ns)
+                calls.append((at_ns, items[:sent]))
+        if calls:
+            self._runs.tick_many(self, self._setup, sch.t_start_ns, calls)
 
     def _now_ns(self):
         """Return the node clock's time (ns).
@@ -309,7 +449,7 @@ class AttitudeNode(Node):
         snap.update(raw=self._counters.take(self._gc.take()), solution=self.solution,
                     period_hz=self._period_hz, delivered=self._delivered_rate(),
                     stamp=self.get_clock().now(), scheduling=self._scheduling,
-                    gate=self._gate_window())
+                    gate=self._gate_window(), pacer=self._pace_state())
         if self._worker is None:
             self._send_diagnostics(snap)
         else:
@@ -347,6 +487,7 @@ class AttitudeNode(Node):
                                   hardware_id=self.get_fully_qualified_name())
         values['scheduling'] = snap['scheduling']
         values['worker_gate'] = snap['gate']
+        values['pacer'] = snap['pacer']
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         arr = DiagnosticArray()
         arr.header.stamp = snap['stamp'].to_msg()
@@ -366,6 +507,8 @@ class AttitudeNode(Node):
         self._passes.stop()
         if self._worker is not None:
             self._worker.stop()
+        if self._paced is not None:     # before the publishers go: the pacer uses them
+            self._took(self._paced.stop())
         self._runs.close(self._counters.published)
         return super().destroy_node()
 
@@ -382,6 +525,8 @@ class AttitudeNode(Node):
             response.success = False
             response.message = f'reset refused, previous scene keeps running: {exc}'
             return response
+        if self._paced is not None:         # the old run's calls not yet due: dropped
+            self._took(self._paced.cut())
         self._setup = setup
         self._make_publishers()             # topics that come or go with the new run
         self._runs.pending = True           # the next tick announces the new run on ~/run

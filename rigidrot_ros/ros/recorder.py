@@ -250,6 +250,26 @@ class Recorder:
         except OSError as exc:
             self._fail(exc)
 
+    def record_many(self, published):
+        """Write messages this node published, each at its own log time, in one batch.
+
+        ``published``: ``[(resolved_topic, msg or its class, raw, log_ns), ...]`` in order
+        (``raw`` as in :meth:`record_published`). The records go into the bag as
+        :meth:`record_published` one by one would put them (``BagWriter.write_many``).
+        """
+        if not self.active or not published:
+            return
+        try:
+            for topic, msg, _, _ in published:
+                if topic not in self._direct:
+                    self._register_own(topic, msg)
+            self._writer.write_many(
+                [p[0] for p in published],
+                [serialize_message(m) if raw is None else raw for _, m, raw, _ in published],
+                [p[3] for p in published])
+        except OSError as exc:
+            self._fail(exc)
+
     def add_run(self, info):
         """Write a ``rigidrot_run`` metadata record (the node's own recorder)."""
         if self.active:

@@ -96,6 +96,33 @@ class RunLog:
         (:func:`outputs.run_description`: ``setup``, ``start_ns``, the node's publishers)
         is JSON in std_msgs/String.
         """
+        published = self._announce(node, setup, start_ns, published)
+        if self.recorder is not None:
+            self.recorder.record_published(
+                now_ns, [(pub.topic_name, m, raw) for pub, m, raw in published])
+
+    def tick_many(self, node, setup, start_ns, calls):
+        """:meth:`tick` for several calls at once: ``calls`` lists ``(now_ns, published)``.
+
+        The pacer's calls (:mod:`rigidrot_ros.ros.pacing`), each published at its own time:
+        announced as :meth:`tick` would, recorded in one batch per announcement.
+        """
+        batch = []
+        for now_ns, published in calls:
+            if self.pending and published and batch:
+                self._record(batch)     # the run's record after the messages before it
+                batch = []
+            published = self._announce(node, setup, start_ns, published)
+            if self.recorder is not None:
+                batch += [(pub.topic_name, m, raw, now_ns) for pub, m, raw in published]
+        self._record(batch)
+
+    def _record(self, batch):
+        if self.recorder is not None and batch:
+            self.recorder.record_many(batch)
+
+    def _announce(self, node, setup, start_ns, published):
+        """Announce a pending run with the first call that published; ``published`` + ``~/run``."""
         if self.pending and published:
             self.pending = False
             self.index += 1
@@ -107,9 +134,7 @@ class RunLog:
                 published = list(published) + [(self.pub_run, msg, None)]
             if self.recorder is not None:
                 self.recorder.add_run(info)
-        if self.recorder is not None:
-            self.recorder.record_published(
-                now_ns, [(pub.topic_name, m, raw) for pub, m, raw in published])
+        return published
 
     def close(self, ticks):
         """Finish the bag (summary, index, metadata.yaml), if recording; ``ticks`` published."""

@@ -126,13 +126,15 @@ class Schedule:
                             for o in self.streams]
         self.truth.anchor(g0, self.t_start_ns)
 
-    def collect(self, now_ns, until, failed):
+    def collect(self, now_ns, until, failed, paced=False):
         """Return the :class:`Call` of the samples due at ``now_ns``, of every stream.
 
         ``until()`` is the timer's time until its next call (ns, or None); ``failed(scene
         time s, exception)`` gets each sample that cannot be evaluated. Every truth tick
         from the last published one to now goes out (a late call publishes what it owes);
-        only a backlog beyond a second (a clock jump) is skipped and counted.
+        only a backlog beyond a second (a clock jump) is skipped and counted. ``paced``: the
+        call runs ahead of the publication (``now_ns`` is the time it is due at); the
+        latencies wait for :meth:`take_pending` and :meth:`note_published`.
         """
         call = Call()
         t = self.truth
@@ -144,7 +146,7 @@ class Schedule:
                 self._anchor(now_ns, until, call)   # back before the grid: its tick 0
                 due = (0, 0, 0)
             call.truth = True
-            n, now = t.publish_due(due, now_ns, self.t_start_ns, call.groups, failed)
+            n, now = t.publish_due(due, now_ns, self.t_start_ns, call.groups, failed, paced)
             call.owed.append(('truth', n, now))
             call.ticks = n
         for s in self.sensors:
@@ -157,6 +159,21 @@ class Schedule:
         """Note the publication time (ns) of what this call published."""
         for s in self.sensors:
             s.published(pub_ns)
+
+    def take_pending(self):
+        """Take the stamps of a paced call's samples: what :meth:`note_published` needs later."""
+        out = [(self.truth.counters, self.truth.pending)]
+        self.truth.pending = []
+        for s in self.sensors:
+            out.append((s, s.pending))
+            s.pending = []
+        return out
+
+    def note_published(self, pending, pub_ns):
+        """Note the publication time (ns) of a paced call's samples (:meth:`take_pending`)."""
+        for where, stamps in pending:
+            if stamps:              # the node's counters (truth), or a Sensor
+                where.latencies += [pub_ns - t for t in stamps]
 
     def refill(self, behind=False):
         """Start the look-ahead batches this call owes (:func:`scheduler.next_batch` chooses).

@@ -53,6 +53,7 @@ class TruthAhead:
         self.setup, self.outputs = setup, outputs
         self.counters, self.frames, self.worker = counters, frames, worker
         self.grid0, self.k, self.ahead, self.last_sample = None, -1, None, None
+        self.pending = []               # stamps (ns) of paced ticks not yet published
         self.rate_hz = float(setup.publish_rate)
 
     def retime(self, rate):
@@ -86,13 +87,16 @@ class TruthAhead:
         """Return the stamp (ns) of tick k of the current grid."""
         return grid.stamp_ns(self.grid0, self.rate_hz, k)
 
-    def publish_due(self, due, now_ns, t_start_ns, groups, failed):
+    def publish_due(self, due, now_ns, t_start_ns, groups, failed, paced=False):
         """Append the ticks ``due`` (``(first, newest, missed)``) to ``groups``.
 
         A late call publishes every tick it owes (counted ``late``); ``missed`` ticks (a
         clock jump) are counted. Each tick as ``(stamp ns, 0, [(topic, bytes), ...])``; a
         tick that cannot be evaluated goes to ``failed(scene time s, exception)`` and ends
         the call's ticks. Returns ``(ticks appended, of them evaluated now)``.
+        ``paced``: the call runs ahead of its publication (:mod:`rigidrot_ros.runtime.pacer`);
+        the ticks' stamps wait in :attr:`pending` for their publication time
+        (:meth:`Schedule.note_published`) instead of a latency taken now.
         """
         first, k, missed = due
         st = self.counters
@@ -104,7 +108,10 @@ class TruthAhead:
         for j in range(first, k + 1):
             self.k = j
             stamp_ns = self.stamp_ns(j)
-            st.latencies.append(now_ns - stamp_ns)
+            if paced:
+                self.pending.append(stamp_ns)
+            else:
+                st.latencies.append(now_ns - stamp_ns)
             c0 = time.perf_counter()
             t = scene_time(stamp_ns, t_start_ns, self.setup.time_scale)
             try:

@@ -28,6 +28,7 @@ rcl's function's address and keeps each publisher alive while entries for it are
 (it cuts first).
 """
 
+import atexit
 import ctypes
 import os
 import threading
@@ -42,14 +43,14 @@ __all__ = ['Pacer', 'PacerError', 'LEAD_S', 'CAPACITY', 'ARENA', 'STATUS_PENDING
 
 #: How far ahead of its due time the node's scheduler call runs: the interpreter's
 #: lateness up to this much does not reach the publication.
-LEAD_S = 4e-3
+LEAD_S = 20e-3
 #: Entries in the ring (messages queued at most).
 CAPACITY = 1 << 13
 #: Bytes of the arena (the queued messages' bytes).
 ARENA = 1 << 22
 #: The loop's sleep when the ring is empty, and its longest sleep before looking at the
 #: control words again (a cut, a stop), ns.
-IDLE_NS, MAX_WAIT_NS = 200_000, 2_000_000
+IDLE_NS, MAX_WAIT_NS = 1_000_000, 2_000_000
 #: An entry's status before the loop has published it (rcl's return codes are >= 0).
 STATUS_PENDING = -1
 
@@ -266,6 +267,9 @@ class Pacer:
         self.error = None
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
+        # the loop never takes the interpreter, so interpreter exit would not stop it: it
+        # would go on publishing through what the exit frees
+        atexit.register(self.stop)
 
     def _run(self):
         try:
@@ -323,13 +327,16 @@ class Pacer:
         if head is None:
             return None
         first = self._written
-        ent = self.ent
-        for k, ((slot, data), m) in enumerate(zip(entries, sizes)):
-            row = ent[(first + k) % self.capacity]
-            self.arena[head:head + m] = np.frombuffer(data, dtype=np.uint8)
-            row[:] = (due_ns, slot, head, m, 0, STATUS_PENDING)
-            head += m
-        self._head = head
+        self.arena[head:head + total] = np.frombuffer(b''.join(d for _, d in entries),
+                                                      dtype=np.uint8)
+        offsets = np.cumsum(sizes) - sizes + head
+        rows = np.arange(first, first + n) % self.capacity
+        block = np.empty((n, 6), dtype=np.int64)
+        block[:, _DUE], block[:, _PUB] = due_ns, [slot for slot, _ in entries]
+        block[:, _OFF], block[:, _LEN] = offsets, sizes
+        block[:, _AT], block[:, _STATUS] = 0, STATUS_PENDING
+        self.ent[rows] = block
+        self._head = head + total
         self._written = first + n
         self.ctl[_WRITE] = self._written        # after the entries: x86 keeps the order
         return first
@@ -379,6 +386,7 @@ class Pacer:
     def stop(self, timeout=1.0):
         """End the loop (after the message it is publishing); True once it has. Idempotent."""
         self.ctl[_STOP] = 1
+        atexit.unregister(self.stop)
         return self._ended.wait(timeout)
 
     def counts(self):

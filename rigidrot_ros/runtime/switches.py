@@ -16,7 +16,7 @@ module reads, and that no other module of the package reads one.
 import os
 
 __all__ = ['SWITCHES', 'rt_priority', 'no_jit', 'no_native', 'lookahead_worker', 'worker_gate',
-           'worker_batch', 'gc_freeze', 'gc_schedule', 'record_offload']
+           'worker_batch', 'gc_freeze', 'gc_schedule', 'record_offload', 'pacer']
 
 
 def _text(name, environ):
@@ -105,6 +105,11 @@ def record_offload(environ=None):
     return _on('RIGIDROT_RECORD_OFFLOAD', environ)
 
 
+def pacer(environ=None):
+    """Whether the node paces its calls at >= 1 kHz (``RIGIDROT_PACER=0``: it does not)."""
+    return _on('RIGIDROT_PACER', environ)
+
+
 #: Every variable, by name: the function that reads it.
 SWITCHES = {
     'RIGIDROT_RT_PRIORITY': rt_priority,
@@ -116,4 +121,5 @@ SWITCHES = {
     'RIGIDROT_GC_FREEZE': gc_freeze,
     'RIGIDROT_GC_SCHEDULE': gc_schedule,
     'RIGIDROT_RECORD_OFFLOAD': record_offload,
+    'RIGIDROT_PACER': pacer,
 }

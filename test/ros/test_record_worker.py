@@ -78,10 +78,10 @@ def test_the_node_at_1_khz_writes_its_chunks_in_its_worker(tmp_path, monkeypatch
         writer = node._runs.recorder._writer
         assert (writer._offload is not None) == (offload == '1')
         reset_twice(node, ex, ticks=1000 if offload == '1' else 100)  # chunks at the resets
-        counts = node._runs.recorder.counts
     finally:
         node.destroy_node()                     # the worker stops, then the bag is finished
         lis.destroy_node()
+    counts = writer.counts                      # with what the pacer published to the end
     assert writer.closed and not writer._pending
     if offload == '1':
         assert threads.count('rigidrot-lookahead') >= 20       # 3 s, a chunk every 0.1 s
