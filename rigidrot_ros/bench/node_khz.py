@@ -28,7 +28,8 @@ scheduler call, from its due time to its end) with the worst window's phases
 :mod:`rigidrot_ros.runtime.diagnostics`), and the garbage collector's passes
 (``gc_collections``, summed per generation) and longest pass (``gc_max_us``); the node's
 scheduling policy (``scheduling``: ``SCHED_FIFO <priority>`` where the system let it have
-one, else ``SCHED_OTHER``; see :mod:`rigidrot_ros.runtime.realtime`). A key the installed node
+one, else ``SCHED_OTHER``; see :mod:`rigidrot_ros.runtime.realtime`); and its pacer
+(``pacer``: on, with its lead, or why not; :mod:`rigidrot_ros.ros.pacing`). A key the installed node
 does not report reads "n/a".
 
 Targets (issues 20 and 26): at 1 kHz 0 missed ticks and 0 late gyro samples after warm-up
@@ -344,6 +345,8 @@ def diag_figures(diags, rate, warmup, seconds, t0_ns=None):
     policies = sorted({str(d['values']['scheduling']) for d in ticked
                        if 'scheduling' in d['values']})
     out['scheduling'] = ', '.join(policies) or None
+    pacers = sorted({str(d['values']['pacer']) for d in ticked if 'pacer' in d['values']})
+    out['pacer'] = ', '.join(pacers) or None
     before = [d for d in ticked if d['stamp_ns'] <= w_ns]
     base = before[-1] if before else None
     last = next((d for d in ticked if d['stamp_ns'] >= end_ns), ticked[-1])
@@ -450,7 +453,7 @@ def _log_rate(r, log):
         f'{r["target"]}: {r["verdict"]}')
     log(f'    longest call median/worst {_w(d.get("call_max_us"))} us (worst: '
         f'{d.get("call_max_phases") or "n/a"}); gc passes {_gc(d)}; scheduling '
-        f'{d.get("scheduling") or "n/a"}')
+        f'{d.get("scheduling") or "n/a"}; pacer {d.get("pacer") or "n/a"}')
 
 
 def _machine(b):
@@ -512,13 +515,15 @@ def render_md(results):
                       (d.get('sensor_latency_p99_us') or {}).items()) or 'n/a',
             _look(d.get('lookahead')), f'{r["target"]}: **{r["verdict"]}**'])
         slow.append([f'{r["rate_hz"]:g}', _w(d.get('call_max_us')),
-                     d.get('call_max_phases') or 'n/a', _gc(d), d.get('scheduling') or 'n/a'])
+                     d.get('call_max_phases') or 'n/a', _gc(d), d.get('scheduling') or 'n/a',
+                     d.get('pacer') or 'n/a'])
     return common.md_fragment(
         f'The node at IMU rates: truth and gyro at the same rate, recording, '
         f'{common.fmt(res["warmup_s"])} s warm-up then {common.fmt(res["seconds"])} s '
         'measured (p99s: median / worst 1 s window past the warm-up; machine stalls: '
         'wake-ups of a real-time probe beside the node more than half a period late, '
-        'rigidrot_ros.bench.stalls)',
+        'rigidrot_ros.bench.stalls; with the pacer on, the wake-up latencies are from '
+        'stamp to publication)',
         common.part_footer(results, NAME),
         common.md_table(['rate [Hz]', 'ticks delivered', 'missed (diagnostics)',
                          'late gyro (absent)', 'machine stalls (longest µs); late gyro '
@@ -529,7 +534,7 @@ def render_md(results):
         '(from its due time to its end), and the phases of the worst one (µs; '
         '"owed": samples the call published, "now": of those evaluated then):\n\n'
         + common.md_table(['rate [Hz]', 'longest call [µs]', 'its phases (worst window)',
-                           'gc passes', 'scheduling'], slow))
+                           'gc passes', 'scheduling', 'pacer'], slow))
 
 
 def main(argv=None):

@@ -389,6 +389,8 @@ class AttitudeNode(Node):
                 self._pace_off = f'off ({exc})'
                 self.get_logger().warning(f'publishing from the executor: {exc}')
                 return False
+            self.get_logger().info(f'publishing through the pacer, '
+                                   f'{self._lead_ns / 1e6:g} ms ahead')
         return self._paced.pacer.alive
 
     def _pace_state(self):

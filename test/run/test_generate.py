@@ -46,8 +46,13 @@ def _values(args):
     return dict(parse_override(a) for a in args[1::2])
 
 
-@pytest.mark.parametrize('extra', [[], ACCEL_MAG, TRIAXIAL],
-                         ids=['gyro-star', 'accel-mag-timing', 'triaxial-gyro-star'])
+#: truth and gyro at 2 kHz: the node publishes through its pacer (ros/pacing.py)
+PACED = ['-p', 'publish_rate:=2000.0', '-p', 'imu.rate:=2000.0']
+
+
+@pytest.mark.parametrize('extra', [[], ACCEL_MAG, TRIAXIAL, PACED],
+                         ids=['gyro-star', 'accel-mag-timing', 'triaxial-gyro-star',
+                              'gyro-star-2khz-paced'])
 def test_generated_bag_matches_the_recording_node(tmp_path, extra):
     env = ros_env(next_domain_id())
     root = tmp_path / 'runs'
@@ -57,6 +62,7 @@ def test_generated_bag_matches_the_recording_node(tmp_path, extra):
     time.sleep(3.0)
     code, _, err = stop(node, signal.SIGINT)
     assert code == 0 and 'Traceback' not in err, err
+    assert ('publishing through the pacer' in err) == (extra is PACED), err
     recorded, run = _payloads(next(root.iterdir()))
     start_ns = run['start_ns']
     last = max(recorded['/attitude'])           # the truth's stamps carry no timing model

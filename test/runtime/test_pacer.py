@@ -1,0 +1,134 @@
+"""The pacer's native loop: order, bytes, due times, the ring's wrap, cut, stop, rcl's codes.
+
+The loop calls whatever function it is given with rcl's signature; here a ctypes callback
+that notes each message (the node's glue passes rcl's own, tested in test/ros).
+"""
+
+import ctypes
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from rigidrot_ros.runtime import pacer as pacer_mod
+from rigidrot_ros.runtime.pacer import Pacer, STATUS_PENDING
+
+_PUBLISH = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p)
+
+ok, why = pacer_mod.pacer_available()
+pytestmark = pytest.mark.skipif(not ok, reason=f'no native pacer here: {why}')
+
+
+class _Sink:
+    """A publish function: notes (publisher, bytes, clock ns) of each call; returns ``code``."""
+
+    def __init__(self, code=0):
+        self.got, self.code, self.lock = [], code, threading.Lock()
+        self.fn = _PUBLISH(self._publish)
+        self.address = ctypes.cast(self.fn, ctypes.c_void_p).value
+
+    def _publish(self, pub, msg, alloc):
+        words = ctypes.cast(msg, ctypes.POINTER(ctypes.c_uint64))
+        data = ctypes.string_at(words[0], words[1])
+        with self.lock:
+            self.got.append((pub, data, time.time_ns(), words[1] == words[2], alloc))
+        return self.code
+
+
+def _wait(pred, timeout=10.0):
+    end = time.monotonic() + timeout
+    while not pred():
+        assert time.monotonic() < end, 'timed out'
+        time.sleep(0.002)
+
+
+def test_messages_go_out_in_order_with_their_bytes_never_before_their_due_time():
+    sink = _Sink()
+    p = Pacer(sink.address)
+    try:
+        a, b = p.slot(0x1000), p.slot(0x2000)
+        assert (a, b, p.slot(0x1000)) == (0, 1, 0)
+        t0 = time.time_ns() + 5_000_000
+        sent = []
+        for k in range(50):
+            due = t0 + k * 400_000
+            entries = [(a, f'truth {k}'.encode()), (b, bytes([k % 256]) * (k % 7 + 1))]
+            assert p.push(due, entries) == 2 * k
+            sent += [(0x1000 if s == a else 0x2000, d, due) for s, d in entries]
+        _wait(lambda: len(sink.got) == 100)
+        first, at, status = p.harvest()
+        assert first == 0 and len(at) == 100 and np.all(status == 0)
+        assert [(pub, data) for pub, data, *_ in sink.got] == [(pub, d) for pub, d, _ in sent]
+        dues = np.array([due for *_, due in sent])
+        assert np.all(at >= dues)                        # never early
+        assert np.all(np.array([t for _, _, t, _, _ in sink.got]) >= dues)
+        assert all(full and alloc is None for *_, full, alloc in sink.got)
+        assert p.counts() == (100, 0)
+        assert p.harvest()[1].size == 0                  # each entry handed back once
+    finally:
+        assert p.stop()
+
+
+def test_the_ring_and_the_arena_wrap_and_refuse_rather_than_overwrite():
+    sink = _Sink()
+    p = Pacer(sink.address, capacity=8, arena=40)
+    try:
+        s = p.slot(1)
+        far = time.time_ns() + 3_600_000_000_000
+        assert p.push(far, [(s, b'x' * 41)]) is None     # larger than the arena
+        assert p.push(far, [(s, b'y' * 30)]) == 0        # held: due in an hour
+        assert p.push(far, [(s, b'z' * 11)]) is None     # the arena is full (30 + 11 > 40)
+        assert p.push(far, [(s, b'z' * 5)] * 2) == 1
+        assert p.push(far, [(s, b'w')] * 6) is None      # the ring is full (3 + 6 > 8)
+        assert p.queued() == 3
+        assert p.cut()
+        assert p.queued() == 0
+        first, at, status = p.harvest()
+        assert (first, list(status)) == (0, [STATUS_PENDING] * 3) and not sink.got
+        # now many more messages than the ring holds, of sizes that wrap the arena
+        payloads = [bytes([k]) * (k % 13 + 1) for k in range(200)]
+        now = time.time_ns()
+        for k, data in enumerate(payloads):
+            while p.push(now, [(s, data)]) is None:
+                time.sleep(0.001)
+        _wait(lambda: len(sink.got) == 200)
+        assert [d for _, d, *_ in sink.got] == payloads
+        first, at, status = p.harvest()
+        assert first == 3 and len(status) == 200 and np.all(status == 0)
+    finally:
+        p.stop()
+
+
+def test_cut_drops_only_what_is_not_yet_published_and_the_loop_goes_on():
+    sink = _Sink()
+    p = Pacer(sink.address)
+    try:
+        s = p.slot(7)
+        now = time.time_ns()
+        p.push(now, [(s, b'now')])
+        _wait(lambda: len(sink.got) == 1)
+        p.push(now + 3_600_000_000_000, [(s, b'later')] * 3)
+        assert p.cut()
+        first, at, status = p.harvest()
+        assert list(status) == [0] + [STATUS_PENDING] * 3
+        p.push(time.time_ns(), [(s, b'after')])
+        _wait(lambda: len(sink.got) == 2)
+        assert [d for _, d, *_ in sink.got] == [b'now', b'after']
+    finally:
+        p.stop()
+
+
+def test_rcl_codes_are_kept_and_a_stopped_pacer_takes_nothing():
+    sink = _Sink(code=200)                  # RCL_RET_PUBLISHER_INVALID, say
+    p = Pacer(sink.address)
+    s = p.slot(3)
+    p.push(time.time_ns(), [(s, b'a'), (s, b'b')])
+    _wait(lambda: len(sink.got) == 2)
+    _wait(lambda: p.queued() == 0)
+    assert list(p.harvest()[2]) == [200, 200]
+    assert p.counts() == (0, 2)
+    assert p.stop() and p.stop()            # idempotent
+    assert not p.alive
+    assert p.push(time.time_ns(), [(s, b'c')]) is None
+    assert p.cut()
