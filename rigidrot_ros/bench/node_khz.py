@@ -29,8 +29,8 @@ scheduler call, from its due time to its end) with the worst window's phases
 (``gc_collections``, summed per generation) and longest pass (``gc_max_us``); the node's
 scheduling policy (``scheduling``: ``SCHED_FIFO <priority>`` where the system let it have
 one, else ``SCHED_OTHER``; see :mod:`rigidrot_ros.runtime.realtime`); and its pacer
-(``pacer``: on, with its lead, or why not; :mod:`rigidrot_ros.ros.pacing`). A key the installed node
-does not report reads "n/a".
+(``pacer``: on, with its lead, or why not; :mod:`rigidrot_ros.ros.pacing`). A key the
+installed node does not report reads "n/a".
 
 Targets (issues 20 and 26): at 1 kHz 0 missed ticks and 0 late gyro samples after warm-up
 with the look-ahead on throughout; at 2 and 4 kHz at most :data:`LATE_SHARE_MAX` of the
