@@ -24,6 +24,7 @@ ahead in batches; a call reads the clock and publishes the bytes.
 import contextlib
 import sys
 import time
+import weakref
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
@@ -40,7 +41,7 @@ from rigidrot_ros.ros.recorder import msg_class
 from rigidrot_ros.ros.ros_params import descriptor, UnknownParameterError, warn_unknown_overrides
 from rigidrot_ros.run import settings, table
 from rigidrot_ros.run.params import BY_NAME, PARAMS
-from rigidrot_ros.run.schedule import Schedule
+from rigidrot_ros.run.schedule import Call, Schedule
 from rigidrot_ros.run.sensor_ahead import Sensor
 from rigidrot_ros.runtime import collector, diagnostics, realtime, switches
 from rigidrot_ros.runtime.pacer import LEAD_S
@@ -89,7 +90,6 @@ class AttitudeNode(Node):
         self._gate_last = (0, 0)        # the worker gate's holds and ns at the last report
         #: The native pacer's calls (pacing.PacedCalls), made at the first call it serves
         self._paced = None
-        self._served = (None, None)     # (grid0, the last slot) the paced calls served
         #: Why the node does not pace (None: it may, at >= 1 kHz on the system clock)
         self._pace_off = None if switches.pacer() else 'off (RIGIDROT_PACER=0)'
         self._lead_ns = int(LEAD_S * 1e9)
@@ -296,82 +296,86 @@ class AttitudeNode(Node):
             self._publish_diagnostics()
 
     def _on_timer_paced(self):
-        """Serve every timer slot up to the lead ahead of now; the pacer publishes them.
+        """Collect every sample due up to the lead ahead of now; the pacer publishes them.
 
-        Each slot is collected as the unpaced call at that time would collect it (the same
-        samples, the same order), and queued on the pacer due at its slot time. A slot
-        whose call came late is served with the next call, still ahead of its time while
-        the lateness stays under the lead. The first call of a grid (a run's start, a new
-        rate, a clock that went back or jumped over a second) serves the one slot it
-        anchors. Then the calls the pacer finished are recorded and counted (:meth:`_took`).
+        One collection (as an unpaced call at that time would make it: the same samples,
+        read in the same order), split by the timer slot each sample falls due in (its
+        grid time, plus its sensor's latency, rounded up to the timer's grid: where an
+        unpaced call would have published it); each slot's messages are queued on the
+        pacer, due at the slot's time, in the unpaced order. A slot already past (the
+        node fell behind by more than the lead) goes out at once, as an unpaced catch-up
+        would. Then the calls the pacer finished are recorded and counted (:meth:`_took`).
         """
         c_tick = time.perf_counter_ns()
         gc0 = self._gc.total_ns
         sch = self._schedule
-        period = self._timer_ns
-        now_ns = self._now_ns()
-        target = now_ns + self._lead_ns
-        g0 = sch.truth.grid0
-        last = self._served[1] if self._served[0] == g0 and g0 is not None else None
-        if last is None or target < g0:
-            slots = [target]
-        else:
-            target = sch.grid_due_ns(target)
-            if not 0 <= target - last <= 1_000_000_000:
-                slots = [target]        # the clock jumped: as the unpaced call would
-            else:
-                # the slots already due (the node fell behind by more than the lead): one
-                # call, published at once, as an unpaced catch-up; then each slot ahead
-                overdue = sch.grid_due_ns(now_ns)
-                first = last + period
-                slots = ([overdue] if overdue >= first else []) + \
-                    list(range(max(first, overdue + period), target + 1, period))
-        until = self._timer.time_until_next_call
-        owed, c_push = {}, 0
-        for slot in slots:
-            call = sch.collect(slot, until, self._failed, True)
-            due = sch.grid_due_ns(slot)
-            self._served = (sch.truth.grid0, due)
-            if call.started:
-                self._freezer.arm()
-            for name, n, m in call.owed:
-                a, b = owed.get(name, (0, 0))
-                owed[name] = (a + n, b + m)
-            if not call.groups:
-                continue
-            items = [self._pubs[topic] + (raw,) for topic, raw in call.items()]
-            pending = sch.take_pending()
-            c0 = time.perf_counter_ns()
-            if self._paced.push(due, items, call, pending):
-                self._counters.published -= call.ticks     # counted once rcl takes them
-                if call.truth:
-                    self._counters.tick_times.append(time.perf_counter_ns() - c_tick)
-            else:                       # no room (the loop lags or stopped): publish now
-                pub_ns = self._now_ns()
-                sent = recording.publish_all(self, [(pub, raw) for pub, _, raw in items])
-                if sent < len(items):
-                    self._counters.published -= call.ticks - call.ticks_within(sent)
-                    self._runs.tick(self, self._setup, sch.t_start_ns, pub_ns, items[:sent])
-                    return
-                sch.note_published(pending, pub_ns)
-                self._runs.tick(self, self._setup, sch.t_start_ns, pub_ns, items)
-            c_push += time.perf_counter_ns() - c0
+        target = self._now_ns() + self._lead_ns
+        if sch.truth.grid0 is not None and target >= sch.truth.grid0:
+            target = sch.grid_due_ns(target)        # the last slot within the lead
+        call = sch.collect(target, self._timer.time_until_next_call, self._failed, True)
+        sch.take_pending()              # the latencies come from each slot's samples
+        if call.started:
+            self._freezer.arm()
         c_collect = time.perf_counter_ns()
+        slots = self._slots_of(call) if call.groups else []
+        for due, sub, pending in slots:
+            items = [self._pubs[topic] + (raw,) for topic, raw in sub.items()]
+            if self._paced.push(due, items, sub, pending):
+                self._counters.published -= sub.ticks      # counted once rcl takes them
+                continue
+            pub_ns = self._now_ns()     # no room (the loop lags or stopped): publish now
+            sent = recording.publish_all(self, [(pub, raw) for pub, _, raw in items])
+            if sent < len(items):
+                self._counters.published -= sub.ticks - sub.ticks_within(sent)
+                self._runs.tick(self, self._setup, sch.t_start_ns, pub_ns, items[:sent])
+                return
+            sch.note_published(pending, pub_ns)
+            self._runs.tick(self, self._setup, sch.t_start_ns, pub_ns, items)
+        c_publish = time.perf_counter_ns()
+        if call.truth:
+            self._counters.tick_times.append(c_publish - c_tick)
         self._took(self._paced.harvest())
         c_record = time.perf_counter_ns()
         batch = sch.refill()
         c_batch = time.perf_counter_ns()
         self._diag_due()
-        self._passes.poll(time.perf_counter_ns() - c_tick <= _GC_ROOM * period)
+        self._passes.poll(time.perf_counter_ns() - c_tick <= _GC_ROOM * self._timer_ns)
         c_end = time.perf_counter_ns()
         gc_ns = self._gc.total_ns - gc0
         self._counters.call(c_end - c_tick, lambda: [
             ('wake', 0),
-            ('collect', (c_collect - c_tick - c_push, f'{len(slots)} slots: ' + ', '.join(
-                f'{name} {n} owed/{m} now' for name, (n, m) in owed.items() if n or m))),
-            ('publish', c_push), ('record', c_record - c_collect),
+            ('collect', (c_collect - c_tick, f'{len(slots)} slots: ' + ', '.join(
+                f'{name} {n} owed/{m} now' for name, n, m in call.owed if n or m))),
+            ('publish', c_publish - c_collect), ('record', c_record - c_publish),
             ('batch', (c_batch - c_record, batch)), ('diag', c_end - c_batch),
             ('gc', gc_ns)])
+
+    def _slots_of(self, call):
+        """Split ``call`` by timer slot: ``[(slot ns, Call, pending latencies)]``, in order.
+
+        A truth tick falls due at its stamp, a sensor sample at its grid time plus its
+        latency; a slot is the first timer grid time at or after that. Each slot's
+        :class:`~rigidrot_ros.run.schedule.Call` has its truth ticks first, as collected;
+        its pending latencies are ``Schedule.note_published``'s.
+        """
+        sch = self._schedule
+        g0, period = sch.truth.grid0, self._timer_ns
+        sensors = {s.rank: s for s in sch.sensors}
+        out = {}
+        for i, group in enumerate(call.groups):
+            t, rank, _ = group
+            truth = i < call.ticks
+            where = self._counters if truth else sensors[rank]
+            due = t if truth else t + where.track.timing.latency_ns
+            slot = g0 + -(-(due - g0) // period) * period if due > g0 else g0
+            sub, pending = out.get(slot) or out.setdefault(slot, (Call(), {}))
+            sub.groups.append(group)
+            if truth:
+                sub.ticks += 1
+                sub.truth = True
+            pending.setdefault(id(where), (where, []))[1].append(t)
+        return [(slot, sub, list(pending.values())) for slot, (sub, pending)
+                in sorted(out.items(), key=lambda kv: kv[0])]
 
     def _pacing(self):
         """Whether this call is served ahead and published by the pacer (ros.pacing).
@@ -389,6 +393,8 @@ class AttitudeNode(Node):
                 self._pace_off = f'off ({exc})'
                 self.get_logger().warning(f'publishing from the executor: {exc}')
                 return False
+            # a node dropped without destroy_node frees its publishers: stop the loop first
+            weakref.finalize(self, self._paced.pacer.stop)
             self.get_logger().info(f'publishing through the pacer, '
                                    f'{self._lead_ns / 1e6:g} ms ahead')
         return self._paced.pacer.alive

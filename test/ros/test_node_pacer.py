@@ -34,12 +34,14 @@ def _bag(path):
     return {t: (np.array(s), np.array(g)) for t, (s, g) in out.items()}
 
 
-@pytest.mark.parametrize('rate', [1000.0, 4000.0])
-def test_a_paced_node_publishes_every_sample_once_in_order_never_before_its_stamp(
-        tmp_path, rate):
+@pytest.mark.parametrize('rate,latency', [(1000.0, 0.0), (4000.0, 0.0), (2000.0, 0.0013)])
+def test_a_paced_node_publishes_every_sample_once_in_order_never_before_it_is_due(
+        tmp_path, rate, latency):
+    """Due: a truth tick at its stamp, a gyro sample at its stamp plus its latency."""
     node, ex, lis = node_and_listener(publish_rate=rate, record=True,
                                       record_path=str(tmp_path),
-                                      **{'imu.enable': True, 'imu.rate': rate})
+                                      **{'imu.enable': True, 'imu.rate': rate,
+                                         'imu.latency': latency})
     try:
         got = []
         lis.create_subscription(Imu, '/imu', lambda m: got.append(stamp_ns(m)), 1000)
@@ -57,7 +59,8 @@ def test_a_paced_node_publishes_every_sample_once_in_order_never_before_its_stam
     for topic in ('/attitude', '/angular_velocity', '/imu'):
         stamps, logs = bag[topic]
         assert np.all(np.abs(np.diff(stamps) - period) <= 1), topic  # every one, in order
-        assert np.all(logs >= stamps), topic                   # never before its time
+        due = stamps + (round(latency * 1e9) if topic == '/imu' else 0)
+        assert np.all(logs >= due), topic                      # never before its time
     # what the node counts as published is what rcl took and the bag holds
     assert len(bag['/attitude'][0]) == published
     assert got and set(got) <= set(bag['/imu'][0].tolist())   # a subscriber's copy

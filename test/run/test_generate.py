@@ -46,8 +46,11 @@ def _values(args):
     return dict(parse_override(a) for a in args[1::2])
 
 
-#: truth and gyro at 2 kHz: the node publishes through its pacer (ros/pacing.py)
-PACED = ['-p', 'publish_rate:=2000.0', '-p', 'imu.rate:=2000.0']
+#: truth and gyro at 2 kHz: the node publishes through its pacer (ros/pacing.py); the
+#: gyro's timing model on (its latency moves a sample to a later slot of the pacer)
+PACED = ['-p', 'publish_rate:=2000.0', '-p', 'imu.rate:=2000.0',
+         '-p', 'imu.latency:=0.0013', '-p', 'imu.stamp_jitter:=0.0001',
+         '-p', 'imu.drop_probability:=0.1', '-p', 'imu.clock_offset:=0.25']
 
 
 @pytest.mark.parametrize('extra', [[], ACCEL_MAG, TRIAXIAL, PACED],
