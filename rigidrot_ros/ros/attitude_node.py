@@ -304,7 +304,9 @@ class AttitudeNode(Node):
         unpaced call would have published it); each slot's messages are queued on the
         pacer, due at the slot's time, in the unpaced order. A slot already past (the
         node fell behind by more than the lead) goes out at once, as an unpaced catch-up
-        would. Then the calls the pacer finished are recorded and counted (:meth:`_took`).
+        would. A new grid (a ``publish_rate`` change) is anchored after the last slot
+        still queued. Then the calls the pacer finished are recorded and counted
+        (:meth:`_took`).
         """
         c_tick = time.perf_counter_ns()
         gc0 = self._gc.total_ns
@@ -312,6 +314,9 @@ class AttitudeNode(Node):
         target = self._now_ns() + self._lead_ns
         if sch.truth.grid0 is not None and target >= sch.truth.grid0:
             target = sch.grid_due_ns(target)        # the last slot within the lead
+        elif sch.truth.grid0 is None and self._paced.last_due is not None:
+            # a new grid (a rate change) starts after the old grid's ticks still queued
+            target = max(target, self._paced.last_due + self._timer_ns + 1)
         call = sch.collect(target, self._timer.time_until_next_call, self._failed, True)
         sch.take_pending()              # the latencies come from each slot's samples
         if call.started:
@@ -405,8 +410,12 @@ class AttitudeNode(Node):
             return self._pace_off
         if self._timer_ns > pacing.PACE_PERIOD_NS:
             return 'off (below 1 kHz)'
-        if self._paced is None or not self._paced.pacer.alive:
-            return 'off (sim time)' if self._paced is None else 'off (its loop stopped)'
+        if self._time_source is not None and self._time_source.ros_time_is_active:
+            return 'off (sim time)'
+        if self._paced is None:
+            return 'off (not started yet)'
+        if not self._paced.pacer.alive:
+            return 'off (its loop stopped)'
         return f'on (lead {self._lead_ns / 1e6:g} ms)'
 
     def _took(self, finished):

@@ -67,6 +67,8 @@ class PacedCalls:
     def __init__(self, pacer=None):
         self.pacer = pacer if pacer is not None else Pacer(rcl_publish_address())
         self._calls = collections.deque()    # (first entry, items, call, pending)
+        #: The due time of the last call queued and not cut (ns), or None
+        self.last_due = None
         self._at, self._status, self._base = [], [], 0   # finished entries from _base
 
     def push(self, due_ns, items, call, pending):
@@ -77,6 +79,7 @@ class PacedCalls:
         if first is None:
             return False
         self._calls.append((first, items, call, pending))
+        self.last_due = due_ns
         return True
 
     def __len__(self):
@@ -114,6 +117,7 @@ class PacedCalls:
     def cut(self):
         """Drop what is queued and not yet published; the calls finished (:meth:`harvest`)."""
         self.pacer.cut()
+        self.last_due = None
         return self.harvest()
 
     def stop(self):

@@ -109,3 +109,30 @@ def test_a_reset_drops_the_old_runs_queue_and_the_new_run_starts_clean(tmp_path)
     # nothing of the old run went out after the new run's first message
     assert logs[stamps < second].max() <= logs[stamps >= second].min()
     assert len(stamps) == node._counters.published
+
+
+def test_a_rate_change_starts_its_grid_after_the_last_queued_tick(tmp_path):
+    """The new grid's first tick comes after every tick already queued on the old one."""
+    from rclpy.parameter import Parameter
+    node, ex, lis = node_and_listener(publish_rate=2000.0, record=True,
+                                      record_path=str(tmp_path),
+                                      **{'imu.enable': True, 'imu.rate': 2000.0})
+    try:
+        spin_until(ex, lambda: node._counters.published >= 400, timeout=60)
+        for rate in (1000.0, 4000.0):
+            assert len(node._paced) > 0
+            assert node.set_parameters([Parameter('publish_rate', value=rate)])[0].successful
+            published = node._counters.published
+            spin_until(ex, lambda: node._counters.published >= published + 400, timeout=60)
+        writer = node._runs.recorder._writer
+    finally:
+        node.destroy_node()
+        lis.destroy_node()
+    bag = _bag(writer.path)
+    stamps, logs = bag['/attitude']
+    steps = np.unique(np.diff(stamps))
+    assert np.all(steps > 0), steps                      # strictly later, across changes
+    assert {500_000, 1_000_000, 250_000} <= set(steps.tolist()), steps
+    imu, imu_logs = bag['/imu']
+    assert np.all(np.diff(imu) == 500_000)               # the gyro's grid runs on
+    assert np.all(np.diff(logs) >= 0) and np.all(logs >= stamps)
