@@ -170,10 +170,17 @@ class Schedule:
         return out
 
     def note_published(self, pending, pub_ns):
-        """Note the publication time (ns) of a paced call's samples (:meth:`take_pending`)."""
+        """Note the publication time (ns) of a paced call's samples (:meth:`take_pending`).
+
+        A truth tick published more than a timer period after its stamp counts as late
+        (``ticks_late``; unpaced, a call that owed more than one tick counts once).
+        """
         for where, stamps in pending:
             if stamps:              # the node's counters (truth), or a Sensor
-                where.latencies += [pub_ns - t for t in stamps]
+                lat = [pub_ns - t for t in stamps]
+                where.latencies += lat
+                if where is self.counters:
+                    where.late += sum(1 for x in lat if x > self.timer_ns)
 
     def refill(self, behind=False):
         """Start the look-ahead batches this call owes (:func:`scheduler.next_batch` chooses).

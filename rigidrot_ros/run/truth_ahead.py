@@ -101,7 +101,7 @@ class TruthAhead:
         first, k, missed = due
         st = self.counters
         st.missed += missed
-        if k > first:
+        if k > first and not paced:     # paced: counted at publication (note_published)
             st.late += 1
         m0, n0 = self.ahead.misses, len(groups)
         self.ahead.fill_to(first, k)        # a catch-up: the owed ticks as one batch
