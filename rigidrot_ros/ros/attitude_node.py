@@ -102,7 +102,7 @@ class AttitudeNode(Node):
         self._srv = self.create_service(Trigger, '~/reset', self._on_reset)
         self._runs = recording.RunLog(self._pub_run, recording.open_recorder(
             self, self._values, self._worker) if self._values['record'] else None)
-        self._timer = None
+        self._timer, self._timer_paced = None, False
         self._schedule = self._new_schedule()
         self._next_diag = time.monotonic() + 1.0
         self._make_timer(self._values['publish_rate'])
@@ -226,11 +226,29 @@ class AttitudeNode(Node):
 
     def _make_timer(self, rate):
         """(Re)create the one scheduler timer: the shortest period of every stream."""
-        if self._timer is not None:
-            self.destroy_timer(self._timer)
         self._period_hz = float(rate)
         self._timer_ns = self._schedule.retime(rate)    # a new truth grid at the next call
-        self._timer = self.create_timer(self._timer_ns * 1e-9, self._on_timer)
+        self._make_call_timer()
+
+    def _make_call_timer(self):
+        """(Re)create the rcl timer of the scheduler calls, on the grid's period or paced.
+
+        Paced (:meth:`_pacing`), a call serves every slot of the lead, so the calls come
+        every ``pacing.PACED_CALL_NS`` (or the grid's period, if longer): the fixed part of
+        a call (the executor's round, the bookkeeping, the recording's batch) is paid once
+        for several slots. The grid keeps its own period (:attr:`_timer_ns`).
+        """
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+        self._timer_paced = self._pace_off is None and \
+            self._timer_ns <= pacing.PACE_PERIOD_NS and not self._sim_time()
+        period = max(self._timer_ns, pacing.PACED_CALL_NS) if self._timer_paced else \
+            self._timer_ns
+        self._timer = self.create_timer(period * 1e-9, self._on_timer)
+
+    def _sim_time(self):
+        """Whether the node's clock is ``/clock`` (``use_sim_time``)."""
+        return self._time_source is not None and self._time_source.ros_time_is_active
 
     # -- the scheduler call ------------------------------------------------------------------
     def _on_timer(self):
@@ -240,7 +258,10 @@ class AttitudeNode(Node):
         a second. Each phase's time goes to the diagnostics (the window's longest call:
         ``call_max_phases``).
         """
-        if self._pacing():
+        paced = self._pacing()
+        if paced != self._timer_paced:  # the pacer failed, or sim time came or went
+            self._make_call_timer()
+        if paced:
             return self._on_timer_paced()
         c_tick = time.perf_counter_ns()
         gc0 = self._gc.total_ns
@@ -323,11 +344,12 @@ class AttitudeNode(Node):
             self._freezer.arm()
         c_collect = time.perf_counter_ns()
         slots = self._slots_of(call) if call.groups else []
-        for due, sub, pending in slots:
-            items = [self._pubs[topic] + (raw,) for topic, raw in sub.items()]
-            if self._paced.push(due, items, sub, pending):
-                self._counters.published -= sub.ticks      # counted once rcl takes them
-                continue
+        queued = [(due, [self._pubs[topic] + (raw,) for topic, raw in sub.items()], sub,
+                   pending) for due, sub, pending in slots]
+        if queued and self._paced.push_many(queued):
+            self._counters.published -= call.ticks         # counted once rcl takes them
+            queued = []
+        for due, items, sub, pending in queued:
             pub_ns = self._now_ns()     # no room (the loop lags or stopped): publish now
             sent = recording.publish_all(self, [(pub, raw) for pub, _, raw in items])
             if sent < len(items):
@@ -344,7 +366,8 @@ class AttitudeNode(Node):
         batch = sch.refill()
         c_batch = time.perf_counter_ns()
         self._diag_due()
-        self._passes.poll(time.perf_counter_ns() - c_tick <= _GC_ROOM * self._timer_ns)
+        self._passes.poll(time.perf_counter_ns() - c_tick <=
+                          _GC_ROOM * max(self._timer_ns, pacing.PACED_CALL_NS))
         c_end = time.perf_counter_ns()
         gc_ns = self._gc.total_ns - gc0
         self._counters.call(c_end - c_tick, lambda: [
@@ -389,7 +412,7 @@ class AttitudeNode(Node):
         ``RIGIDROT_PACER=0`` or the pacer cannot run here (said once in the log).
         """
         if self._pace_off is not None or self._timer_ns > pacing.PACE_PERIOD_NS or \
-                (self._time_source is not None and self._time_source.ros_time_is_active):
+                self._sim_time():
             return False
         if self._paced is None:
             try:
@@ -410,7 +433,7 @@ class AttitudeNode(Node):
             return self._pace_off
         if self._timer_ns > pacing.PACE_PERIOD_NS:
             return 'off (below 1 kHz)'
-        if self._time_source is not None and self._time_source.ros_time_is_active:
+        if self._sim_time():
             return 'off (sim time)'
         if self._paced is None:
             return 'off (not started yet)'

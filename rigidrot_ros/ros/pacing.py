@@ -15,12 +15,14 @@ import os
 
 from rigidrot_ros.runtime.pacer import Pacer, PacerError, STATUS_PENDING
 
-__all__ = ['PacedCalls', 'PacerError', 'PACE_PERIOD_NS', 'STATUS_PENDING',
+__all__ = ['PacedCalls', 'PacerError', 'PACE_PERIOD_NS', 'PACED_CALL_NS', 'STATUS_PENDING',
            'rcl_publish_address']
 
 #: The node paces its calls where its scheduler period is at most this (1 kHz and up):
 #: there a call's lateness in the interpreter made samples late (doc/node.md).
 PACE_PERIOD_NS = 1_000_000
+#: Paced, the scheduler calls come this often (each serves every slot of the lead).
+PACED_CALL_NS = 1_000_000
 
 
 def _loaded(name):
@@ -69,18 +71,38 @@ class PacedCalls:
         self._calls = collections.deque()    # (first entry, items, call, pending)
         #: The due time of the last call queued and not cut (ns), or None
         self.last_due = None
+        self._slots = {}                     # publisher -> the pacer's index of it
         self._at, self._status, self._base = [], [], 0   # finished entries from _base
 
     def push(self, due_ns, items, call, pending):
         """Queue a call's ``items`` due at ``due_ns``; False (nothing queued) without room."""
-        pacer = self.pacer
-        first = pacer.push(due_ns, [(pacer.slot(pub.handle.pointer), raw)
-                                    for pub, _, raw in items])
+        return self.push_many([(due_ns, items, call, pending)])
+
+    def push_many(self, calls):
+        """Queue several calls ``(due_ns, items, call, pending)``, due times in order.
+
+        All or nothing: False (nothing queued) without room for them all.
+        """
+        dues, pubs, datas = [], [], []
+        for due_ns, items, _, _ in calls:
+            for pub, _, raw in items:
+                dues.append(due_ns)
+                pubs.append(self._slot(pub))
+                datas.append(raw)
+        first = self.pacer.push_many(dues, pubs, datas)
         if first is None:
             return False
-        self._calls.append((first, items, call, pending))
-        self.last_due = due_ns
+        for due_ns, items, call, pending in calls:
+            self._calls.append((first, items, call, pending))
+            first += len(items)
+        self.last_due = calls[-1][0]
         return True
+
+    def _slot(self, pub):
+        slot = self._slots.get(pub)
+        if slot is None:
+            slot = self._slots[pub] = self.pacer.slot(pub.handle.pointer)
+        return slot
 
     def __len__(self):
         return len(self._calls)

@@ -317,25 +317,37 @@ class Pacer:
         None when the ring or the arena has no room (the loop has stopped, or lags by
         thousands of messages): nothing is queued then.
         """
-        n = len(entries)
+        return self.push_many([due_ns] * len(entries), [p for p, _ in entries],
+                              [d for _, d in entries])
+
+    def push_many(self, dues, pubs, datas):
+        """Queue messages: ``datas[i]`` (bytes) to publisher slot ``pubs[i]`` at ``dues[i]``.
+
+        The due times must not decrease (the loop takes entries in order). One set of
+        array writes for them all; the first index, or None (nothing queued) as :meth:`push`.
+        """
+        n = len(datas)
         read = int(self.ctl[_READ])
-        if not self.alive or self._written + n - read > self.capacity:
+        if n == 0 or not self.alive or self._written + n - read > self.capacity:
             return None
-        sizes = [len(b) for _, b in entries]
-        total = sum(sizes)
+        sizes = np.fromiter(map(len, datas), dtype=np.int64, count=n)
+        total = int(sizes.sum())
         head = self._place(total, read)
         if head is None:
             return None
         first = self._written
-        self.arena[head:head + total] = np.frombuffer(b''.join(d for _, d in entries),
-                                                      dtype=np.uint8)
-        offsets = np.cumsum(sizes) - sizes + head
-        rows = np.arange(first, first + n) % self.capacity
+        self.arena[head:head + total] = np.frombuffer(b''.join(datas), dtype=np.uint8)
         block = np.empty((n, 6), dtype=np.int64)
-        block[:, _DUE], block[:, _PUB] = due_ns, [slot for slot, _ in entries]
-        block[:, _OFF], block[:, _LEN] = offsets, sizes
+        block[:, _DUE], block[:, _PUB] = dues, pubs
+        block[:, _OFF] = np.cumsum(sizes) - sizes + head
+        block[:, _LEN] = sizes
         block[:, _AT], block[:, _STATUS] = 0, STATUS_PENDING
-        self.ent[rows] = block
+        lo = first % self.capacity
+        if lo + n <= self.capacity:
+            self.ent[lo:lo + n] = block
+        else:
+            k = self.capacity - lo
+            self.ent[lo:], self.ent[:n - k] = block[:k], block[k:]
         self._head = head + total
         self._written = first + n
         self.ctl[_WRITE] = self._written        # after the entries: x86 keeps the order

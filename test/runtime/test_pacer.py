@@ -132,3 +132,24 @@ def test_rcl_codes_are_kept_and_a_stopped_pacer_takes_nothing():
     assert not p.alive
     assert p.push(time.time_ns(), [(s, b'c')]) is None
     assert p.cut()
+
+
+def test_push_many_queues_several_due_times_at_once_across_the_rings_end():
+    sink = _Sink()
+    p = Pacer(sink.address, capacity=8, arena=64)
+    try:
+        s = p.slot(5)
+        now = time.time_ns()
+        assert p.push_many([now] * 5, [s] * 5, [b'a%d' % k for k in range(5)]) == 0
+        _wait(lambda: p.queued() == 0)
+        dues = [now + k * 2_000_000 for k in range(6)]
+        datas = [bytes([65 + k]) * (k + 1) for k in range(6)]
+        assert p.push_many(dues, [s] * 6, datas) == 5       # entries 5..10: slots 5..7, 0..2
+        assert p.push_many([now], [s], [b'x' * 60]) is None  # no room in the arena now
+        _wait(lambda: len(sink.got) == 11)
+        assert [d for _, d, *_ in sink.got[5:]] == datas
+        first, at, status = p.harvest()
+        assert first == 0 and np.all(status == 0) and np.all(at[5:] >= np.array(dues))
+        assert p.push_many([], [], []) is None               # nothing to queue
+    finally:
+        p.stop()
