@@ -332,6 +332,7 @@ class AttitudeNode(Node):
         c_tick = time.perf_counter_ns()
         gc0 = self._gc.total_ns
         sch = self._schedule
+        self._paced.pacer.spin_ns = min(pacing.SPIN_NS, self._timer_ns // 4)
         target = self._now_ns() + self._lead_ns
         if sch.truth.grid0 is not None and target >= sch.truth.grid0:
             target = sch.grid_due_ns(target)        # the last slot within the lead

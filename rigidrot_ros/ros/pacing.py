@@ -15,14 +15,18 @@ import os
 
 from rigidrot_ros.runtime.pacer import Pacer, PacerError, STATUS_PENDING
 
-__all__ = ['PacedCalls', 'PacerError', 'PACE_PERIOD_NS', 'PACED_CALL_NS', 'STATUS_PENDING',
-           'rcl_publish_address']
+__all__ = ['PacedCalls', 'PacerError', 'PACE_PERIOD_NS', 'PACED_CALL_NS', 'SPIN_NS',
+           'STATUS_PENDING', 'rcl_publish_address']
 
 #: The node paces its calls where its scheduler period is at most this (1 kHz and up):
 #: there a call's lateness in the interpreter made samples late (doc/node.md).
 PACE_PERIOD_NS = 1_000_000
 #: Paced, the scheduler calls come this often (each serves every slot of the lead).
 PACED_CALL_NS = 1_000_000
+#: The pacer stops sleeping this long before a due time and reads the clock until it
+#: (at most a quarter of the grid's period): a processor left idle in a virtual machine
+#: wakes late (doc/node.md, the pacer).
+SPIN_NS = 50_000
 
 
 def _loaded(name):

@@ -55,7 +55,7 @@ IDLE_NS, MAX_WAIT_NS = 1_000_000, 2_000_000
 STATUS_PENDING = -1
 
 # control words (int64)
-_WRITE, _READ, _STOP, _CUT, _CAP, _IDLE, _MAXW, _SENT, _FAILED = range(9)
+_WRITE, _READ, _STOP, _CUT, _CAP, _IDLE, _MAXW, _SENT, _FAILED, _SPIN = range(10)
 # entry fields (int64)
 _DUE, _PUB, _OFF, _LEN, _AT, _STATUS = range(6)
 
@@ -146,9 +146,27 @@ wait:
   %maxw = load i64, ptr %pmaxw
   %limit = add i64 %t0, %maxw
   %early = icmp slt i64 %due, %limit
-  %until = select i1 %early, i64 %due, i64 %limit
-  call void @sleep_until(ptr %ts, i64 %until)
+  br i1 %early, label %wait_due, label %wait_long
+
+wait_long:
+  call void @sleep_until(ptr %ts, i64 %limit)
   br label %loop
+
+wait_due:
+  %pspin = getelementptr i64, ptr %ctl, i64 9
+  %spin = load i64, ptr %pspin
+  %wake = sub i64 %due, %spin
+  %sleeps = icmp sgt i64 %wake, %t0
+  br i1 %sleeps, label %nap, label %spinning
+
+nap:
+  call void @sleep_until(ptr %ts, i64 %wake)
+  br label %spinning
+
+spinning:
+  %ts_ = call i64 @now(ptr %ts)
+  %yet = icmp slt i64 %ts_, %due
+  br i1 %yet, label %spinning, label %loop
 
 publish_loop:
   %i = phi i64 [ %r, %head ], [ %i1, %next_due ]
@@ -254,6 +272,7 @@ class Pacer:
         self.capacity = int(capacity)
         self.ctl = np.zeros(16, dtype=np.int64)
         self.ctl[_CAP], self.ctl[_IDLE], self.ctl[_MAXW] = self.capacity, IDLE_NS, MAX_WAIT_NS
+        self.ctl[_SPIN] = 0
         self.ent = np.zeros((self.capacity, 6), dtype=np.int64)
         self.arena = np.zeros(int(arena), dtype=np.uint8)
         self._pubs = np.zeros(64, dtype=np.uint64)
@@ -400,6 +419,15 @@ class Pacer:
         self.ctl[_STOP] = 1
         atexit.unregister(self.stop)
         return self._ended.wait(timeout)
+
+    @property
+    def spin_ns(self):
+        """How long before a due time the loop stops sleeping and reads the clock instead (ns)."""
+        return int(self.ctl[_SPIN])
+
+    @spin_ns.setter
+    def spin_ns(self, ns):
+        self.ctl[_SPIN] = max(0, int(ns))
 
     def counts(self):
         """Return ``(published, failed)``: the loop's totals."""

@@ -153,3 +153,22 @@ def test_push_many_queues_several_due_times_at_once_across_the_rings_end():
         assert p.push_many([], [], []) is None               # nothing to queue
     finally:
         p.stop()
+
+
+def test_with_a_spin_before_the_due_time_nothing_goes_out_early_either():
+    sink = _Sink()
+    p = Pacer(sink.address)
+    try:
+        p.spin_ns = 1_500_000               # read the clock for the last 1.5 ms
+        assert p.spin_ns == 1_500_000
+        s = p.slot(9)
+        t0 = time.time_ns() + 2_000_000
+        dues = [t0 + k * 700_000 for k in range(30)]
+        for due in dues:
+            p.push(due, [(s, b'm')])
+        _wait(lambda: len(sink.got) == 30)
+        _, at, status = p.harvest()
+        assert np.all(status == 0) and np.all(at >= np.array(dues))
+        assert all(t >= due for (_, _, t, _, _), due in zip(sink.got, dues))
+    finally:
+        p.stop()
