@@ -10,10 +10,12 @@ A :class:`Pacer` takes that wait out of the interpreter. The node's scheduler ru
 a lead ahead (:data:`LEAD_S`) and hands each call's messages here, with the call's due time;
 a native loop (LLVM IR, :data:`LOOP_IR`, built once and loaded as machine code by
 :mod:`rigidrot_ros.runtime.native`) sleeps until that time on ``CLOCK_REALTIME`` (the ROS
-system clock) and publishes the bytes with rcl's ``rcl_publish_serialized_message``,
-without ever taking the interpreter lock. It notes each message's publication time (its
-clock reading at the wake-up, as the node's recorder logs it) and rcl's return code; the
-node reads those back (:meth:`Pacer.harvest`) to record, count and report.
+system clock; the last :attr:`Pacer.spin_ns` before it, it reads the clock instead) and
+publishes the bytes with rcl's ``rcl_publish_serialized_message``, without ever taking the
+interpreter lock. It notes each message's publication time (its clock reading at the
+wake-up, as the node's recorder logs it) and rcl's return code; the node reads those back
+(:meth:`Pacer.harvest`) to record, count and report. With the ring empty it looks again
+every :data:`IDLE_NS`.
 
 **The queue** is a ring of :data:`CAPACITY` entries (due time, publisher, offset and length
 of the bytes, publication time, status) and a byte arena, in numpy arrays. The
