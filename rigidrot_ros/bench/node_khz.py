@@ -74,7 +74,7 @@ _SENSOR_LATENCY = re.compile(r'^(?:latency_(\w+)_p99_us|(\w+)_latency_p99_us)$')
 
 
 def add_arguments(ap):
-    """Add ``--khz-seconds``, ``--khz-rate`` and ``--khz-domain`` to the parser ``ap``."""
+    """Add ``--khz-seconds``, ``--khz-rate``, ``--khz-domain``, ``--khz-baseline`` to ``ap``."""
     ap.add_argument('--khz-seconds', type=common.positive_number, metavar='S',
                     help='node_khz: measured seconds per rate after the 2 s warm-up '
                          '(default 60, 5 with --quick)')
@@ -84,6 +84,10 @@ def add_arguments(ap):
     ap.add_argument('--khz-domain', type=int, metavar='ID',
                     help='node_khz: ROS_DOMAIN_ID of the node and the diagnostics '
                          'subscriber (default: $ROS_DOMAIN_ID, else 0)')
+    ap.add_argument('--khz-baseline', action='store_true',
+                    help='node_khz: also run each rate with RIGIDROT_PACER=0 (the node '
+                         'publishing from its executor, as before the pacer), in the same '
+                         'run, shown beside')
 
 
 # -- the run ------------------------------------------------------------------------------
@@ -125,8 +129,10 @@ def _int(values, key):
         return None
 
 
-def run_rate(rate, seconds, log, domain, warmup=WARMUP_S, start_timeout=60.0):
+def run_rate(rate, seconds, log, domain, warmup=WARMUP_S, start_timeout=60.0, env_extra=None):
     """Run the node at ``rate`` Hz for ``warmup`` + ``seconds``; return its raw record.
+
+    ``env_extra``: variables set for the node (``RIGIDROT_PACER=0`` for the baseline).
 
     Returns
     -------
@@ -139,6 +145,7 @@ def run_rate(rate, seconds, log, domain, warmup=WARMUP_S, start_timeout=60.0):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                ROS_DOMAIN_ID=str(domain))
     env.setdefault('FASTDDS_BUILTIN_TRANSPORTS', 'UDPv4')
+    env.update(env_extra or {})
     node_name = f'rigidrot_khz_{os.getpid()}_{int(rate)}'
     tmp = tempfile.mkdtemp(prefix='rigidrot_khz_')
     cmd = [common.script('attitude_node'), '--ros-args', '-r', f'__node:={node_name}',
@@ -472,8 +479,13 @@ def _gc(d):
     return f'{"/".join(map(str, gens))} (gen 0/1/2), longest {_w(d.get("gc_max_us"))} us'
 
 
-def run(quick=False, log=print, khz_seconds=None, khz_rate=None, khz_domain=None):
-    """Measure each rate; return ``{'node_khz': {'rates': [...], ...}}``."""
+def run(quick=False, log=print, khz_seconds=None, khz_rate=None, khz_domain=None,
+        khz_baseline=False):
+    """Measure each rate; return ``{'node_khz': {'rates': [...], ...}}``.
+
+    With ``khz_baseline`` each rate also runs with ``RIGIDROT_PACER=0`` right after
+    (``'pacer_off'`` in its result): the same code publishing from the executor.
+    """
     seconds = khz_seconds or (5.0 if quick else 60.0)
     rates = khz_rate or RATES
     domain = khz_domain if khz_domain is not None else int(os.environ.get('ROS_DOMAIN_ID', 0))
@@ -483,6 +495,11 @@ def run(quick=False, log=print, khz_seconds=None, khz_rate=None, khz_domain=None
             f'{WARMUP_S:g} + {seconds:g} s ...')
         r = summarize(run_rate(rate, seconds, log, domain))
         _log_rate(r, log)
+        if khz_baseline:
+            log('node_khz: the same, RIGIDROT_PACER=0 ...')
+            r['pacer_off'] = summarize(run_rate(rate, seconds, log, domain,
+                                                env_extra={'RIGIDROT_PACER': '0'}))
+            _log_rate(r['pacer_off'], log)
         out['rates'].append(r)
     return {'node_khz': out}
 
@@ -493,6 +510,16 @@ def failed(results):
     return [f'NODE_KHZ: {r["rate_hz"]:g} Hz: attitude_node exit {r["exit_code"]}, '
             f'{"no bag" if not r["bag"] else "bag read"}: {r["stderr_tail"][-300:]}'
             for r in res.get('rates', []) if r['exit_code'] != 0 or not r['bag']]
+
+
+def _off(r):
+    """The baseline's late gyro samples, those within stalls, and its verdict (or n/a)."""
+    off = r.get('pacer_off')
+    if not off:
+        return 'n/a'
+    b = off['bag']
+    return (f'{b.get("gyro_late", "n/a")}; {_na(b.get("gyro_late_machine"))}; '
+            f'{off["verdict"]}')
 
 
 def render_md(results):
@@ -513,7 +540,7 @@ def render_md(results):
             _w(d.get('latency_p99_us')),
             '; '.join(f'{k} {_w(v)}' for k, v in
                       (d.get('sensor_latency_p99_us') or {}).items()) or 'n/a',
-            _look(d.get('lookahead')), f'{r["target"]}: **{r["verdict"]}**'])
+            _look(d.get('lookahead')), f'{r["target"]}: **{r["verdict"]}**', _off(r)])
         slow.append([f'{r["rate_hz"]:g}', _w(d.get('call_max_us')),
                      d.get('call_max_phases') or 'n/a', _gc(d), d.get('scheduling') or 'n/a',
                      d.get('pacer') or 'n/a'])
@@ -529,7 +556,9 @@ def render_md(results):
                          'late gyro (absent)', 'machine stalls (longest µs); late gyro '
                          'within them', 'gyro log delay p99 [µs]',
                          'tick p99 [µs]', 'wake-up p99 [µs]', 'per-sensor wake-up p99 [µs]',
-                         'look-ahead', 'target'], rows)
+                         'look-ahead', 'target',
+                         'the same run, pacer off (RIGIDROT_PACER=0): late gyro; within '
+                         'stalls; verdict'], rows)
         + '\n\nWhere the time went: the longest scheduler call of each 1 s window '
         '(from its due time to its end), and the phases of the worst one (µs; '
         '"owed": samples the call published, "now": of those evaluated then):\n\n'

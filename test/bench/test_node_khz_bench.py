@@ -37,6 +37,26 @@ def test_the_worst_windows_phases_and_the_gc_passes_past_the_warm_up():
     assert '| SCHED_FIFO 10 |' in md
 
 
+def test_the_baseline_without_the_pacer_stands_beside_each_rate():
+    t0 = 10**18
+    diags = _diags(t0, {s: ('500.0', 'wake 1.0', '1/0/0') for s in range(1, 7)})
+    for d in diags:
+        d['values']['pacer'] = 'on (lead 20 ms)'
+    raw = {'rate_hz': 2000.0, 'seconds': 4.0, 'warmup_s': 2.0, 'diags': diags, 'bag': None,
+           'exit_code': 0, 'stderr_tail': ''}
+    r = node_khz.summarize(raw)
+    assert r['diagnostics']['pacer'] == 'on (lead 20 ms)'
+    res = {'node_khz': {'seconds': 4.0, 'warmup_s': 2.0, 'rates': [r]}, 'footer': {}}
+    assert node_khz.render_md(res).count('| n/a |') >= 1            # no baseline run
+    off = node_khz.summarize(dict(raw, diags=diags[:0]))
+    off['bag'] = {'gyro_late': 1466, 'gyro_late_machine': 3}
+    off['verdict'] = 'not met (3.67 %)'
+    r['pacer_off'] = off
+    md = node_khz.render_md(res)
+    assert 'pacer off (RIGIDROT_PACER=0)' in md and '| 1466; 3; not met (3.67 %) |' in md
+    assert '| on (lead 20 ms) |' in md
+
+
 def test_a_node_without_the_keys_reads_na():
     t0 = 10**18
     diags = [{'stamp_ns': t0 + s * 10**9, 'level': 0, 'message': '',
