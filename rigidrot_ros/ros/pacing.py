@@ -144,7 +144,11 @@ class PacedCalls:
         """Drop what is queued and not yet published; the calls finished (:meth:`harvest`)."""
         self.pacer.cut()
         self.last_due = None
-        return self.harvest()
+        out = self.harvest()
+        # the publishers may be destroyed now (a reset's topics that go): their indexes too
+        self._slots.clear()
+        self.pacer.forget_slots()
+        return out
 
     def stop(self):
         """Stop the pacer; return every call left, finished or not (:meth:`harvest`'s form).

@@ -327,6 +327,13 @@ class Pacer:
             self._slots[pointer] = i
         return i
 
+    def forget_slots(self):
+        """Forget every publisher's index (nothing may be queued: after a :meth:`cut`)."""
+        if self._written != int(self.ctl[_READ]):
+            raise PacerError('publishers forgotten while messages are queued')
+        self._slots.clear()
+        self._pubs[:] = 0
+
     def queued(self):
         """Return the entries written and not yet published (nor cut)."""
         return self._written - int(self.ctl[_READ])

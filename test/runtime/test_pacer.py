@@ -109,9 +109,14 @@ def test_cut_drops_only_what_is_not_yet_published_and_the_loop_goes_on():
         p.push(now, [(s, b'now')])
         _wait(lambda: len(sink.got) == 1)
         p.push(now + 3_600_000_000_000, [(s, b'later')] * 3)
+        with pytest.raises(pacer_mod.PacerError):
+            p.forget_slots()                # not while messages are queued
         assert p.cut()
         first, at, status = p.harvest()
         assert list(status) == [0] + [STATUS_PENDING] * 3
+        p.forget_slots()
+        assert p.slot(8) == 0 and p.slot(7) == 1        # indexes handed out afresh
+        s = p.slot(7)
         p.push(time.time_ns(), [(s, b'after')])
         _wait(lambda: len(sink.got) == 2)
         assert [d for _, d, *_ in sink.got] == [b'now', b'after']
