@@ -51,6 +51,7 @@ import time
 import numpy as np
 
 from rigidrot_ros.bench import common
+from rigidrot_ros.runtime import switches
 
 __all__ = ['RATES', 'run_rate', 'bag_figures', 'diag_figures', 'run', 'render_md']
 
@@ -497,8 +498,8 @@ def run(quick=False, log=print, khz_seconds=None, khz_rate=None, khz_domain=None
         _log_rate(r, log)
         if khz_baseline:
             log('node_khz: the same, RIGIDROT_PACER=0 ...')
-            r['pacer_off'] = summarize(run_rate(rate, seconds, log, domain,
-                                                env_extra={'RIGIDROT_PACER': '0'}))
+            r['pacer_off'] = summarize(run_rate(
+                rate, seconds, log, domain, env_extra=switches.turned_off(switches.pacer)))
             _log_rate(r['pacer_off'], log)
         out['rates'].append(r)
     return {'node_khz': out}
@@ -513,7 +514,7 @@ def failed(results):
 
 
 def _off(r):
-    """The baseline's late gyro samples, those within stalls, and its verdict (or n/a)."""
+    """Return the baseline's late gyro samples, those within stalls, and its verdict (or n/a)."""
     off = r.get('pacer_off')
     if not off:
         return 'n/a'

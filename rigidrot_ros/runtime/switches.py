@@ -16,7 +16,7 @@ module reads, and that no other module of the package reads one.
 import os
 
 __all__ = ['SWITCHES', 'rt_priority', 'no_jit', 'no_native', 'lookahead_worker', 'worker_gate',
-           'worker_batch', 'gc_freeze', 'gc_schedule', 'record_offload', 'pacer']
+           'worker_batch', 'gc_freeze', 'gc_schedule', 'record_offload', 'pacer', 'turned_off']
 
 
 def _text(name, environ):
@@ -123,3 +123,13 @@ SWITCHES = {
     'RIGIDROT_RECORD_OFFLOAD': record_offload,
     'RIGIDROT_PACER': pacer,
 }
+
+
+def turned_off(switch):
+    """Return the environment entry that turns off ``switch`` (one of this module's readers).
+
+    For a process started to be measured against the default, e.g. the node without its
+    pacer: ``turned_off(pacer)`` is ``{'RIGIDROT_PACER': '0'}``.
+    """
+    name = next(n for n, fn in SWITCHES.items() if fn is switch)
+    return {name: '0'}

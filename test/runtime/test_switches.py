@@ -150,3 +150,10 @@ def test_rt_priority_takes_0_to_99_and_names_the_variable_otherwise():
         with pytest.raises(ValueError, match=r'^RIGIDROT_RT_PRIORITY must be an integer '
                                              r'from 0 \(off\) to 99, got '):
             switches.rt_priority(10, {'RIGIDROT_RT_PRIORITY': text})
+
+
+def test_turned_off_names_the_variable_of_a_switch():
+    from rigidrot_ros.runtime import switches
+    assert switches.turned_off(switches.pacer) == {'RIGIDROT_PACER': '0'}
+    assert not switches.pacer(switches.turned_off(switches.pacer))
+    assert switches.turned_off(switches.record_offload) == {'RIGIDROT_RECORD_OFFLOAD': '0'}
