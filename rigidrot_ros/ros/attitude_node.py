@@ -240,11 +240,15 @@ class AttitudeNode(Node):
         """
         if self._timer is not None:
             self.destroy_timer(self._timer)
-        self._timer_paced = self._pace_off is None and \
-            self._timer_ns <= pacing.PACE_PERIOD_NS and not self._sim_time()
+        self._timer_paced = self._may_pace()
         period = max(self._timer_ns, pacing.PACED_CALL_NS) if self._timer_paced else \
             self._timer_ns
         self._timer = self.create_timer(period * 1e-9, self._on_timer)
+
+    def _may_pace(self):
+        """Whether the node paces its calls: a period of at most 1 ms, the system clock."""
+        return self._pace_off is None and self._timer_ns <= pacing.PACE_PERIOD_NS and \
+            not self._sim_time()
 
     def _sim_time(self):
         """Whether the node's clock is ``/clock`` (``use_sim_time``)."""
@@ -275,10 +279,7 @@ class AttitudeNode(Node):
         if call.groups:
             items = [self._pubs[topic] + (raw,) for topic, raw in call.items()]
             pub_ns = self._now_ns()
-            sent = recording.publish_all(self, [(pub, raw) for pub, _, raw in items])
-            if sent < len(items):       # shut down (SIGINT/SIGTERM) while this call ran
-                self._counters.published -= call.ticks - call.ticks_within(sent)
-                self._runs.tick(self, self._setup, sch.t_start_ns, now_ns, items[:sent])
+            if not self._publish_now(call, items, now_ns):
                 return
             sch.published(pub_ns)
             c_publish = time.perf_counter_ns()
@@ -308,6 +309,19 @@ class AttitudeNode(Node):
             ('publish', c_publish - c_collect), ('record', c_record - c_publish),
             ('batch', (c_batch - c_record, batch)), ('diag', c_end - c_batch),
             ('gc', gc_ns)])
+
+    def _publish_now(self, call, items, log_ns):
+        """Publish a call's ``items`` from this thread; False if ROS shut down meanwhile.
+
+        Then (SIGINT/SIGTERM while the call ran) the truth ticks none of whose messages
+        went out are not counted, and what went out is recorded at ``log_ns``.
+        """
+        sent = recording.publish_all(self, [(pub, raw) for pub, _, raw in items])
+        if sent < len(items):
+            self._counters.published -= call.ticks - call.ticks_within(sent)
+            self._runs.tick(self, self._setup, self._schedule.t_start_ns, log_ns, items[:sent])
+            return False
+        return True
 
     def _diag_due(self):
         """Publish the diagnostics once a second (and poll the collector's freezer)."""
@@ -340,7 +354,7 @@ class AttitudeNode(Node):
             # a new grid (a rate change) starts after the old grid's ticks still queued
             target = max(target, self._paced.last_due + self._timer_ns + 1)
         call = sch.collect(target, self._timer.time_until_next_call, self._failed, True)
-        sch.take_pending()              # the latencies come from each slot's samples
+        sch.forget_pending()            # the latencies come from each slot's samples
         if call.started:
             self._freezer.arm()
         c_collect = time.perf_counter_ns()
@@ -352,10 +366,7 @@ class AttitudeNode(Node):
             queued = []
         for due, items, sub, pending in queued:
             pub_ns = self._now_ns()     # no room (the loop lags or stopped): publish now
-            sent = recording.publish_all(self, [(pub, raw) for pub, _, raw in items])
-            if sent < len(items):
-                self._counters.published -= sub.ticks - sub.ticks_within(sent)
-                self._runs.tick(self, self._setup, sch.t_start_ns, pub_ns, items[:sent])
+            if not self._publish_now(sub, items, pub_ns):
                 return
             sch.note_published(pending, pub_ns)
             self._runs.tick(self, self._setup, sch.t_start_ns, pub_ns, items)
@@ -412,8 +423,7 @@ class AttitudeNode(Node):
         At a scheduler period of at most ``PACE_PERIOD_NS`` on the system clock, unless
         ``RIGIDROT_PACER=0`` or the pacer cannot run here (said once in the log).
         """
-        if self._pace_off is not None or self._timer_ns > pacing.PACE_PERIOD_NS or \
-                self._sim_time():
+        if not self._may_pace():
             return False
         if self._paced is None:
             try:

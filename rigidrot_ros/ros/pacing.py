@@ -66,8 +66,8 @@ class PacedCalls:
 
     Each call is ``items`` (``(publisher, message class, bytes)`` in publishing order),
     the :class:`~rigidrot_ros.run.schedule.Call` and the stamps its latencies wait for
-    (:meth:`~rigidrot_ros.run.schedule.Schedule.take_pending`). Raises :class:`PacerError`
-    where the pacer cannot run here.
+    (:meth:`~rigidrot_ros.run.schedule.Schedule.note_published`). Raises
+    :class:`PacerError` where the pacer cannot run here.
     """
 
     def __init__(self, pacer=None):
@@ -77,10 +77,6 @@ class PacedCalls:
         self.last_due = None
         self._slots = {}                     # publisher -> the pacer's index of it
         self._at, self._status, self._base = [], [], 0   # finished entries from _base
-
-    def push(self, due_ns, items, call, pending):
-        """Queue a call's ``items`` due at ``due_ns``; False (nothing queued) without room."""
-        return self.push_many([(due_ns, items, call, pending)])
 
     def push_many(self, calls):
         """Queue several calls ``(due_ns, items, call, pending)``, due times in order.

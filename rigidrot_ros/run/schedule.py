@@ -134,7 +134,7 @@ class Schedule:
         from the last published one to now goes out (a late call publishes what it owes);
         only a backlog beyond a second (a clock jump) is skipped and counted. ``paced``: the
         call runs ahead of the publication (``now_ns`` is the time it is due at); the
-        latencies wait for :meth:`take_pending` and :meth:`note_published`.
+        latencies are noted at publication (:meth:`note_published`).
         """
         call = Call()
         t = self.truth
@@ -160,17 +160,13 @@ class Schedule:
         for s in self.sensors:
             s.published(pub_ns)
 
-    def take_pending(self):
-        """Take the stamps of a paced call's samples: what :meth:`note_published` needs later."""
-        out = [(self.truth.counters, self.truth.pending)]
-        self.truth.pending = []
+    def forget_pending(self):
+        """Drop the sensors' stamps of a paced call (the node notes its slots' own)."""
         for s in self.sensors:
-            out.append((s, s.pending))
             s.pending = []
-        return out
 
     def note_published(self, pending, pub_ns):
-        """Note the publication time (ns) of a paced call's samples (:meth:`take_pending`).
+        """Note the publication time (ns) of paced samples: ``[(counters or Sensor, stamps)]``.
 
         A truth tick published more than a timer period after its stamp counts as late
         (``ticks_late``; unpaced, a call that owed more than one tick counts once).

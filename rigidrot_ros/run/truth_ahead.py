@@ -53,7 +53,6 @@ class TruthAhead:
         self.setup, self.outputs = setup, outputs
         self.counters, self.frames, self.worker = counters, frames, worker
         self.grid0, self.k, self.ahead, self.last_sample = None, -1, None, None
-        self.pending = []               # stamps (ns) of paced ticks not yet published
         self.rate_hz = float(setup.publish_rate)
 
     def retime(self, rate):
@@ -95,8 +94,8 @@ class TruthAhead:
         tick that cannot be evaluated goes to ``failed(scene time s, exception)`` and ends
         the call's ticks. Returns ``(ticks appended, of them evaluated now)``.
         ``paced``: the call runs ahead of its publication (:mod:`rigidrot_ros.runtime.pacer`);
-        the ticks' stamps wait in :attr:`pending` for their publication time
-        (:meth:`Schedule.note_published`) instead of a latency taken now.
+        the ticks' latencies are noted at publication (:meth:`Schedule.note_published`),
+        not taken now, and so are the late ones.
         """
         first, k, missed = due
         st = self.counters
@@ -108,9 +107,7 @@ class TruthAhead:
         for j in range(first, k + 1):
             self.k = j
             stamp_ns = self.stamp_ns(j)
-            if paced:
-                self.pending.append(stamp_ns)
-            else:
+            if not paced:               # paced: noted at publication
                 st.latencies.append(now_ns - stamp_ns)
             c0 = time.perf_counter()
             t = scene_time(stamp_ns, t_start_ns, self.setup.time_scale)

@@ -226,11 +226,16 @@ _mprotect.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
 _mprotect.restype = ctypes.c_int
 
 
+def _check_platform():
+    """Raise :class:`NativeError` unless this is x86-64 Linux (what the loader maps)."""
+    if sys.platform != 'linux' or platform.machine() not in ('x86_64', 'AMD64'):
+        raise NativeError(f'object code is loaded on x86-64 Linux only, not '
+                          f'{sys.platform} {platform.machine()}')
+
+
 def load_object(data):
     """Map ``data`` (an ELF object) and return its functions' addresses by name."""
-    if sys.platform != 'linux' or platform.machine() not in ('x86_64', 'AMD64'):
-        raise NativeError(f'loading object code is done on x86-64 Linux only, not '
-                          f'{sys.platform} {platform.machine()}')
+    _check_platform()
     code = ObjectCode(data)
     _MAPPED.append(code)            # mapped for the life of the process: addresses are out
     return code.functions
@@ -343,36 +348,22 @@ def load_kernels(module_file, name, build):
     :class:`NativeError` with the reason where the kernels cannot be had this way (the
     caller then takes numba's own load).
     """
-    if sys.platform != 'linux' or platform.machine() not in ('x86_64', 'AMD64'):
-        raise NativeError(f'kernels are loaded as object code on x86-64 Linux only, not '
-                          f'{sys.platform} {platform.machine()}')
+    _check_platform()
     sources = []
     for source in (__file__, module_file):
         with open(source, 'rb') as f:
             sources.append(f.read())
-    path = cache_path(module_file, name, cache_key(*sources))
-    with _build_lock(path):         # one process builds; the others then load its file
-        why = None
-        if path is not None and os.path.exists(path):
-            try:
-                return _functions(read_cache(path)), True
-            except NativeError as exc:
-                why = str(exc)          # built anew below
+
+    def build_entries(why):
         try:
-            entries = {k: (f'rr_{k}', _object(cf, k, *how))
-                       for k, (cf, *how) in build().items()}
+            return {k: (f'rr_{k}', _object(cf, k, *how)) for k, (cf, *how) in build().items()}
         except NativeError:
             raise
         except Exception as exc:  # noqa: B902 - numba's and LLVM's errors alike
             raise NativeError(f'building the kernels failed: {type(exc).__name__}: {exc}'
                               + (f' (the cache: {why})' if why else '')) from None
-        out = _functions(entries)
-        if path is not None:
-            try:
-                write_cache(path, entries)
-            except OSError:
-                pass                    # built again next time
-        return out, False
+    return _load_or_build(cache_path(module_file, name, cache_key(*sources)),
+                          build_entries, _functions)
 
 
 def load_ir(module_file, name, ir, symbol):
@@ -383,34 +374,48 @@ def load_ir(module_file, name, ir, symbol):
     the IR, this module, LLVM's version, the processor) and mapped by :func:`load_object`.
     LLVM (llvmlite) is imported only to build. Raises :class:`NativeError` with the reason.
     """
-    if sys.platform != 'linux' or platform.machine() not in ('x86_64', 'AMD64'):
-        raise NativeError(f'object code is loaded on x86-64 Linux only, not '
-                          f'{sys.platform} {platform.machine()}')
+    _check_platform()
     with open(__file__, 'rb') as f:
         own = f.read()
-    path = cache_path(module_file, name, cache_key(own, ir))
-    with _build_lock(path):
-        if path is not None and os.path.exists(path):
-            try:
-                entries = read_cache(path)
-                functions = load_object(entries[name][1])
-                return functions[symbol]
-            except (NativeError, KeyError):
-                pass                    # built anew below
+
+    def build_entries(why):
         try:
-            obj = _compile_ir(ir)
+            return {name: (symbol, _compile_ir(ir))}
         except Exception as exc:  # noqa: B902 - llvmlite's errors, a missing llvmlite
             raise NativeError(f'building {name} failed: {type(exc).__name__}: {exc}') \
                 from None
-        functions = load_object(obj)
+
+    def address(entries):
+        functions = load_object(entries[name][1]) if name in entries else {}
         if symbol not in functions:
             raise NativeError(f'{symbol!r} is not in its object')
+        return functions[symbol]
+    return _load_or_build(cache_path(module_file, name, cache_key(own, ir)),
+                          build_entries, address)[0]
+
+
+def _load_or_build(path, build, load):
+    """Return ``(load(entries), cached)``: the cache file at ``path`` loaded, else built.
+
+    Under the build lock (one process builds, the others then load its file): a cache
+    file that cannot be read or loaded is built anew once, ``build(why)`` returning the
+    entries (``{name: (symbol, object bytes)}``), which are loaded and then written.
+    """
+    with _build_lock(path):
+        why = None
+        if path is not None and os.path.exists(path):
+            try:
+                return load(read_cache(path)), True
+            except NativeError as exc:
+                why = str(exc)          # built anew below
+        entries = build(why)
+        out = load(entries)
         if path is not None:
             try:
-                write_cache(path, {name: (symbol, obj)})
+                write_cache(path, entries)
             except OSError:
-                pass
-        return functions[symbol]
+                pass                    # built again next time
+        return out, False
 
 
 def _compile_ir(ir):

@@ -274,7 +274,6 @@ class Pacer:
         self.capacity = int(capacity)
         self.ctl = np.zeros(16, dtype=np.int64)
         self.ctl[_CAP], self.ctl[_IDLE], self.ctl[_MAXW] = self.capacity, IDLE_NS, MAX_WAIT_NS
-        self.ctl[_SPIN] = 0
         self.ent = np.zeros((self.capacity, 6), dtype=np.int64)
         self.arena = np.zeros(int(arena), dtype=np.uint8)
         self._pubs = np.zeros(64, dtype=np.uint64)

@@ -67,19 +67,16 @@ def test_a_paced_node_publishes_every_sample_once_in_order_never_before_it_is_du
     assert not node._paced.pacer.alive                         # stopped with the node
 
 
-def test_below_1_khz_and_with_the_switch_off_the_node_publishes_itself(monkeypatch):
-    node, ex, lis = node_and_listener(publish_rate=500.0)
+@pytest.mark.parametrize('rate,switch,state', [
+    (500.0, None, 'off (below 1 kHz)'), (2000.0, '0', 'off (RIGIDROT_PACER=0)')])
+def test_below_1_khz_and_with_the_switch_off_the_node_publishes_itself(
+        monkeypatch, rate, switch, state):
+    if switch is not None:
+        monkeypatch.setenv('RIGIDROT_PACER', switch)
+    node, ex, lis = node_and_listener(publish_rate=rate)
     try:
-        spin_until(ex, lambda: node._counters.published >= 50)
-        assert node._paced is None and node._pace_state() == 'off (below 1 kHz)'
-    finally:
-        node.destroy_node()
-        lis.destroy_node()
-    monkeypatch.setenv('RIGIDROT_PACER', '0')
-    node, ex, lis = node_and_listener(publish_rate=2000.0)
-    try:
-        spin_until(ex, lambda: node._counters.published >= 200)
-        assert node._paced is None and node._pace_state() == 'off (RIGIDROT_PACER=0)'
+        spin_until(ex, lambda: node._counters.published >= rate / 10)
+        assert node._paced is None and node._pace_state() == state
     finally:
         node.destroy_node()
         lis.destroy_node()

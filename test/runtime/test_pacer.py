@@ -4,6 +4,7 @@ The loop calls whatever function it is given with rcl's signature; here a ctypes
 that notes each message (the node's glue passes rcl's own, tested in test/ros).
 """
 
+import contextlib
 import ctypes
 import threading
 import time
@@ -36,6 +37,17 @@ class _Sink:
         return self.code
 
 
+@contextlib.contextmanager
+def _pacer(**kwargs):
+    """A :class:`Pacer` publishing into a :class:`_Sink`; stopped at the end."""
+    sink = _Sink()
+    p = Pacer(sink.address, **kwargs)
+    try:
+        yield sink, p
+    finally:
+        assert p.stop()
+
+
 def _wait(pred, timeout=10.0):
     end = time.monotonic() + timeout
     while not pred():
@@ -44,9 +56,7 @@ def _wait(pred, timeout=10.0):
 
 
 def test_messages_go_out_in_order_with_their_bytes_never_before_their_due_time():
-    sink = _Sink()
-    p = Pacer(sink.address)
-    try:
+    with _pacer() as (sink, p):
         a, b = p.slot(0x1000), p.slot(0x2000)
         assert (a, b, p.slot(0x1000)) == (0, 1, 0)
         t0 = time.time_ns() + 5_000_000
@@ -66,14 +76,10 @@ def test_messages_go_out_in_order_with_their_bytes_never_before_their_due_time()
         assert all(full and alloc is None for *_, full, alloc in sink.got)
         assert p.counts() == (100, 0)
         assert p.harvest()[1].size == 0                  # each entry handed back once
-    finally:
-        assert p.stop()
 
 
 def test_the_ring_and_the_arena_wrap_and_refuse_rather_than_overwrite():
-    sink = _Sink()
-    p = Pacer(sink.address, capacity=8, arena=40)
-    try:
+    with _pacer(capacity=8, arena=40) as (sink, p):
         s = p.slot(1)
         far = time.time_ns() + 3_600_000_000_000
         assert p.push(far, [(s, b'x' * 41)]) is None     # larger than the arena
@@ -96,14 +102,10 @@ def test_the_ring_and_the_arena_wrap_and_refuse_rather_than_overwrite():
         assert [d for _, d, *_ in sink.got] == payloads
         first, at, status = p.harvest()
         assert first == 3 and len(status) == 200 and np.all(status == 0)
-    finally:
-        p.stop()
 
 
 def test_cut_drops_only_what_is_not_yet_published_and_the_loop_goes_on():
-    sink = _Sink()
-    p = Pacer(sink.address)
-    try:
+    with _pacer() as (sink, p):
         s = p.slot(7)
         now = time.time_ns()
         p.push(now, [(s, b'now')])
@@ -120,8 +122,6 @@ def test_cut_drops_only_what_is_not_yet_published_and_the_loop_goes_on():
         p.push(time.time_ns(), [(s, b'after')])
         _wait(lambda: len(sink.got) == 2)
         assert [d for _, d, *_ in sink.got] == [b'now', b'after']
-    finally:
-        p.stop()
 
 
 def test_rcl_codes_are_kept_and_a_stopped_pacer_takes_nothing():
@@ -140,9 +140,7 @@ def test_rcl_codes_are_kept_and_a_stopped_pacer_takes_nothing():
 
 
 def test_push_many_queues_several_due_times_at_once_across_the_rings_end():
-    sink = _Sink()
-    p = Pacer(sink.address, capacity=8, arena=64)
-    try:
+    with _pacer(capacity=8, arena=64) as (sink, p):
         s = p.slot(5)
         now = time.time_ns()
         assert p.push_many([now] * 5, [s] * 5, [b'a%d' % k for k in range(5)]) == 0
@@ -156,14 +154,10 @@ def test_push_many_queues_several_due_times_at_once_across_the_rings_end():
         first, at, status = p.harvest()
         assert first == 0 and np.all(status == 0) and np.all(at[5:] >= np.array(dues))
         assert p.push_many([], [], []) is None               # nothing to queue
-    finally:
-        p.stop()
 
 
 def test_with_a_spin_before_the_due_time_nothing_goes_out_early_either():
-    sink = _Sink()
-    p = Pacer(sink.address)
-    try:
+    with _pacer() as (sink, p):
         p.spin_ns = 1_500_000               # read the clock for the last 1.5 ms
         assert p.spin_ns == 1_500_000
         s = p.slot(9)
@@ -175,5 +169,3 @@ def test_with_a_spin_before_the_due_time_nothing_goes_out_early_either():
         _, at, status = p.harvest()
         assert np.all(status == 0) and np.all(at >= np.array(dues))
         assert all(t >= due for (_, _, t, _, _), due in zip(sink.got, dues))
-    finally:
-        p.stop()
