@@ -349,7 +349,6 @@ class _GyroLoop:
         self._ros_ok, self._rcl_error = rclpy.ok, _rclpy.RCLError
         self.f, self.t, self.omega, self.cov = None, None, None, np.zeros(9)
         self.frame, self.body, self.pending = 'inertial', 'body', []
-        self.gyro_ns, self.waited = None, 0     # before the start: the latest gyro stamp
 
     def publish(self, header_stamp, t_ns):
         """Publish the estimate at ``t_ns`` from the state and the sample covering it."""
@@ -366,10 +365,9 @@ class _GyroLoop:
 
     def on_imu(self, msg):
         """Carry the state to the sample's stamp, publishing every output stamp on the way."""
+        if self.f is None:
+            return                                  # not initialised yet (no fix)
         t_k = _stamp_ns(msg)
-        if self.f is None:                          # not initialised yet (no fix)
-            self.gyro_ns = t_k if self.gyro_ns is None else max(self.gyro_ns, t_k)
-            return
         if t_k <= self.t:
             return                                  # a repeated or out-of-order sample
         v = msg.angular_velocity
@@ -386,21 +384,8 @@ class _GyroLoop:
         self.t = t_k
 
     def on_attitude(self, msg):
-        """Initialise from an attitude; queue (or, when late, answer) its stamp.
-
-        The start is the first attitude stamped at or after the latest gyro sample: the gyro
-        stream must be live from there on. Started from an earlier fix, the samples between
-        (published before this process matched the gyro topic, say) are missing, and the
-        first one that comes would be held over all of them.
-        """
+        """Initialise from the first attitude; queue (or, when late, answer) its stamp."""
         t = _stamp_ns(msg)
-        if self.f is None and (self.gyro_ns is None or t < self.gyro_ns):
-            self.waited += 1
-            if self.gyro_ns is None and self.waited > 1000:
-                self.node.get_logger().warning(
-                    'no gyro sample on imu yet: start attitude_node with -p imu.enable:=true',
-                    throttle_duration_sec=5.0)
-            return
         if self.f is None:
             q, opts = msg.quaternion, self.opts
             self.f = GyroIntegrator((q.x, q.y, q.z, q.w), opts.initial_sigma,
