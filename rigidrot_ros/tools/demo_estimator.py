@@ -12,8 +12,9 @@ zero, "unknown").
 The gyro integrator subscribes to the node's ``imu`` (sensor_msgs/Imu) and integrates each
 gyro sample with ``ahrs.filters.AngularRate`` (closed-form quaternion exponential; ahrs
 orders its quaternions (w, x, y, z), converted here to ROS's (x, y, z, w)). Its state lives
-on the gyro's time grid; it starts from the first ``attitude`` message it hears (a perfect
-initial fix, the only use of the truth besides its stamps), and propagates a 6-state error
+on the gyro's time grid; it starts from the first ``attitude`` message stamped at or after
+the first gyro sample it hears (a perfect initial fix, the only use of the truth besides its
+stamps; from there on the gyro stream is whole), and propagates a 6-state error
 covariance (attitude error e in B, with q_est = q_true * exp(e/2), and gyro bias):
 
     Phi = [[exp(-[omega dt]x), -dt I], [0, I]],
@@ -221,8 +222,9 @@ def _turned(q_xyzw, degrees):
 
 #: What ``--help`` says about the node's topics.
 TOPICS = '''topics (relative names: -r __ns:=/sat1 moves them all):
-  subscribes  attitude            geometry_msgs/msg/QuaternionStamped: the truth, its first
-                                  message only (the start), and its stamps (gyro filter)
+  subscribes  attitude            geometry_msgs/msg/QuaternionStamped: the truth, at the
+                                  start only (the gyro filter: the first stamped at or after
+                                  the first gyro sample), and its stamps (gyro filter)
               imu                 sensor_msgs/msg/Imu: the gyro (and the accelerometer for
                                   madgwick, mahony, ekf)
               mag                 sensor_msgs/msg/MagneticField (--mag only)
@@ -337,7 +339,7 @@ def _stamp_ns(msg):
 class _GyroLoop:
     """The gyro integrator on the gyro's time grid, answering each attitude stamp.
 
-    State: the filter (None until the first attitude fixes it), the time (ns) of its
+    State: the filter (None until the start fixes it), the time (ns) of its
     state, the last gyro sample and its covariance, and the output stamps waiting for the
     gyro sample that covers them.
     """
@@ -349,6 +351,7 @@ class _GyroLoop:
         self._ros_ok, self._rcl_error = rclpy.ok, _rclpy.RCLError
         self.f, self.t, self.omega, self.cov = None, None, None, np.zeros(9)
         self.frame, self.body, self.pending = 'inertial', 'body', []
+        self.early = {'imu': [], 'attitude': []}    # what came before the start
 
     def publish(self, header_stamp, t_ns):
         """Publish the estimate at ``t_ns`` from the state and the sample covering it."""
@@ -366,7 +369,8 @@ class _GyroLoop:
     def on_imu(self, msg):
         """Carry the state to the sample's stamp, publishing every output stamp on the way."""
         if self.f is None:
-            return                                  # not initialised yet (no fix)
+            self._hold('imu', msg)                  # not started yet
+            return
         t_k = _stamp_ns(msg)
         if t_k <= self.t:
             return                                  # a repeated or out-of-order sample
@@ -384,24 +388,58 @@ class _GyroLoop:
         self.t = t_k
 
     def on_attitude(self, msg):
-        """Initialise from the first attitude; queue (or, when late, answer) its stamp."""
-        t = _stamp_ns(msg)
+        """Queue (or, when late, answer) the attitude's stamp; before the start, hold it."""
         if self.f is None:
-            q, opts = msg.quaternion, self.opts
-            self.f = GyroIntegrator((q.x, q.y, q.z, q.w), opts.initial_sigma,
-                                    opts.bias_sigma, opts.bias_random_walk)
-            self.t = t
-            self.frame = msg.header.frame_id or 'inertial'
-            self.node.get_logger().info(f'initialised from the attitude at stamp {t} ns')
-        if t < self.t and self.omega is not None:
+            self._hold('attitude', msg)
+            return
+        t = _stamp_ns(msg)
+        if t <= self.t and self.omega is not None:
             self.publish(msg.header.stamp, t)       # late: back from the last sample
         elif t >= self.t:
             self.pending.append((t, msg.header.stamp))
             if len(self.pending) > 1000:
                 del self.pending[0]
                 self.node.get_logger().warning(
+                    'no gyro sample on imu for 1000 attitudes: the oldest go unanswered',
+                    throttle_duration_sec=5.0)
+
+    def _hold(self, kind, msg):
+        """Keep a message heard before the start; start once both streams allow it.
+
+        The start is the first attitude stamped at or after the first gyro sample heard:
+        from there on the gyro stream is whole. Started from an earlier attitude (one
+        published before this process matched the gyro topic, say), the samples between
+        would be missing and the first one heard held over all of them. Either stream may
+        come first, in any interleaving (a replay can hand over every attitude before the
+        first gyro sample): what is held is replayed in stamp order once started.
+        """
+        held = self.early[kind]
+        held.append(msg)
+        if len(held) > 1000:
+            del held[0]
+            if kind == 'attitude' and not self.early['imu']:
+                self.node.get_logger().warning(
                     'no gyro sample on imu yet: start attitude_node with -p imu.enable:=true',
                     throttle_duration_sec=5.0)
+        if not self.early['imu']:
+            return
+        first_gyro = min(_stamp_ns(m) for m in self.early['imu'])
+        after = sorted((m for m in self.early['attitude'] if _stamp_ns(m) >= first_gyro),
+                       key=_stamp_ns)
+        if not after:
+            return
+        q, opts, t = after[0].quaternion, self.opts, _stamp_ns(after[0])
+        self.f = GyroIntegrator((q.x, q.y, q.z, q.w), opts.initial_sigma,
+                                opts.bias_sigma, opts.bias_random_walk)
+        self.t = t
+        self.frame = after[0].header.frame_id or 'inertial'
+        self.node.get_logger().info(f'initialised from the attitude at stamp {t} ns')
+        gyro = sorted(self.early['imu'], key=_stamp_ns)
+        self.early = {'imu': [], 'attitude': []}
+        for m in after:
+            self.on_attitude(m)
+        for m in gyro:
+            self.on_imu(m)
 
 
 def _estimate_messages(stamp, frame, body, q_xyzw, rot_cov, omega, rate_cov=None):
