@@ -222,8 +222,9 @@ def machine_figures(rec, bag, rate, warmup=WARMUP_S):
 
     ``rec``: the probe's record (:mod:`rigidrot_ros.bench.stalls`), or None.
 
-    ``machine_policy``: the probe's scheduling; ``machine_stalls``: its wake-ups more than
-    half a period late in the span, ``machine_stall_max_us`` the longest;
+    ``machine_policy``: the probe's scheduling (and, for a probe per processor, its
+    loop and the processors); ``machine_stalls``: its wake-ups more than half a period
+    late in the span, on any processor, ``machine_stall_max_us`` the longest;
     ``gyro_late_machine``: late gyro samples whose wait (stamp to log time) a stall of
     at least half a period overlaps. Removes ``bag['_late_waits']``. All None without a
     probe record.
@@ -237,8 +238,11 @@ def machine_figures(rec, bag, rate, warmup=WARMUP_S):
     half = int(5e8 / rate)
     lo = bag['t0_ns'] + int(round(warmup * 1e9))
     hi = lo + int(round(bag['measured_s'] * 1e9))
-    span = [(d, late) for d, late in rec['stalls'] if late >= half and lo <= d < hi]
-    out.update(machine_policy=rec['policy'], machine_stalls=len(span),
+    span = [(s[0], s[1]) for s in rec['stalls'] if s[1] >= half and lo <= s[0] < hi]
+    policy = rec['policy']
+    if rec.get('cpus'):
+        policy = f'{policy}, {rec.get("probe", "python")} on cpus {rec["cpus"]}'
+    out.update(machine_policy=policy, machine_stalls=len(span),
                machine_stall_max_us=max((late for _, late in span), default=0) / 1e3)
     if waits is not None:
         out['gyro_late_machine'] = int(np.count_nonzero(
@@ -549,9 +553,9 @@ def render_md(results):
         f'The node at IMU rates: truth and gyro at the same rate, recording, '
         f'{common.fmt(res["warmup_s"])} s warm-up then {common.fmt(res["seconds"])} s '
         'measured (p99s: median / worst 1 s window past the warm-up; machine stalls: '
-        'wake-ups of a real-time probe beside the node more than half a period late, '
-        'rigidrot_ros.bench.stalls; with the pacer on, the wake-up latencies are from '
-        'stamp to publication)',
+        'wake-ups of a real-time probe on each processor beside the node more than half '
+        'a period late, rigidrot_ros.bench.stalls; with the pacer on, the wake-up '
+        'latencies are from stamp to publication)',
         common.part_footer(results, NAME),
         common.md_table(['rate [Hz]', 'ticks delivered', 'missed (diagnostics)',
                          'late gyro (absent)', 'machine stalls (longest µs); late gyro '

@@ -136,19 +136,58 @@ def test_8_khz_is_reported_against_the_moonshot_of_99_percent_on_time():
     assert 8000 in node_khz.RATES
 
 
-def test_the_stall_probe_writes_its_record_when_stopped(tmp_path):
-    """A separate process, stopped as the benchmark stops it (SIGTERM)."""
+def test_the_stall_probe_sees_a_stall_on_every_processor_and_writes_its_record(tmp_path):
+    """A separate process, stopped as the benchmark stops it (SIGTERM).
+
+    The stall is made for it: the whole process stopped (SIGSTOP) for 80 ms, as a machine
+    stops a processor, then let go on (SIGCONT). Each processor's thread wakes 50 ms or more
+    late once, at a due time inside the stop, and otherwise keeps its grid.
+    """
     import json
+    import os
     import signal
     import subprocess
     import sys
     import time
+    from rigidrot_ros.bench import stalls
     out = tmp_path / 'stalls.json'
     proc = subprocess.Popen([sys.executable, '-m', 'rigidrot_ros.bench.stalls', str(out)])
-    time.sleep(1.0)
+    time.sleep(2.0)                                 # started, its loop built or loaded
+    t_stop = time.time_ns()
+    proc.send_signal(signal.SIGSTOP)
+    time.sleep(0.08)
+    proc.send_signal(signal.SIGCONT)
+    t_cont = time.time_ns()
+    time.sleep(0.5)
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(30) == 0
     rec = json.loads(out.read_text())
+    assert rec['cpus'] == sorted(os.sched_getaffinity(0))
     assert rec['policy'] in ('SCHED_FIFO 20', 'SCHED_OTHER')
-    assert rec['wakes'] >= 100                      # a 1 ms grid, for most of a second
-    assert all(late > 300_000 for _, late in rec['stalls'])
+    assert rec['probe'] in ('native', 'python')
+    per = rec['period_s'] * 1e9
+    assert rec['wakes'] >= len(rec['cpus']) * 1.5e9 / per / 2    # on its grid, mostly
+    assert all(late > rec['threshold_s'] * 1e9 for _, late, _ in rec['stalls'])
+    assert [s[0] for s in rec['stalls']] == sorted(s[0] for s in rec['stalls'])
+    for cpu in rec['cpus']:
+        big = [(d, late) for d, late, c in rec['stalls'] if c == cpu and late >= 50e6]
+        assert len(big) == 1, (cpu, big)
+        due, late = big[0]
+        assert t_stop - per <= due <= t_cont and t_cont - 5e6 <= due + late
+    wait = stalls.overlapping(rec['stalls'], [t_stop + 10_000_000], [t_stop + 20_000_000],
+                              min_ns=50_000_000)
+    assert wait.tolist() == [True]
+
+
+def test_the_python_probe_keeps_the_same_record():
+    """Where the native loop cannot be had: one Python thread per processor, same record."""
+    import os
+    from rigidrot_ros.bench import stalls
+    rec = stalls.probe(0.3, native=False, cpus=[min(os.sched_getaffinity(0))],
+                       threshold_s=0.0)
+    assert rec['probe'] == 'python' and rec['cpus'] == [min(os.sched_getaffinity(0))]
+    assert 0.3e9 / 0.25e6 / 3 <= rec['wakes'] <= 0.3e9 / 0.25e6 + 2
+    # threshold 0: every wake-up is noted, each after its due time, on the grid
+    assert len(rec['stalls']) == rec['wakes']
+    assert all(late > 0 and d % 250_000 == 0 and c == rec['cpus'][0]
+               for d, late, c in rec['stalls'])
