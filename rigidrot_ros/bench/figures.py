@@ -239,12 +239,18 @@ def _khz_table(res):
         rows.append([f'{number(r["rate_hz"] / 1e3)} kHz',
                      f'{number(b["delivered_pct"], 4)} % ({count(b["ticks_missed"])} missed)',
                      f'{count(b["gyro_late"])} of {count(b["gyro_asked"])}',
+                     _na_count(b.get('gyro_late_machine')),
                      f'{number(d["tick_p99_us"]["median"])} µs',
                      f'{number(d["latency_p99_us"]["median"])} µs'])
     # blank lines around the table: the markers' comment lines stay out of it
     return '\n\n' + common.md_table(['rate', 'ticks delivered',
-                                     'late gyro samples (> 1 period)', 'whole-tick p99',
+                                     'late gyro samples (> 1 period)',
+                                     'of them in machine stalls', 'whole-tick p99',
                                      'wake-up p99'], rows) + '\n'
+
+
+def _na_count(n):
+    return 'n/a' if n is None else count(n)
 
 
 @figure('node_khz.seconds', RESULTS)
