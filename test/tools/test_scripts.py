@@ -33,8 +33,11 @@ def _guarded(script):
 def test_ctrl_c_while_starting_ends_it_without_a_traceback(tmp_path, script, delay, status):
     """A Ctrl-C in the imports or in the node's construction: the status a Ctrl-C gives
     the program, never a traceback (once it runs: the node's own tests)."""
-    args = ['--duration', '600', '-o', str(tmp_path / 'bag')] if script != 'attitude_node' \
-        else []
+    # a scene long enough that the generator cannot finish before the Ctrl-C (600 s took
+    # it 0.34 s, and a loaded test process slept past that: the run ended with status 0
+    # before the signal was sent)
+    args = ['--duration', '100000', '-o', str(tmp_path / 'bag')] \
+        if script != 'attitude_node' else []
     proc = start(_guarded(script) + args, ros_env(next_domain_id()))
     time.sleep(delay)
     code, _, err = stop(proc, signal.SIGINT, timeout=60)
