@@ -37,6 +37,8 @@ import time
 
 import numpy as np
 
+from rigidrot_ros.runtime import native
+
 __all__ = ['probe', 'overlapping', 'PRIORITY', 'PERIOD_S', 'THRESHOLD_S', 'LOOP_IR', 'main']
 
 #: The probe's SCHED_FIFO priority (the node's is 10, its pacer's 11).
@@ -51,21 +53,7 @@ CAPACITY = 1 << 16
 # control words (int64): grid, threshold, end (0: none), stop, capacity, stalls, wakes
 _PER, _THR, _END, _STOP, _CAP, _COUNT, _WAKES = range(7)
 
-LOOP_IR = r'''
-declare i32 @clock_gettime(i32, ptr)
-declare i32 @clock_nanosleep(i32, i32, ptr, ptr)
-
-define internal i64 @now(ptr %ts) {
-  %r = call i32 @clock_gettime(i32 0, ptr %ts)
-  %ps = getelementptr i64, ptr %ts, i64 0
-  %pn = getelementptr i64, ptr %ts, i64 1
-  %s = load i64, ptr %ps
-  %n = load i64, ptr %pn
-  %sn = mul i64 %s, 1000000000
-  %t = add i64 %sn, %n
-  ret i64 %t
-}
-
+LOOP_IR = native.CLOCK_IR + r'''
 define i64 @rr_stalls(ptr %ctl, ptr %out) {
 entry:
   %ts = alloca [2 x i64], align 8
@@ -97,13 +85,7 @@ loop:
   br i1 %quit, label %done, label %sleep
 
 sleep:
-  %ps = getelementptr i64, ptr %ts, i64 0
-  %pn = getelementptr i64, ptr %ts, i64 1
-  %s = sdiv i64 %due, 1000000000
-  %n = srem i64 %due, 1000000000
-  store i64 %s, ptr %ps
-  store i64 %n, ptr %pn
-  %r = call i32 @clock_nanosleep(i32 0, i32 1, ptr %ts, ptr null)
+  call void @sleep_until(ptr %ts, i64 %due)
   %t = call i64 @now(ptr %ts)
   %late = sub i64 %t, %due
   %w = load i64, ptr %pwakes
@@ -151,7 +133,6 @@ def _policy(priority):
 
 def _native_loop():
     """Return the native loop as a ctypes function, or None where it cannot be had."""
-    from rigidrot_ros.runtime import native
     try:
         addr = native.load_ir(__file__, 'stalls', LOOP_IR, 'rr_stalls')
     except native.NativeError:

@@ -366,6 +366,39 @@ def load_kernels(module_file, name, build):
                           build_entries, _functions)
 
 
+#: LLVM IR of two helpers for loops written in IR (:func:`load_ir`) that keep time on
+#: ``CLOCK_REALTIME`` (the ROS system clock): ``i64 @now(ptr %ts)``, the clock in ns,
+#: and ``void @sleep_until(ptr %ts, i64 %t)``, an absolute ``clock_nanosleep``; ``%ts``
+#: is the caller's ``[2 x i64]`` (a ``timespec``).
+CLOCK_IR = r'''
+declare i32 @clock_gettime(i32, ptr)
+declare i32 @clock_nanosleep(i32, i32, ptr, ptr)
+
+define internal i64 @now(ptr %ts) {
+  %r = call i32 @clock_gettime(i32 0, ptr %ts)
+  %ps = getelementptr i64, ptr %ts, i64 0
+  %pn = getelementptr i64, ptr %ts, i64 1
+  %s = load i64, ptr %ps
+  %n = load i64, ptr %pn
+  %sn = mul i64 %s, 1000000000
+  %t = add i64 %sn, %n
+  ret i64 %t
+}
+
+define internal void @sleep_until(ptr %ts, i64 %t) {
+  %ps = getelementptr i64, ptr %ts, i64 0
+  %pn = getelementptr i64, ptr %ts, i64 1
+  %s = sdiv i64 %t, 1000000000
+  %n = srem i64 %t, 1000000000
+  store i64 %s, ptr %ps
+  store i64 %n, ptr %pn
+  %r = call i32 @clock_nanosleep(i32 0, i32 1, ptr %ts, ptr null)
+  ret void
+}
+
+'''
+
+
 def load_ir(module_file, name, ir, symbol):
     """Return the address of ``symbol``, a C function written in LLVM IR (``ir``), built once.
 

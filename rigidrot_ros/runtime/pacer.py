@@ -61,32 +61,7 @@ _WRITE, _READ, _STOP, _CUT, _CAP, _IDLE, _MAXW, _SENT, _FAILED, _SPIN = range(10
 # entry fields (int64)
 _DUE, _PUB, _OFF, _LEN, _AT, _STATUS = range(6)
 
-LOOP_IR = r'''
-declare i32 @clock_gettime(i32, ptr)
-declare i32 @clock_nanosleep(i32, i32, ptr, ptr)
-
-define internal i64 @now(ptr %ts) {
-  %r = call i32 @clock_gettime(i32 0, ptr %ts)
-  %ps = getelementptr i64, ptr %ts, i64 0
-  %pn = getelementptr i64, ptr %ts, i64 1
-  %s = load i64, ptr %ps
-  %n = load i64, ptr %pn
-  %sn = mul i64 %s, 1000000000
-  %t = add i64 %sn, %n
-  ret i64 %t
-}
-
-define internal void @sleep_until(ptr %ts, i64 %t) {
-  %ps = getelementptr i64, ptr %ts, i64 0
-  %pn = getelementptr i64, ptr %ts, i64 1
-  %s = sdiv i64 %t, 1000000000
-  %n = srem i64 %t, 1000000000
-  store i64 %s, ptr %ps
-  store i64 %n, ptr %pn
-  %r = call i32 @clock_nanosleep(i32 0, i32 1, ptr %ts, ptr null)
-  ret void
-}
-
+LOOP_IR = native.CLOCK_IR + r'''
 define i64 @rr_pace(ptr %ctl, ptr %ent, ptr %arena, ptr %pubs, ptr %publish) {
 entry:
   %ts = alloca [2 x i64], align 8
