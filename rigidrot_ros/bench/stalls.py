@@ -15,7 +15,7 @@ a few microseconds per wake-up and sees a stall on the processor where it happen
 probe was one Python thread, on whichever processor was free: it missed the stalls of the
 other one. Traced on the 2-core VM at 1 kHz (quiet, 62 s; the pacer's own publication
 times beside two pinned probes): all three late events were the pacer's processor stopped
-for 1.5 to 3.3 ms, one of them in the middle of an rcl publish, and the Python probe had
+for 0.7 to 3.3 ms, one of them in the middle of an rcl publish, and the Python probe had
 seen none of them. Where the loop cannot be built, one Python thread per processor does the
 same, more coarsely (``probe: python``).
 
