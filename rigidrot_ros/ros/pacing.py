@@ -83,6 +83,7 @@ class PacedCalls:
 
         All or nothing: False (nothing queued) without room for them all.
         """
+        self._absorb()                       # the rows the pacer has finished are free
         dues, pubs, datas = [], [], []
         for due_ns, items, _, _ in calls:
             for pub, _, raw in items:
@@ -107,6 +108,13 @@ class PacedCalls:
     def __len__(self):
         return len(self._calls)
 
+    def _absorb(self):
+        """Take the publication times and codes of the entries the pacer has finished."""
+        _, at, status = self.pacer.harvest()
+        if len(at):
+            self._at += at.tolist()
+            self._status += status.tolist()
+
     def harvest(self):
         """Return the calls finished since the last harvest, oldest first.
 
@@ -115,10 +123,7 @@ class PacedCalls:
         their publication, ``statuses`` rcl's codes of the items not sent (or
         :data:`STATUS_PENDING`: cut before publication).
         """
-        first, at, status = self.pacer.harvest()
-        if len(at):
-            self._at += at.tolist()
-            self._status += status.tolist()
+        self._absorb()
         out = []
         while self._calls:
             start, items, call, pending = self._calls[0]

@@ -317,7 +317,8 @@ class Pacer:
 
         Returns the index of the first entry (:meth:`harvest` reports them by index), or
         None when the ring or the arena has no room (the loop has stopped, or lags by
-        thousands of messages): nothing is queued then.
+        thousands of messages, or the published entries wait for :meth:`harvest`): nothing
+        is queued then.
         """
         return self.push_many([due_ns] * len(entries), [p for p, _ in entries],
                               [d for _, d in entries])
@@ -330,7 +331,9 @@ class Pacer:
         """
         n = len(datas)
         read = int(self.ctl[_READ])
-        if n == 0 or not self.alive or self._written + n - read > self.capacity:
+        # an entry's row is free once harvested (its time and status handed back), not
+        # once published: a push past that would overwrite what harvest has yet to read
+        if n == 0 or not self.alive or self._written + n - self._harvested > self.capacity:
             return None
         sizes = np.fromiter(map(len, datas), dtype=np.int64, count=n)
         total = int(sizes.sum())

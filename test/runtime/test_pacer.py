@@ -92,16 +92,42 @@ def test_the_ring_and_the_arena_wrap_and_refuse_rather_than_overwrite():
         assert p.queued() == 0
         first, at, status = p.harvest()
         assert (first, list(status)) == (0, [STATUS_PENDING] * 3) and not sink.got
-        # now many more messages than the ring holds, of sizes that wrap the arena
+        # now many more messages than the ring holds, of sizes that wrap the arena; a row
+        # is free again only once harvested, so the pushes wait for the harvests
         payloads = [bytes([k]) * (k % 13 + 1) for k in range(200)]
         now = time.time_ns()
+        firsts, ats, statuses = [], [], []
         for k, data in enumerate(payloads):
             while p.push(now, [(s, data)]) is None:
+                first, at, status = p.harvest()
+                firsts.append(first)
+                ats += at.tolist()
+                statuses += status.tolist()
                 time.sleep(0.001)
         _wait(lambda: len(sink.got) == 200)
-        assert [d for _, d, *_ in sink.got] == payloads
         first, at, status = p.harvest()
-        assert first == 3 and len(status) == 200 and np.all(status == 0)
+        firsts.append(first)
+        ats += at.tolist()
+        statuses += status.tolist()
+        assert [d for _, d, *_ in sink.got] == payloads
+        assert firsts[0] == 3 and statuses == [0] * 200
+        # each entry's own publication time, as the sink saw it (never before it)
+        assert all(now <= a <= t for a, (*_, t, _, _) in zip(ats, sink.got))
+
+
+def test_a_push_never_overwrites_a_published_entry_not_yet_harvested():
+    with _pacer(capacity=8) as (sink, p):
+        s = p.slot(1)
+        now = time.time_ns()
+        assert p.push(now, [(s, bytes([k])) for k in range(8)]) == 0
+        _wait(lambda: len(sink.got) == 8 and p.queued() == 0)
+        assert p.push(now, [(s, b'late')]) is None      # the 8 rows wait for harvest
+        first, at, status = p.harvest()
+        assert first == 0 and list(status) == [0] * 8 and np.all(at >= now)
+        assert p.push(now, [(s, b'late')]) == 8
+        _wait(lambda: len(sink.got) == 9)
+        first, at, status = p.harvest()
+        assert first == 8 and list(status) == [0]
 
 
 def test_cut_drops_only_what_is_not_yet_published_and_the_loop_goes_on():
@@ -145,6 +171,8 @@ def test_push_many_queues_several_due_times_at_once_across_the_rings_end():
         now = time.time_ns()
         assert p.push_many([now] * 5, [s] * 5, [b'a%d' % k for k in range(5)]) == 0
         _wait(lambda: p.queued() == 0)
+        first, at, status = p.harvest()                     # their rows are free again
+        assert first == 0 and list(status) == [0] * 5 and np.all(at >= now)
         dues = [now + k * 2_000_000 for k in range(6)]
         datas = [bytes([65 + k]) * (k + 1) for k in range(6)]
         assert p.push_many(dues, [s] * 6, datas) == 5       # entries 5..10: slots 5..7, 0..2
@@ -152,7 +180,7 @@ def test_push_many_queues_several_due_times_at_once_across_the_rings_end():
         _wait(lambda: len(sink.got) == 11)
         assert [d for _, d, *_ in sink.got[5:]] == datas
         first, at, status = p.harvest()
-        assert first == 0 and np.all(status == 0) and np.all(at[5:] >= np.array(dues))
+        assert first == 5 and list(status) == [0] * 6 and np.all(at >= np.array(dues))
         assert p.push_many([], [], []) is None               # nothing to queue
 
 
@@ -169,3 +197,32 @@ def test_with_a_spin_before_the_due_time_nothing_goes_out_early_either():
         _, at, status = p.harvest()
         assert np.all(status == 0) and np.all(at >= np.array(dues))
         assert all(t >= due for (_, _, t, _, _), due in zip(sink.got, dues))
+
+
+def test_a_late_call_s_big_push_keeps_every_earlier_call_s_publication_record():
+    """The node's case (ros.pacing.PacedCalls): calls queued and published, then one call,
+    late by most of the ring, queues nearly a ring's worth before it harvests. Every call
+    must come back whole from the harvest, each item published (status 0)."""
+    from rigidrot_ros.ros.pacing import PacedCalls
+
+    class Pub:                      # what PacedCalls reads of an rclpy publisher
+        def __init__(self, pointer):
+            self.handle = type('Handle', (), {'pointer': pointer})()
+    with _pacer(capacity=16) as (sink, p):
+        paced = PacedCalls(p)
+        pubs = [Pub(0x100 + k) for k in range(2)]
+        now = time.time_ns()
+
+        def calls(first, n, due):
+            return [(due, [(pub, None, b'%d' % (first + k)) for pub in pubs],
+                     ('call', first + k), None) for k in range(n)]
+        assert paced.push_many(calls(0, 3, now))               # 6 entries, published
+        _wait(lambda: len(sink.got) == 6)
+        # 14 more, due in an hour: 20 entries > 16 rows, so rows of the first calls are
+        # reused, which is right only once their times and codes are taken
+        assert paced.push_many(calls(3, 7, now + 3_600_000_000_000))
+        out = paced.harvest()
+        assert [c for _, c, _, _, _, _ in out] == [('call', k) for k in range(3)]
+        assert all(sent == 2 and not statuses for _, _, _, sent, _, statuses in out)
+        assert all(at >= now for *_, at, _ in out)
+        assert len(paced) == 7 and p.cut()
